@@ -1,0 +1,143 @@
+"""The interface every model implements, and the types theorem predicates return.
+
+A *system* is a closed loop (plant + controller + exogenous signals) written as a
+first-order ODE ``dy/dt = rhs(t, y, args)`` on a flat float64 state vector. The engine
+(:mod:`stabjax.engine`) only ever calls the methods below, vmapped over a batch of
+parameter dicts, so adding a model means writing one subclass and one registry entry.
+
+Conventions
+-----------
+* ``p`` is a dict ``name -> array`` holding *one* trajectory's parameters (inside ``jit``/``vmap``)
+  or a batch of them (host-side NumPy, in :meth:`System.check` and the theory functions).
+* :meth:`System.observe` returns a short vector of observables at checkpoint times. Entry 0
+  is the **error metric** ``e >= 0`` (zero at the target motion), entry 1 a **size** used
+  to detect blow-up (e.g. ``|omega|``). Verdicts are computed from these alone, so nothing
+  is stored per solver step.
+* Theorem predicates live in a separate module per paper and return :class:`Predicate`
+  records with a signed margin (``> 0``: the theorem's hypothesis holds), so boundaries are
+  the zero contours of margins.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from .params import Param, ParamSet
+
+
+class Predicate(NamedTuple):
+    """A theorem/corollary hypothesis evaluated over a batch of parameters."""
+
+    ok: np.ndarray  # bool: hypothesis holds -> the theorem guarantees its conclusion
+    margin: np.ndarray  # float: signed distance to the bound (> 0 inside)
+    doc: str  # the inequality, with the paper's equation number
+
+
+@dataclass
+class Theory:
+    """Result of evaluating a system's theorems: predicates plus derived quantities."""
+
+    predicates: dict[str, Predicate]
+    derived: dict[str, np.ndarray] = field(default_factory=dict)
+    derived_doc: dict[str, str] = field(default_factory=dict)
+    main: str = ""  # the predicate whose truth is "theory guarantees stability" (confusion table, boundary)
+
+
+@dataclass(frozen=True)
+class VerdictConfig:
+    """Thresholds of the excursion classifier (:mod:`stabjax.verdict`). All angles in radians.
+
+    settle_tol      error below which the trajectory counts as settled near the target
+    excursion_tol   after settling, a run of checkpoints with error above this is an excursion
+                    (default acos(0.9): the paper-A analysis counts s.r < 0.9)
+    flip_tol        an excursion whose peak passes this has flipped (pi/2: closer to -r than to r)
+    converged_tol   error at t1 (and throughout the late window) must be below this to converge
+    late_fraction   the late window is t >= t0 + (1 - late_fraction) (t1 - t0)
+    diverge_size    observable 1 (size) above this -> diverged
+    growth_tol      late log-log slope of the error above this (error growing) -> diverged
+    """
+
+    settle_tol: float = 0.1
+    excursion_tol: float = float(np.arccos(0.9))
+    flip_tol: float = float(np.pi / 2)
+    converged_tol: float = 1e-3
+    late_fraction: float = 0.5
+    diverge_size: float = 1e6
+    growth_tol: float = 0.5
+
+    def replace(self, **kw) -> "VerdictConfig":
+        from dataclasses import replace
+
+        return replace(self, **kw)
+
+
+class System:
+    """Base class. Subclasses set the class attributes and implement the abstract methods."""
+
+    name: str = ""
+    title: str = ""
+    paper: str = ""
+    params: ParamSet = ParamSet(())
+    state: tuple[tuple[str, tuple[int, ...]], ...] = ()  # layout of the flat state vector
+    observables: tuple[str, ...] = ("error", "size")
+    observable_doc: tuple[str, ...] = ("error metric", "size")
+    verdict: VerdictConfig = VerdictConfig()
+    default_t1: float = 100.0
+
+    # -- host side ------------------------------------------------------------------------
+    def check(self, p: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Validate a (possibly batched) parameter dict; return it, possibly normalised.
+
+        Raise :class:`stabjax.errors.ValidationError` naming the field on bad input.
+        """
+        return p
+
+    def theory(self, p: Mapping[str, np.ndarray]) -> Theory:
+        """Evaluate every theorem/corollary on (batched) parameters."""
+        return Theory(predicates={})
+
+    # -- traced (one trajectory, inside jit/vmap) -------------------------------------------
+    def prepare(self, p: Mapping[str, jnp.ndarray]) -> Any:
+        """Derived constants computed once per trajectory (inverses, gains); passed as ``args``."""
+        return dict(p)
+
+    def initial_state(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
+        raise NotImplementedError
+
+    def rhs(self, t, y, args) -> jnp.ndarray:
+        raise NotImplementedError
+
+    def observe(self, t, y, args) -> jnp.ndarray:
+        raise NotImplementedError
+
+    def equilibrium(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
+        """The target motion's state at t = 0 (for equilibria: the equilibrium)."""
+        raise NotImplementedError
+
+    # -- helpers -----------------------------------------------------------------------------
+    @property
+    def state_size(self) -> int:
+        return sum(int(np.prod(s)) if s else 1 for _, s in self.state)
+
+    def unpack(self, y):
+        """Split a state array (..., n) into named components (..., *shape)."""
+        out, i = {}, 0
+        for name, shape in self.state:
+            k = int(np.prod(shape)) if shape else 1
+            out[name] = y[..., i : i + k].reshape(*y.shape[:-1], *shape)
+            i += k
+        return out
+
+    def describe(self) -> list[dict[str, Any]]:
+        rows = []
+        for prm in self.params:
+            rows.append(
+                dict(name=prm.name, kind=prm.kind, shape=prm.shape, default=prm.default, unit=prm.unit, doc=prm.doc)
+            )
+        return rows
+
+
+SystemFactory = Callable[[], System]

@@ -1,0 +1,143 @@
+"""Trajectory verdicts from the whole checkpointed history of the error metric.
+
+Why not the final state: in paper A an unstable body makes excursions towards s = -r in
+the slow windows where cos(omega0 t^alpha) > 0 and then returns to within 1e-12 of r, so
+the final angle says nothing. The classifier scans the error ``e(t_k)`` at the checkpoint
+times and keeps running statistics only (no per-step storage):
+
+* settle time: first checkpoint with ``e < settle_tol``;
+* excursions after settling: maximal runs of checkpoints with ``e > excursion_tol``; for
+  each its peak; the count, the peaks of the last two, how many excursions passed
+  ``flip_tol`` (pi/2), the first flip time, and the largest error after settling;
+* the late window ``t >= t0 + (1 - late_fraction)(t1 - t0)``: max error there and the
+  least-squares slope of log e against log t (decay exponent = -slope; power-law decay
+  in paper A gives a positive exponent close to 1/(mu - 1) asymptotically).
+
+Verdict rules (first match wins), thresholds in :class:`stabjax.system.VerdictConfig`:
+
+1. FAILED     solver did not reach t1 (max_steps, step-size collapse) or any NaN/Inf.
+2. DIVERGED   size observable above ``diverge_size``, or never settled and the late error
+              grows (slope > ``growth_tol``) while below flip_tol.
+3. FLIPPED    final error > flip_tol (resting near the inverted position), or the latest
+              excursion peaked past flip_tol (flips persist up to the horizon).
+4. CONVERGED  settled, no excursion in the late window, final error < converged_tol and
+              the late error not growing (slope <= 0) -- or final error below 1e-9.
+5. UNDECIDED  everything else: e.g. excursions still present but shrinking below pi/2, or
+              a slow decay that has not reached converged_tol by t1. A longer horizon
+              (``stabjax horizon-check``) is the remedy.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .system import VerdictConfig
+
+CONVERGED, FLIPPED, DIVERGED, UNDECIDED, FAILED = 0, 1, 2, 3, 4
+NAMES = ("converged", "flipped", "diverged", "undecided", "failed")
+COLORS = ("#2a9d8f", "#e76f51", "#8d0801", "#e9c46a", "#6c757d")
+
+# per-trajectory summary fields written to datasets, with their meaning
+SUMMARY_DOC = {
+    "verdict": "0 converged, 1 flipped, 2 diverged, 3 undecided, 4 failed",
+    "error_t1": "error metric at t1",
+    "error_max_settled": "largest error after settling (NaN if never settled)",
+    "error_max_late": "largest error in the late window",
+    "t_settle": "first checkpoint time with error < settle_tol (NaN if never)",
+    "t_first_flip": "first time after settling the error passed flip_tol (NaN if never)",
+    "n_excursions": "number of excursions (error > excursion_tol) after settling",
+    "n_flips": "number of excursions after settling whose peak passed flip_tol",
+    "peak_last": "peak error of the last excursion (NaN if none)",
+    "peak_prev": "peak error of the excursion before the last (NaN if fewer than two)",
+    "decay_exponent": "-(slope of log error vs log t) over the late window (NaN if error underflows)",
+    "size_max": "largest value of the size observable",
+}
+
+
+def classify(ts: jnp.ndarray, obs: jnp.ndarray, solver_ok: jnp.ndarray, cfg: VerdictConfig, t0: float = 0.0):
+    """Classify one trajectory (traced; vmap it). ``obs`` is (K, n_obs): column 0 error, 1 size."""
+    e = obs[:, 0]
+    size = obs[:, 1] if obs.shape[1] > 1 else jnp.zeros_like(e)
+    finite = jnp.all(jnp.isfinite(obs))
+    e = jnp.where(jnp.isfinite(e), e, jnp.inf)
+    t1 = ts[-1]
+    t_late = t0 + (1.0 - cfg.late_fraction) * (t1 - t0)
+    nan = jnp.asarray(jnp.nan, e.dtype)
+
+    def step(c, x):
+        t, ek = x
+        settled = c["settled"] | (ek < cfg.settle_tol)
+        t_settle = jnp.where(~c["settled"] & settled, t, c["t_settle"])
+        above = settled & (ek > cfg.excursion_tol)
+        start = above & ~c["in_exc"]
+        end = ~above & c["in_exc"]
+        peak = jnp.where(start, ek, jnp.where(above, jnp.maximum(c["peak"], ek), c["peak"]))
+        # an excursion that ends is pushed to (prev, last)
+        peak_prev = jnp.where(start & (c["n_exc"] > 0), c["peak_last"], c["peak_prev"])
+        peak_last = jnp.where(above, peak, c["peak_last"])
+        n_exc = c["n_exc"] + start.astype(jnp.int32)
+        flipped_now = above & (ek > cfg.flip_tol) & ~c["exc_flipped"]
+        exc_flipped = jnp.where(start, ek > cfg.flip_tol, c["exc_flipped"] | (above & (ek > cfg.flip_tol)))
+        n_flips = c["n_flips"] + flipped_now.astype(jnp.int32)
+        t_first_flip = jnp.where(jnp.isnan(c["t_first_flip"]) & flipped_now, t, c["t_first_flip"])
+        late = t >= t_late
+        late_exc = c["late_exc"] | (late & above)
+        max_settled = jnp.where(settled, jnp.maximum(c["max_settled"], ek), c["max_settled"])
+        max_late = jnp.where(late, jnp.maximum(c["max_late"], ek), c["max_late"])
+        use = late & (ek > 1e-13) & (t > 0) & jnp.isfinite(ek)
+        lx, ly = jnp.log(jnp.maximum(t, 1e-300)), jnp.log(jnp.maximum(ek, 1e-300))
+        w = use.astype(e.dtype)
+        fit = c["fit"] + w * jnp.stack([1.0, lx, ly, lx * lx, lx * ly])
+        del end
+        return dict(
+            settled=settled, t_settle=t_settle, in_exc=above, peak=peak, peak_prev=peak_prev, peak_last=peak_last,
+            n_exc=n_exc, exc_flipped=exc_flipped, n_flips=n_flips, t_first_flip=t_first_flip, late_exc=late_exc,
+            max_settled=max_settled, max_late=max_late, fit=fit,
+        ), None
+
+    init = dict(
+        settled=jnp.asarray(False), t_settle=nan, in_exc=jnp.asarray(False), peak=jnp.asarray(0.0, e.dtype),
+        peak_prev=nan, peak_last=nan, n_exc=jnp.asarray(0, jnp.int32), exc_flipped=jnp.asarray(False),
+        n_flips=jnp.asarray(0, jnp.int32), t_first_flip=nan, late_exc=jnp.asarray(False),
+        max_settled=jnp.asarray(-jnp.inf, e.dtype), max_late=jnp.asarray(-jnp.inf, e.dtype),
+        fit=jnp.zeros(5, e.dtype),
+    )
+    c, _ = jax.lax.scan(step, init, (ts, e))
+    n, sx, sy, sxx, sxy = c["fit"]
+    den = n * sxx - sx * sx
+    slope = jnp.where((n >= 3) & (den > 0), (n * sxy - sx * sy) / jnp.where(den > 0, den, 1.0), nan)
+    e1 = e[-1]
+    size_max = jnp.max(jnp.where(jnp.isfinite(size), size, jnp.inf))
+
+    failed = ~solver_ok | ~finite
+    diverged = (size_max > cfg.diverge_size) | (~c["settled"] & (slope > cfg.growth_tol) & (e1 < cfg.flip_tol))
+    last_flipped = (c["n_exc"] > 0) & (c["peak_last"] > cfg.flip_tol)
+    flipped = (e1 > cfg.flip_tol) | last_flipped
+    not_growing = jnp.isnan(slope) | (slope <= 0.0)
+    converged = (c["settled"] & ~c["late_exc"] & (c["max_late"] < cfg.converged_tol) & not_growing) | (
+        c["settled"] & ~c["late_exc"] & (e1 < 1e-9)
+    )
+    verdict = jnp.where(
+        failed, FAILED,
+        jnp.where(diverged, DIVERGED, jnp.where(flipped, FLIPPED, jnp.where(converged, CONVERGED, UNDECIDED))),
+    ).astype(jnp.int8)
+    return dict(
+        verdict=verdict,
+        error_t1=e1,
+        error_max_settled=jnp.where(c["settled"], c["max_settled"], nan),
+        error_max_late=c["max_late"],
+        t_settle=c["t_settle"],
+        t_first_flip=c["t_first_flip"],
+        n_excursions=c["n_exc"],
+        n_flips=c["n_flips"],
+        peak_last=c["peak_last"],
+        peak_prev=c["peak_prev"],
+        decay_exponent=-slope,
+        size_max=size_max,
+    )
+
+
+def counts(verdicts: np.ndarray) -> dict[str, int]:
+    v = np.asarray(verdicts).ravel()
+    return {name: int((v == i).sum()) for i, name in enumerate(NAMES)}
