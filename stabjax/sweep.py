@@ -109,8 +109,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
              on_chunk: Callable[[int, int], None] | None = None) -> xr.Dataset:
     """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset."""
+    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
-    batch = choose_batch_size(plan, batch_size, memory_limit)
     n = plan.size
     n_chunks = -(-n // batch)
     store = _Store(Path(out), plan, batch, restart) if out is not None else None

@@ -1,0 +1,236 @@
+"""Verdict maps with the theoretical boundary drawn over them, and the theory x simulation table.
+
+The boundary is the zero contour of ``margin_<main>`` (the predicate the system names as
+"theory guarantees stability"); cells where the theory guarantees stability but the
+simulation flipped or diverged are the red flags and are marked with a cross.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import xarray as xr  # noqa: E402
+from matplotlib.colors import BoundaryNorm, ListedColormap  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+
+from . import verdict as V  # noqa: E402
+
+GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
+         "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
+
+
+def symbol(name: str) -> str:
+    """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$."""
+    base, _, sub = name.partition("_")
+    digits = ""
+    while base and base[-1].isdigit():
+        digits = base[-1] + digits
+        base = base[:-1]
+    if base == "lam":
+        base = "lambda"
+    b = "\\" + base if base in GREEK else base
+    subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
+    return f"${b}_{{{subs}}}$" if subs else f"${b}$"
+
+
+def axis_label(ds: xr.Dataset, dim: str) -> str:
+    units = ds[dim].attrs.get("units", "") if dim in ds.coords else ""
+    return symbol(dim) + (f" [{units}]" if units else "")
+
+
+def grid_dims(ds: xr.Dataset) -> list[str]:
+    return [d for d in ds["verdict"].dims if d != "sample"]
+
+
+def main_predicate(ds: xr.Dataset) -> str | None:
+    main = ds.attrs.get("theory_main") or ""
+    return main if f"margin_{main}" in ds else None
+
+
+def confusion(ds: xr.Dataset) -> dict:
+    """Counts of (theory guarantees stability?) x (empirical verdict)."""
+    main = main_predicate(ds)
+    v = ds["verdict"].values.ravel()
+    out = {"columns": list(V.NAMES), "rows": {}}
+    if main is None:
+        out["rows"]["(no theory)"] = [int((v == i).sum()) for i in range(len(V.NAMES))]
+        return out
+    ok = ds[f"theory_{main}"].values.ravel().astype(bool)
+    out["rows"]["theory: guaranteed"] = [int(((v == i) & ok).sum()) for i in range(len(V.NAMES))]
+    out["rows"]["theory: silent"] = [int(((v == i) & ~ok).sum()) for i in range(len(V.NAMES))]
+    out["red_flags"] = int((ok & ((v == V.FLIPPED) | (v == V.DIVERGED))).sum())
+    out["conservative"] = int((~ok & (v == V.CONVERGED)).sum())
+    out["predicate"] = main
+    return out
+
+
+def converged_fraction(ds: xr.Dataset):
+    """Fraction converged over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    conv = (ds["verdict"] == V.CONVERGED).astype(float)
+    n = ds.sizes["sample"]
+    p = conv.mean("sample")
+    se = np.sqrt(p * (1 - p) / n)
+    return p, se
+
+
+def _cmap():
+    return ListedColormap(V.COLORS), BoundaryNorm(np.arange(-0.5, len(V.NAMES) + 0.5), len(V.NAMES))
+
+
+def _edges(x: np.ndarray, log: bool) -> np.ndarray:
+    x = np.asarray(x, float)
+    if len(x) == 1:
+        return np.array([x[0] - 0.5, x[0] + 0.5]) if not log else np.array([x[0] / 1.5, x[0] * 1.5])
+    if log:
+        lx = np.log(x)
+        mid = (lx[1:] + lx[:-1]) / 2
+        return np.exp(np.concatenate([[2 * lx[0] - mid[0]], mid, [2 * lx[-1] - mid[-1]]]))
+    mid = (x[1:] + x[:-1]) / 2
+    return np.concatenate([[2 * x[0] - mid[0]], mid, [2 * x[-1] - mid[-1]]])
+
+
+def _title(ds: xr.Dataset) -> str:
+    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})"
+
+
+def _t1(ds):
+    import json
+
+    try:
+        return json.loads(ds.attrs["integrate_json"])["t1"]
+    except (KeyError, ValueError):
+        return float("nan")
+
+
+def _zero_crossings(x, m):
+    x, m = np.asarray(x, float), np.asarray(m, float)
+    out = []
+    for i in range(len(x) - 1):
+        if np.isfinite(m[i]) and np.isfinite(m[i + 1]) and m[i] * m[i + 1] < 0:
+            out.append(x[i] - m[i] * (x[i + 1] - x[i]) / (m[i + 1] - m[i]))
+        elif m[i] == 0:
+            out.append(x[i])
+    return out
+
+
+def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
+    """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions)."""
+    dims = grid_dims(ds)
+    main = main_predicate(ds)
+    sampled = "sample" in ds["verdict"].dims
+    own = ax is None
+    if own:
+        fig, ax = plt.subplots(figsize=(7.5, 5.2), constrained_layout=True)
+    else:
+        fig = ax.figure
+    margin = ds[f"margin_{main}"] if main else None
+    if sampled and margin is not None:
+        margin = margin.isel(sample=0)
+    log = {d: bool(ds[d].attrs.get("log_axis", 0)) for d in dims if d in ds.coords}
+
+    if len(dims) == 2:
+        xd, yd = dims[1], dims[0]
+        x, y = ds[xd].values, ds[yd].values
+        if sampled:
+            p, se = converged_fraction(ds)
+            mesh = ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), p.transpose(yd, xd).values, cmap="viridis",
+                                 vmin=0, vmax=1)
+            fig.colorbar(mesh, ax=ax, label=f"fraction converged (n = {ds.sizes['sample']}, SE <= {float(se.max()):.2f})")
+            handles = []
+        else:
+            cmap, norm = _cmap()
+            vv = ds["verdict"].transpose(yd, xd).values
+            ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), vv, cmap=cmap, norm=norm)
+            present = sorted(set(np.unique(vv).tolist()))
+            handles = [Patch(color=V.COLORS[i], label=V.NAMES[i]) for i in present]
+            if main:
+                ok = ds[f"theory_{main}"].transpose(yd, xd).values.astype(bool)
+                bad = ok & ((vv == V.FLIPPED) | (vv == V.DIVERGED))
+                if bad.any():
+                    yy, xx = np.nonzero(bad)
+                    ax.plot(x[xx], y[yy], "kx", ms=7, mew=1.5)
+                    handles.append(Line2D([], [], color="k", marker="x", ls="", label="theory says stable, simulation not"))
+        if margin is not None and len(x) > 1 and len(y) > 1:
+            m = margin.transpose(yd, xd).values
+            if np.nanmin(m) < 0 < np.nanmax(m):
+                ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
+                ax.contourf(x, y, m, levels=[0.0, np.inf], colors="none", hatches=["//"])
+            handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main}); hatched: guaranteed"))
+        ax.set_xlabel(axis_label(ds, xd))
+        ax.set_ylabel(axis_label(ds, yd))
+        if log[xd]:
+            ax.set_xscale("log")
+        if log[yd]:
+            ax.set_yscale("log")
+        if handles:
+            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
+    elif len(dims) == 1:
+        xd = dims[0]
+        x = ds[xd].values
+        if sampled:
+            p, se = converged_fraction(ds)
+            ax.errorbar(x, p.values, yerr=se.values, fmt="o-", color=V.COLORS[0], capsize=3,
+                        label=f"fraction converged ± SE (n = {ds.sizes['sample']})")
+            ax.set_ylabel("fraction converged")
+            ax.set_ylim(-0.05, 1.05)
+        else:
+            metric = "error_max_settled" if "error_max_settled" in ds else "error_t1"
+            yv = ds[metric].values.copy()
+            yv = np.where(np.isfinite(yv), yv, ds["error_t1"].values)
+            vv = ds["verdict"].values
+            for i, name in enumerate(V.NAMES):
+                sel = vv == i
+                if sel.any():
+                    ax.scatter(x[sel], np.maximum(yv[sel], 1e-16), color=V.COLORS[i], label=name, s=36, zorder=3)
+            ax.set_yscale("log")
+            ax.set_ylabel(ds[metric].attrs.get("long_name", metric))
+        if margin is not None:
+            for i, xc in enumerate(_zero_crossings(x, margin.values)):
+                ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
+            okx = ds[f"theory_{main}"].values.astype(bool)
+            if sampled:
+                okx = okx.reshape(len(x), -1)[:, 0]
+            if okx.any():
+                ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
+        ax.set_xlabel(axis_label(ds, xd))
+        if log.get(xd):
+            ax.set_xscale("log")
+        ax.legend(fontsize=8)
+    else:
+        counts = V.counts(ds["verdict"].values)
+        n = max(sum(counts.values()), 1)
+        fr = np.array([counts[k] / n for k in V.NAMES])
+        se = np.sqrt(fr * (1 - fr) / n)
+        ax.bar(V.NAMES, fr, yerr=se, color=V.COLORS, capsize=4)
+        ax.set_ylabel(f"fraction of {n} trajectories (± SE)")
+    ax.set_title(_title(ds), fontsize=10)
+    if out is not None:
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=110)
+        if own:
+            plt.close(fig)
+    return fig
+
+
+def format_confusion(ds: xr.Dataset) -> str:
+    """Plain-text table (also used by the CLI through rich)."""
+    c = confusion(ds)
+    cols = c["columns"]
+    w = max(len(r) for r in c["rows"]) + 2
+    lines = [" " * w + "".join(f"{k:>11}" for k in cols)]
+    for r, vals in c["rows"].items():
+        lines.append(f"{r:<{w}}" + "".join(f"{v:>11d}" for v in vals))
+    if "red_flags" in c:
+        lines.append(f"theory conservative (silent, simulation converged): {c['conservative']}")
+        lines.append(f"RED FLAGS (theory guarantees, simulation flipped/diverged): {c['red_flags']}")
+    if "sample" in ds["verdict"].dims:
+        p, se = converged_fraction(ds)
+        if p.ndim == 0:
+            lines.append(f"fraction converged: {float(p):.3f} ± {float(se):.3f} (n = {ds.sizes['sample']})")
+    return "\n".join(lines)
