@@ -179,9 +179,10 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ax.set_ylabel("fraction converged")
             ax.set_ylim(-0.05, 1.05)
         else:
-            metric = "error_max_settled" if "error_max_settled" in ds else "error_t1"
+            # the late window shows what the horizon ends on; the early transient peak is in error_max_settled
+            metric = "error_max_late" if "error_max_late" in ds else "error_t1"
             yv = ds[metric].values.copy()
-            yv = np.where(np.isfinite(yv), yv, ds["error_t1"].values)
+            yv = np.where(np.isfinite(yv), yv, ds["error_t1"].values) if "error_t1" in ds else yv
             vv = ds["verdict"].values
             for i, name in enumerate(V.NAMES):
                 sel = vv == i
@@ -231,6 +232,13 @@ def format_confusion(ds: xr.Dataset) -> str:
         lines.append(f"RED FLAGS (theory guarantees, simulation flipped/diverged): {c['red_flags']}")
     if "sample" in ds["verdict"].dims:
         p, se = converged_fraction(ds)
+        n = ds.sizes["sample"]
         if p.ndim == 0:
-            lines.append(f"fraction converged: {float(p):.3f} ± {float(se):.3f} (n = {ds.sizes['sample']})")
+            lines.append(f"fraction converged: {float(p):.3f} ± {float(se):.3f} (n = {n})")
+        elif p.size <= 40:
+            lines.append(f"fraction converged ± standard error (n = {n} per point):")
+            flat_p, flat_se = p.stack(point=p.dims), se.stack(point=p.dims)
+            for idx in range(flat_p.sizes["point"]):
+                where = ", ".join(f"{d}={flat_p[d].values[idx]:.4g}" for d in p.dims)
+                lines.append(f"  {where}: {float(flat_p[idx]):.3f} ± {float(flat_se[idx]):.3f}")
     return "\n".join(lines)
