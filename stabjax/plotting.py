@@ -94,6 +94,19 @@ def _edges(x: np.ndarray, log: bool) -> np.ndarray:
     return np.concatenate([[2 * x[0] - mid[0]], mid, [2 * x[-1] - mid[-1]]])
 
 
+def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
+    """Hatch exactly the grid cells where the predicate holds (contour hatching ignores holes)."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Rectangle
+
+    iy, ix = np.nonzero(ok)
+    if len(iy) == 0 or len(iy) > max_cells:
+        return
+    rects = [Rectangle((xe[j], ye[i]), xe[j + 1] - xe[j], ye[i + 1] - ye[i]) for i, j in zip(iy, ix)]
+    ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="0.2", hatch="///", linewidth=0,
+                                      alpha=0.45))
+
+
 def _title(ds: xr.Dataset) -> str:
     return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})"
 
@@ -121,6 +134,8 @@ def _zero_crossings(x, m):
 def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
     """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions)."""
     dims = grid_dims(ds)
+    if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
+        return _facets(ds, dims, out)
     main = main_predicate(ds)
     sampled = "sample" in ds["verdict"].dims
     own = ax is None
@@ -159,8 +174,11 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             m = margin.transpose(yd, xd).values
             if np.nanmin(m) < 0 < np.nanmax(m):
                 ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
-                ax.contourf(x, y, m, levels=[0.0, np.inf], colors="none", hatches=["//"])
-            handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main}); hatched: guaranteed"))
+            ok = ds[f"theory_{main}"]
+            ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
+            _hatch_cells(ax, _edges(x, log[xd]), _edges(y, log[yd]), ok)
+            handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
+            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///", label="theory guarantees stability"))
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
         if log[xd]:
@@ -216,6 +234,34 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         fig.savefig(out, dpi=110)
         if own:
             plt.close(fig)
+    return fig
+
+
+def _facets(ds: xr.Dataset, dims: list[str], out):
+    d0 = dims[0]
+    n = ds.sizes[d0]
+    ncol = 2 if n == 4 else min(n, 3)
+    nrow = -(-n // ncol)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(6.0 * ncol, 5.2 * nrow), constrained_layout=True, squeeze=False)
+    for i in range(nrow * ncol):
+        ax = axs.flat[i]
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        sub = ds.isel({d0: i})
+        plot_sweep(sub, ax=ax)
+        ax.set_title(f"{_title(ds)}\n{symbol(d0)} = {sub[d0].values.item():g}", fontsize=9)
+        leg = ax.get_legend()
+        if leg is not None:  # one legend per panel crowds the grid: keep them short
+            handles = leg.legend_handles
+            leg.remove()
+            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=7,
+                      frameon=False)
+    if out is not None:
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=100)
+        plt.close(fig)
     return fig
 
 
