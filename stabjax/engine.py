@@ -1,9 +1,17 @@
-"""Batch integration: one compiled, vmapped diffrax solve per (system, integrate config, chunk size).
+"""Batch integration: one compiled solve per (system, integrate config, chunk size).
 
-Nothing is stored per solver step: each trajectory saves only its observables (error,
-size) at a fixed set of checkpoint times, which the classifier (:mod:`stabjax.verdict`)
-reduces to per-trajectory scalars inside the same compiled function. So a chunk of B
-trajectories costs O(B * n_checkpoints) memory whatever the number of steps.
+Two engines (``IntegrateConfig.engine``):
+
+* ``"fused"`` (default): :mod:`stabjax.fast` -- the same Tsit5 method and step-size controller
+  as diffrax, written as one loop over lanes of trajectories with per-lane step sizes, lanes
+  refilled from a queue, the classifier updated at each checkpoint inside the loop, one loop per
+  CPU core. Systems it cannot run (another solver, a system-specific ``classify``, a primitive
+  without a lane-wise rule) silently use the diffrax path.
+* ``"diffrax"``: the reference path, a vmapped ``diffrax.diffeqsolve``. Nothing is stored per
+  solver step: each trajectory saves only its observables (error, size) at a fixed set of
+  checkpoint times, which the classifier (:mod:`stabjax.verdict`) reduces to per-trajectory
+  scalars inside the same compiled function. So a chunk of B trajectories costs
+  O(B * n_checkpoints) memory whatever the number of steps.
 """
 from __future__ import annotations
 
@@ -21,6 +29,8 @@ from .errors import ValidationError
 from .registry import get_system
 from .system import System, VerdictConfig
 from . import verdict as V
+
+ENGINES = ("fused", "diffrax")
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
@@ -43,6 +53,8 @@ class IntegrateConfig:
     max_steps: int = 2_000_000
     n_checkpoints: int = 2000
     dt0: float | None = None
+    engine: str = "fused"  # "fused" (stabjax.fast) or "diffrax" (reference path)
+    lanes: int = 0  # fused engine: trajectories stepped side by side per device (0: automatic)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None, *, section: str = "integrate", default_t1: float | None = None):
@@ -76,6 +88,10 @@ class IntegrateConfig:
             raise ValidationError(f"{section}.n_checkpoints", f"must be in [8, 200000], got {self.n_checkpoints}")
         if self.dt0 is not None and not self.dt0 > 0:
             raise ValidationError(f"{section}.dt0", f"must be > 0, got {self.dt0}")
+        if self.engine not in ENGINES:
+            raise ValidationError(f"{section}.engine", f"unknown engine {self.engine!r}; choose from {', '.join(ENGINES)}")
+        if self.lanes < 0:
+            raise ValidationError(f"{section}.lanes", f"must be >= 0 (0: automatic), got {self.lanes}")
 
     def checkpoints(self) -> np.ndarray:
         """Half log-spaced (early power-law transients), half linear (late excursions); includes t1."""
@@ -147,14 +163,44 @@ def _batch_fn(system: System, icfg: IntegrateConfig, vcfg: VerdictConfig):
 
 
 def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: IntegrateConfig,
-                vcfg: VerdictConfig | None = None) -> dict[str, np.ndarray]:
-    """Integrate and classify a batch. ``params``: every parameter, leading dim N (already checked)."""
+                vcfg: VerdictConfig | None = None, *, static=None) -> dict[str, np.ndarray]:
+    """Integrate and classify a batch. ``params``: every parameter, leading dim N (already checked).
+
+    ``static`` (fused engine only): names of parameters that are the same in every batch of the
+    sweep; they are compiled in as constants (default: those equal across this batch).
+    """
     system = _as_system(system)
     vcfg = vcfg or system.verdict
+    if icfg.engine == "fused":
+        from . import fast
+
+        try:
+            return fast.solve(system, params, icfg, vcfg, lanes=icfg.lanes or None, static=static)
+        except fast.Unsupported:
+            pass  # e.g. a system with its own classify(): the diffrax path handles it
+    return _solve_diffrax(system, params, icfg, vcfg)
+
+
+DIFFRAX_CHUNK = 4096  # the diffrax path stores every checkpoint: bound its memory per call
+
+
+def _solve_diffrax(system: System, params: Mapping[str, np.ndarray], icfg: IntegrateConfig,
+                   vcfg: VerdictConfig) -> dict[str, np.ndarray]:
     fn = _batch_fn(system, icfg, vcfg)
-    p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
-    out = fn(p)
-    return {k: np.asarray(v) for k, v in out.items()}
+    n = len(next(iter(params.values())))
+    if n <= DIFFRAX_CHUNK:
+        p = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
+        return {k: np.asarray(v) for k, v in fn(p).items()}
+    # e.g. a fused-engine-sized chunk that fell back: sub-chunks of one size (last one padded)
+    parts = []
+    for lo in range(0, n, DIFFRAX_CHUNK):
+        hi = min(n, lo + DIFFRAX_CHUNK)
+        p = {k: np.asarray(v[lo:hi], dtype=np.float64) for k, v in params.items()}
+        if hi - lo < DIFFRAX_CHUNK:
+            p = {k: np.concatenate([v, np.repeat(v[-1:], DIFFRAX_CHUNK - (hi - lo), axis=0)]) for k, v in p.items()}
+        out = fn({k: jnp.asarray(v) for k, v in p.items()})
+        parts.append({k: np.asarray(v)[: hi - lo] for k, v in out.items()})
+    return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
 
 
 def batch_params(system: System, overrides: Mapping[str, Any] | None, n: int = 1) -> dict[str, np.ndarray]:
@@ -234,4 +280,4 @@ def _params_json(p: Mapping[str, np.ndarray]) -> str:
     return json.dumps({k: np.asarray(v).tolist() for k, v in p.items()})
 
 
-__all__ = ["IntegrateConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS"]
+__all__ = ["IntegrateConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS", "ENGINES"]

@@ -35,11 +35,36 @@ def _available_memory() -> int:
         return 8 << 30
 
 
+def static_params(plan: Plan) -> list[str]:
+    """Parameters equal in every chunk of the plan (fixed, not swept, not sampled)."""
+    varied = {ax.param.name for ax in plan.grid} | set(plan.sample)
+    return [k for k in plan.fixed if k not in varied]
+
+
 def bytes_per_trajectory(plan: Plan) -> int:
-    """Working memory of one trajectory inside a compiled chunk (observables at checkpoints dominate)."""
+    """Working memory of one trajectory inside a compiled chunk.
+
+    diffrax path: the observables at every checkpoint dominate. Fused engine: no per-checkpoint
+    storage, only the parameters and the summaries of each queued trajectory (the lanes are few).
+    """
+    if _fused(plan):
+        n_par = sum(int(np.prod(np.shape(v))) or 1 for v in plan.fixed.values())
+        return 8 * (2 * n_par + 2 * N_SUMMARY_FIELDS + 64)
     k = len(plan.icfg.checkpoints())
     n_obs = len(plan.system.observables)
     return 8 * (6 * k * n_obs + 64 * plan.system.state_size + 256)
+
+
+def default_batch(plan: Plan) -> int:
+    """Chunk size when none is given: the fused engine refills lanes from a queue, so longer
+    queues (bigger chunks) waste less at the tail; progress is still reported per chunk."""
+    return 65536 if _fused(plan) else 4096
+
+
+def _fused(plan: Plan) -> bool:
+    from .fast import would_run
+
+    return would_run(plan.system, plan.icfg)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -54,7 +79,7 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
         )
     max_b = max(1, limit // per)
     if batch_size is None:
-        return int(min(plan.size, 4096, max_b))
+        return int(min(plan.size, default_batch(plan), max_b))
     if batch_size < 1:
         raise ValidationError("batch_size", f"must be >= 1, got {batch_size}")
     if batch_size > max_b:
@@ -139,7 +164,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                 p = plan.params_for(lo, hi)
                 if hi - lo < batch:  # pad with copies of the last trajectory: same shapes, no recompile
                     p = {k: np.concatenate([v, np.repeat(v[-1:], batch - (hi - lo), axis=0)]) for k, v in p.items()}
-                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg)
+                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan))
                 res = {k: v[: hi - lo] for k, v in res.items()}
                 if store is not None:
                     store.save(i, res)

@@ -58,6 +58,8 @@ class VerdictConfig:
     late_fraction   the late window is t >= t0 + (1 - late_fraction) (t1 - t0)
     diverge_size    observable 1 (size) above this -> diverged
     growth_tol      late log-log slope of the error above this (error growing) -> diverged
+    floor_tol       late-window errors all below this are at the solver's noise floor (~rtol):
+                    their log-log trend is noise and is not used against convergence
     """
 
     settle_tol: float = 0.1
@@ -67,6 +69,7 @@ class VerdictConfig:
     late_fraction: float = 0.5
     diverge_size: float = 1e6
     growth_tol: float = 0.5
+    floor_tol: float = 1e-6
 
     def replace(self, **kw) -> "VerdictConfig":
         from dataclasses import replace

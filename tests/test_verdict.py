@@ -69,3 +69,18 @@ def test_slow_decay_not_reaching_tolerance_is_undecided():
 def test_thresholds_are_configurable():
     e = 0.05 * (1 + TS) ** -0.1
     assert run(e, cfg=CFG.replace(converged_tol=0.05))["verdict"] == V.CONVERGED
+
+
+def test_noise_floor_does_not_block_convergence():
+    """At the solver's noise floor (~rtol) the late slope is noise; that must not make it undecided."""
+    rng = np.random.default_rng(0)
+    e = np.where(TS < 100, 1.0 / (1 + TS), 3e-8 * (1 + rng.uniform(0, 1, len(TS))) * (TS / 1e4) ** 2)
+    r = run(e)
+    assert r["decay_exponent"] < 0  # the floor's fitted trend is "growing"
+    assert r["verdict"] == V.CONVERGED
+
+
+def test_small_bumps_in_late_window_are_not_converged():
+    """Paper A: returning to 1e-12 between bumps of 0.1 rad is not convergence (no final-error shortcut)."""
+    e = 1e-12 + bump(TS, 2000, 50, 2.5) + bump(TS, 8000, 80, 0.1)
+    assert run(e)["verdict"] == V.UNDECIDED

@@ -1,0 +1,24 @@
+"""Smoke test of the benchmark (stabjax bench --quick): it runs every contender, checks agreement,
+and writes results/bench.json + .md. Not a timing test."""
+import json
+
+from stabjax import bench
+
+
+def test_quick_benchmark_runs_and_agrees(tmp_path):
+    out = tmp_path / "bench.json"
+    r = bench.main(quick=True, out=out)
+    assert out.exists() and out.with_suffix(".md").exists()
+    on_disk = json.loads(out.read_text())
+    assert on_disk["quick"] is True and on_disk["machine"]["cpus"] >= 1 and "jax" in on_disk["versions"]
+    (n, row), = r["sizes"].items()
+    for name in ("stabjax", "diffrax_vmap"):
+        c = row[name]
+        assert c["wall_s"] > 0 and c["compile_s"] > 0 and c["accepted_steps"] > 0 and c["peak_rss_mb"] > 0
+    assert row["scipy_dop853"]["wall_s_per_trajectory"] > 0
+    a = row["agreement"]
+    assert a["verdicts_equal_fused_vs_diffrax_engine"] == a["verdict_check_n"] == int(n)
+    assert a["verdicts_equal_run_spec_vs_diffrax_engine"] == a["verdict_check_n"]
+    assert a["max_abs_state_diff_fused_vs_diffrax"] < 1e-6
+    assert a["max_abs_state_diff_fused_vs_scipy"] < 1e-6
+    assert "| stabjax (run_spec, fused) |" in out.with_suffix(".md").read_text()
