@@ -284,6 +284,18 @@ def _obj(shape):
     return np.empty(shape, dtype=object)
 
 
+def _rows_to_objs(shapes, rows):
+    """Consecutive flat rows -> one object array per shape (the lane-wise evaluator's input)."""
+    out, k = [], 0
+    for shape in shapes:
+        o = _obj(shape)
+        for j, i in enumerate(np.ndindex(shape)):
+            o[i] = rows[k + j]
+        out.append(o)
+        k += int(np.prod(shape))
+    return out
+
+
 def _const_array(x, dtype=None):
     x = np.asarray(x, dtype=dtype)
     out = _obj(x.shape)
@@ -559,14 +571,7 @@ class _RowSpec:
 
     def objs(self, rows):
         """Flat rows -> one object array per leaf (the lane-wise evaluator's input)."""
-        out, k = [], 0
-        for shape, n in zip(self.shapes, self.sizes):
-            o = _obj(shape)
-            for j, i in enumerate(np.ndindex(shape)):
-                o[i] = rows[k + j]
-            out.append(o)
-            k += n
-        return out
+        return _rows_to_objs(self.shapes, rows)
 
     def tree(self, rows, L):
         """Flat rows -> pytree of batch-last arrays (L last)."""
@@ -664,16 +669,7 @@ class _Model:
         return f, self.update(L, c, t, o)
 
     def dyn_objs(self, rows):
-        out, k = [], 0
-        for key in self.dyn_keys:
-            shape = self.dyn_shapes[key]
-            n = int(np.prod(shape))
-            o = _obj(shape)
-            for j, i in enumerate(np.ndindex(shape)):
-                o[i] = rows[k + j]
-            out.append(o)
-            k += n
-        return out
+        return _rows_to_objs([self.dyn_shapes[key] for key in self.dyn_keys], rows)
 
     def fresh_rows(self, L, dyn_rows):
         """Lane-varying prepared args (flat rows; constants go to the template) and y0 rows."""
