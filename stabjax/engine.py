@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import diffrax
 import jax
@@ -26,11 +26,12 @@ import numpy as np
 import xarray as xr
 
 from .errors import ValidationError
+from .fast import Unsupported
 from .registry import get_system
 from .system import System, VerdictConfig
 from . import verdict as V
 
-ENGINES = ("fused", "diffrax")
+ENGINES = ("auto", "native", "fused", "diffrax")
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
@@ -38,6 +39,9 @@ SOLVERS = {
     "dopri8": diffrax.Dopri8,
     "heun": diffrax.Heun,
     "bosh3": diffrax.Bosh3,
+    # implicit (L-stable ESDIRK 5(4)) for stiff systems; default root finder (VeryChord, tolerances from the controller)
+    "kvaerno5": diffrax.Kvaerno5,
+    "kvaerno3": diffrax.Kvaerno3,
 }
 
 
@@ -53,7 +57,9 @@ class IntegrateConfig:
     max_steps: int = 2_000_000
     n_checkpoints: int = 2000
     dt0: float | None = None
-    engine: str = "fused"  # "fused" (stabjax.fast) or "diffrax" (reference path)
+    # "auto": native (C, stabjax.native) on CPU when a compiler works, else fused (XLA, stabjax.fast),
+    # else diffrax; "native"/"fused" prefer that engine (same fallbacks); "diffrax": reference path
+    engine: str = "auto"
     lanes: int = 0  # fused engine: trajectories stepped side by side per device (0: automatic)
 
     @classmethod
@@ -127,16 +133,20 @@ def _solve_one(system: System, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn
     y0 = system.initial_state(p)
     term = diffrax.ODETerm(system.rhs)
     saveat = diffrax.SaveAt(ts=ts) if saveat_fn is None else diffrax.SaveAt(ts=ts, fn=saveat_fn)
+    solver = SOLVERS[icfg.solver]()
+    # implicit solvers: a PI controller (diffrax docs' suggestion for mildly stiff problems); with the
+    # default I controller Kvaerno5 rejected about half its steps on the gyrodyne model
+    pi = dict(pcoeff=0.3, icoeff=0.4) if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
     sol = diffrax.diffeqsolve(
         term,
-        SOLVERS[icfg.solver](),
+        solver,
         icfg.t0,
         icfg.t1,
         icfg.dt0,
         y0,
         args=args,
         saveat=saveat,
-        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol),
+        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, **pi),
         max_steps=icfg.max_steps,
         throw=False,
         adjoint=diffrax.ForwardMode(),  # plain while loop: no checkpointing machinery for a forward-only solve
@@ -163,22 +173,57 @@ def _batch_fn(system: System, icfg: IntegrateConfig, vcfg: VerdictConfig):
 
 
 def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: IntegrateConfig,
-                vcfg: VerdictConfig | None = None, *, static=None) -> dict[str, np.ndarray]:
+                vcfg: VerdictConfig | None = None, *, static=None,
+                progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Integrate and classify a batch. ``params``: every parameter, leading dim N (already checked).
 
-    ``static`` (fused engine only): names of parameters that are the same in every batch of the
-    sweep; they are compiled in as constants (default: those equal across this batch).
+    ``static`` (native and fused engines): names of parameters that are the same in every batch of
+    the sweep; they are compiled in as constants (default: those equal across this batch).
+    ``progress(done, n)``: called while the native engine runs. The engine that ran is
+    :func:`last_engine`.
     """
     system = _as_system(system)
     vcfg = vcfg or system.verdict
-    if icfg.engine == "fused":
-        from . import fast
-
+    for name in engine_chain(system, icfg):
         try:
-            return fast.solve(system, params, icfg, vcfg, lanes=icfg.lanes or None, static=static)
-        except fast.Unsupported:
-            pass  # e.g. a system with its own classify(): the diffrax path handles it
-    return _solve_diffrax(system, params, icfg, vcfg)
+            if name == "native":
+                from . import native
+
+                out = native.solve(system, params, icfg, vcfg, static=static, progress=progress)
+            elif name == "fused":
+                from . import fast
+
+                out = fast.solve(system, params, icfg, vcfg, lanes=icfg.lanes or None, static=static)
+            else:
+                out = _solve_diffrax(system, params, icfg, vcfg)
+        except Unsupported as exc:  # e.g. a system with its own classify(): the next engine handles it
+            _LAST_ENGINE["why_not_" + name] = str(exc)
+            continue
+        _LAST_ENGINE["name"] = name
+        return out
+    raise AssertionError("the diffrax path supports every system")
+
+
+_LAST_ENGINE: dict[str, str] = {}
+
+
+def last_engine() -> str:
+    """Name of the engine that ran the last :func:`solve_batch` call of this process."""
+    return _LAST_ENGINE.get("name", "")
+
+
+def engine_chain(system: System, icfg: IntegrateConfig) -> list[str]:
+    """Engines to try, in order, for this system and ``[integrate]`` table."""
+    from . import fast, native
+
+    if icfg.engine == "diffrax":
+        return ["diffrax"]
+    chain = []
+    if icfg.engine in ("auto", "native") and native.would_run(system, icfg):
+        chain.append("native")
+    if fast.would_run(system, icfg):
+        chain.append("fused")
+    return chain + ["diffrax"]
 
 
 DIFFRAX_CHUNK = 4096  # the diffrax path stores every checkpoint: bound its memory per call
@@ -280,4 +325,5 @@ def _params_json(p: Mapping[str, np.ndarray]) -> str:
     return json.dumps({k: np.asarray(v).tolist() for k, v in p.items()})
 
 
-__all__ = ["IntegrateConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS", "ENGINES"]
+__all__ = ["IntegrateConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS", "ENGINES",
+           "engine_chain", "last_engine"]

@@ -907,7 +907,7 @@ def _devices(n_dev: int | None):
 def would_run(system, icfg) -> bool:
     """Whether the fused engine takes this system/config (a primitive without a lane-wise rule
     is only found when compiling; :func:`solve` then raises :class:`Unsupported`)."""
-    return (getattr(icfg, "engine", "fused") == "fused" and icfg.solver in SUPPORTED_SOLVERS
+    return (getattr(icfg, "engine", "auto") in ("auto", "native", "fused") and icfg.solver in SUPPORTED_SOLVERS
             and getattr(system, "classify", None) is None)
 
 

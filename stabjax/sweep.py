@@ -20,7 +20,7 @@ import numpy as np
 import xarray as xr
 
 from . import verdict as V
-from .engine import solve_batch
+from .engine import last_engine, solve_batch
 from .errors import StabjaxError, ValidationError
 from .spec import Plan, check_plan, load_spec, make_plan
 
@@ -62,9 +62,10 @@ def default_batch(plan: Plan) -> int:
 
 
 def _fused(plan: Plan) -> bool:
-    from .fast import would_run
+    """Whether a queued engine (native or fused: no per-checkpoint storage) takes this plan."""
+    from .engine import engine_chain
 
-    return would_run(plan.system, plan.icfg)
+    return engine_chain(plan.system, plan.icfg)[0] != "diffrax"
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -143,6 +144,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     t_start = time.perf_counter()
     steps_total = 0
     n_resumed = 0
+    engines: set[str] = set()
 
     def put(i, res):
         nonlocal steps_total
@@ -157,6 +159,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     try:
         for i in range(n_chunks):
             lo, hi = i * batch, min(n, (i + 1) * batch)
+            shown = [0]
             if store is not None and store.done(i):
                 put(i, store.load(i))
                 n_resumed += 1
@@ -164,13 +167,22 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                 p = plan.params_for(lo, hi)
                 if hi - lo < batch:  # pad with copies of the last trajectory: same shapes, no recompile
                     p = {k: np.concatenate([v, np.repeat(v[-1:], batch - (hi - lo), axis=0)]) for k, v in p.items()}
-                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan))
+                shown = [0]
+
+                def within(done, _total, lo=lo, hi=hi, shown=shown):
+                    k = min(done, hi - lo) - shown[0]
+                    if bar is not None and k > 0:
+                        bar.update(k, steps=steps_total)
+                        shown[0] += k
+
+                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan), progress=within)
+                engines.add(last_engine())
                 res = {k: v[: hi - lo] for k, v in res.items()}
                 if store is not None:
                     store.save(i, res)
                 put(i, res)
             if bar is not None:
-                bar.update(hi - lo, steps=steps_total)
+                bar.update(hi - lo - shown[0], steps=steps_total)
             if on_chunk is not None:
                 on_chunk(i, n_chunks)
     finally:
@@ -178,6 +190,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             bar.close()
     wall = time.perf_counter() - t_start
     ds = assemble(plan, results, wall=wall, steps=steps_total, batch=batch, n_resumed=n_resumed)
+    ds.attrs["engine"] = ",".join(sorted(engines)) or "resumed"
     if out is not None:
         write(ds, out)
         if not keep_partial:

@@ -1,0 +1,197 @@
+"""The native engine (stabjax.native: jaxprs translated to C, SIMD Tsit5 loop) against SciPy
+DOP853, diffrax and the diffrax engine path; its C translation of every registered model against
+JAX; failures, interruption, fallbacks and the sweep runner's use of it."""
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from stabjax import native
+from stabjax import verdict as V
+from stabjax.engine import IntegrateConfig, batch_params, engine_chain, last_engine, solve_batch
+from stabjax.registry import get_system, list_systems
+
+pytestmark = pytest.mark.skipif(not native.available(), reason="no working C compiler")
+
+SYS = get_system("monoaxial")
+ALPHAS = np.linspace(0.3, 1.0, 40)
+ICFG = IntegrateConfig(t1=800.0, rtol=1e-10, atol=1e-12, n_checkpoints=200)
+
+
+def numpy_rhs(t, y, J, D, a, mu, b, sigma, alpha, omega0, r):
+    """Independent NumPy transcription of MODELS.md A, (2), (4), (14), torques on s/|s|."""
+    w, s = y[:3], y[3:]
+    sh = s / np.linalg.norm(s)
+    u = np.cross(sh - r, r)
+    m_r = -a * np.linalg.norm(sh - r) ** (mu - 1) * np.cross(sh, r)
+    m_p = b * math.cos(omega0 * t**alpha) * np.linalg.norm(u) ** (sigma - 1) * u
+    dw = (-np.cross(w, J * w) - D @ w + m_r + m_p) / J
+    return np.concatenate([dw, -np.cross(w, s)])
+
+
+def batch(n=len(ALPHAS)):
+    p = batch_params(SYS, None, n)
+    p["alpha"] = np.linspace(0.3, 1.0, n)
+    p["w0"][1] = [0.5, -1.0, 2.0]  # other initial conditions, so w0 is a dynamic (lane-varying) input
+    p["w0"][min(6, n - 1)] = [-2.0, 0.3, 0.1]
+    return p
+
+
+@pytest.fixture(scope="module")
+def nat():
+    # 40 trajectories through blocks of 16 lanes on 2 threads: lanes are refilled from the shared queue
+    return native.solve(SYS, batch(), ICFG, SYS.verdict, with_state=True, threads=2)
+
+
+@pytest.mark.parametrize("i", [0, 1, 6, 13, 39])
+def test_final_states_match_scipy_dop853(nat, i):
+    p = batch()
+    y0 = np.concatenate([p["w0"][i], p["s0"][i]])
+    args = (p["J"][i], p["D"][i], p["a"][i], p["mu"][i], p["b"][i], p["sigma"][i], p["alpha"][i], p["omega0"][i], p["r"][i])
+    sol = solve_ivp(numpy_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
+    assert sol.success and nat["solver_status"][i] == 0
+    np.testing.assert_allclose(nat["state_t1"][i], sol.y[:, -1], atol=1e-6, rtol=0)
+
+
+def test_verdicts_summaries_and_steps_match_diffrax_engine(nat):
+    ref = solve_batch(SYS, batch(), IntegrateConfig(**{**ICFG.__dict__, "engine": "diffrax"}))
+    np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
+    for k in ("n_excursions", "n_flips", "t_settle", "t_first_flip"):
+        np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
+    for k in ("error_t1", "error_max_late", "error_max_settled", "size_max", "peak_last", "decay_exponent"):
+        np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
+    # same method, controller and step sequence (checkpoints come from the dense output, as in
+    # diffrax's SaveAt(ts)): accepted steps agree up to rounding-level differences of the controller
+    np.testing.assert_allclose(nat["n_steps"], ref["n_steps"], rtol=0.02, atol=3)
+
+
+def test_results_do_not_depend_on_threads_width_or_static_folding(nat):
+    p = batch()
+    other = native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=1, width=8, static=[])
+    np.testing.assert_array_equal(other["verdict"], nat["verdict"])
+    np.testing.assert_allclose(other["state_t1"], nat["state_t1"], atol=1e-9, rtol=0)
+    again = native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=2)
+    np.testing.assert_array_equal(again["state_t1"], nat["state_t1"])  # deterministic, whatever the scheduling
+
+
+def test_failures_are_reported_not_raised():
+    p = batch_params(SYS, None, 3)
+    p["b"][1] = np.nan  # right-hand side NaN from t = 0
+    p["w0"][2] = [300.0, -200.0, 100.0]  # needs far more than max_steps
+    icfg = IntegrateConfig(t1=20.0, rtol=1e-8, atol=1e-10, n_checkpoints=16, max_steps=400)
+    out = native.solve(SYS, p, icfg, SYS.verdict)
+    assert out["verdict"][0] != V.FAILED and out["solver_status"][0] == 0
+    assert out["verdict"][1] == V.FAILED and out["solver_status"][1] == 1
+    assert out["verdict"][2] == V.FAILED and out["solver_status"][2] == 1
+    assert out["n_steps"][2] + out["n_rejected"][2] == 400
+
+
+def test_progress_and_interruption():
+    p = batch(64)
+    icfg = IntegrateConfig(t1=3000.0, n_checkpoints=100)
+    seen = []
+    native.solve(SYS, p, icfg, SYS.verdict, progress=lambda done, n: seen.append((done, n)), threads=1)
+    assert seen and all(n == 64 for _, n in seen) and seen[-1][0] == 64
+
+    def interrupt(done, n):
+        raise KeyboardInterrupt
+
+    long = IntegrateConfig(t1=1e6, n_checkpoints=100)
+    with pytest.raises(KeyboardInterrupt):  # the threads stop at their next step; nothing is returned
+        native.solve(SYS, batch(32), long, SYS.verdict, progress=interrupt)
+
+
+def test_dispatch_prefers_native_and_falls_back(monkeypatch):
+    assert engine_chain(SYS, IntegrateConfig())[0] == "native"
+    assert engine_chain(SYS, IntegrateConfig(engine="fused")) == ["fused", "diffrax"]
+    assert engine_chain(SYS, IntegrateConfig(solver="dopri5")) == ["diffrax"]
+    small = IntegrateConfig(t1=50.0, n_checkpoints=32)
+    solve_batch(SYS, batch_params(SYS, None, 2), small)
+    assert last_engine() == "native"
+
+    # a primitive without a C rule: the fused engine takes over, same answer
+    def refuse(self, prim, params, es, in_dtypes):
+        raise native.fast._Unsupported(prim.name)
+
+    native._kernel.cache_clear()
+    monkeypatch.setattr(native._CEmit, "bind_elem", refuse)
+    out = solve_batch(SYS, batch_params(SYS, None, 2), small)
+    assert last_engine() == "fused" and out["verdict"].shape == (2,)
+    native._kernel.cache_clear()
+
+
+def test_no_compiler_means_no_native(monkeypatch):
+    monkeypatch.setattr(native, "compiler", lambda: None)
+    native.available.cache_clear()
+    try:
+        assert not native.available()
+        assert engine_chain(SYS, IntegrateConfig())[0] == "fused"
+    finally:
+        native.available.cache_clear()
+
+
+def test_generated_c_is_exact_where_it_should_be():
+    em = native._CEmit()
+    assert native._flit(0.1) == "(0x1.999999999999ap-4)" and float.fromhex("0x1.999999999999ap-4") == 0.1
+    x = native.Sym("x", np.float64)
+    assert em.pow_(x, np.float64(0.5), ["x", "0.5"], [np.float64, np.float64]).name in em.lines[-1]
+    assert "sqrt(x)" in em.lines[-1]
+    assert em.pow_(x, np.float64(1.0), ["x", "1.0"], [np.float64, np.float64]) is x
+
+
+@pytest.mark.parametrize("name", list_systems(available_only=True))
+def test_translation_of_every_model_equals_jax(name):
+    """rhs and observables compiled from the jaxprs equal JAX's, with constants folded and without."""
+    S = get_system(name)
+    rng = np.random.default_rng(1)
+    n = 3
+    p = {k: np.asarray(v) for k, v in batch_params(S, None, n).items()}
+    p = S.check(p) if hasattr(S, "check") else p
+    icfg = IntegrateConfig(t1=10.0, n_checkpoints=16)
+    for static in (None, []):
+        kern, dyn = native.kernel_for(S, icfg, S.verdict, p, static=static, check=False)
+        a, y0 = kern.model.host_inputs(dyn, n)
+        for i in range(n):
+            q = {k: jnp.asarray(v[i]) for k, v in p.items()}
+            args = S.prepare(q)
+            y = np.asarray(S.initial_state(q)) + 0.1 * rng.normal(size=y0.shape[1])
+            t = 0.3 + 7.0 * i
+            ref_dy = np.asarray(S.rhs(t, jnp.asarray(y), args))
+            ref_obs = np.ravel(np.asarray(S.observe(t, jnp.asarray(y), args)))
+            np.testing.assert_allclose(y0[i], np.asarray(S.initial_state(q)), rtol=1e-14, atol=1e-15)
+            dy, obs = native.evaluate(kern, t, y, a[i])
+            scale = max(1.0, float(np.max(np.abs(ref_dy))))
+            np.testing.assert_allclose(dy, ref_dy, rtol=1e-11, atol=1e-12 * scale, err_msg=f"{name} rhs static={static}")
+            np.testing.assert_allclose(obs, ref_obs, rtol=1e-11, atol=1e-12, err_msg=f"{name} observe static={static}")
+
+
+def test_classifier_update_equals_jax():
+    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8))
+    m = kern.model
+    t_late = V.late_start(SYS.verdict, float(ICFG.t0), float(ICFG.t1))
+    upd = jax.jit(lambda c, t, o: V.update(c, t, o, SYS.verdict, t_late))
+    rng = np.random.default_rng(2)
+    c_tree, c_flat = V.init(jnp.float64), m.c0.copy()
+    ts = np.sort(rng.uniform(0, ICFG.t1, 200))
+    for t in ts:  # a noisy error signal with excursions, flips and NaN-free values
+        e = abs(rng.normal(0, 0.6)) if rng.random() < 0.3 else 10 ** rng.uniform(-9, -1)
+        o = np.array([e, rng.uniform(0, 3)])
+        c_tree = upd(c_tree, t, jnp.asarray(o))
+        c_flat = native.update(kern, c_flat, t, o)
+        ref = np.concatenate([np.asarray(x, np.float64).ravel() for x in jax.tree.leaves(c_tree)])
+        np.testing.assert_allclose(c_flat, ref, rtol=1e-13, atol=0, equal_nan=True)
+
+
+def test_sweep_runs_native_with_progress_and_records_engine(tmp_path):
+    from stabjax.sweep import run_spec
+
+    spec = {"system": "monoaxial", "name": "tiny",
+            "grid": {"alpha": {"start": 0.4, "stop": 1.0, "num": 6}},
+            "integrate": {"t1": 200.0, "n_checkpoints": 64}}
+    ds = run_spec(spec, tmp_path / "tiny.nc", progress=True)
+    assert ds.attrs["engine"] == "native"
+    ref = run_spec({**spec, "integrate": {**spec["integrate"], "engine": "diffrax"}})
+    np.testing.assert_array_equal(ds["verdict"].values, ref["verdict"].values)
