@@ -8,7 +8,8 @@ Model: the monoaxial paper example (MODELS.md A.5) with an alpha axis (alpha eve
 Contenders (all on the same trajectories):
 
 1. ``stabjax``: the engine as a user calls it -- :func:`stabjax.sweep.run_spec` on a spec
-   (default engine "fused"), including theory evaluation and dataset assembly;
+   (default engine "auto": the native C engine on CPU), including theory evaluation and dataset
+   assembly; ``stabjax_fused``: the same with the fused XLA engine (the previous default);
 2. ``diffrax_vmap``: the plain baseline a user would write -- ``jax.jit(jax.vmap(diffeqsolve))``
    over an (N, 6) state with ``jnp.cross``, Tsit5, PIDController, ``SaveAt(t1=True)``;
 3. ``scipy_dop853``: ``solve_ivp(method="DOP853")`` with a NumPy right-hand side, looping over
@@ -167,23 +168,48 @@ def numpy_rhs(t, y, alpha, c):
 # ---- contenders -----------------------------------------------------------------------------------
 
 
-def run_stabjax(n: int, t1: float) -> dict:
-    """The engine as a user calls it (run_spec); compile measured separately on the same shapes."""
-    from . import fast
+def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
+    """The engine as a user calls it (run_spec); compile measured separately on the same shapes.
+
+    ``engine="auto"`` is the default a user gets (the native C engine on CPU); ``"fused"`` is the
+    XLA engine, kept as a named contender.
+    """
+    import tempfile
+
+    from . import fast, native
+    from .engine import engine_chain
     from .spec import make_plan
     from .sweep import choose_batch_size, run_spec, static_params
 
-    plan = make_plan(spec(n, t1))
+    sp = spec(n, t1)
+    sp["integrate"]["engine"] = engine
+    plan = make_plan(sp)
     batch = choose_batch_size(plan, None)
-    with _Timer() as tc:  # ahead-of-time compile of exactly the executable run_spec will use
-        fast.prepare_call(plan.system, plan.icfg, plan.vcfg, plan.params_for(0, batch), static=static_params(plan))
-    _reset_peak_rss()
-    with _Timer() as tr:
-        ds = run_spec(spec(n, t1))
+    used = engine_chain(plan.system, plan.icfg)[0]
+    old_cache = os.environ.get("STABJAX_CACHE_DIR")
+    with tempfile.TemporaryDirectory() as cache:
+        os.environ["STABJAX_CACHE_DIR"] = cache  # an empty cache: the C compiler really runs
+        native._kernel.cache_clear()
+        try:
+            with _Timer() as tc:  # ahead-of-time build of exactly what run_spec will use
+                if used == "native":
+                    native.warm(plan.system, plan.icfg, plan.vcfg, plan.params_for(0, batch), static=static_params(plan))
+                else:
+                    fast.prepare_call(plan.system, plan.icfg, plan.vcfg, plan.params_for(0, batch),
+                                      static=static_params(plan))
+            _reset_peak_rss()
+            with _Timer() as tr:
+                ds = run_spec(sp)
+        finally:
+            if old_cache is None:
+                os.environ.pop("STABJAX_CACHE_DIR", None)
+            else:
+                os.environ["STABJAX_CACHE_DIR"] = old_cache
     steps = int(ds["n_steps"].sum())
-    return {"wall_s": tr.wall, "cpu_s": tr.cpu, "compile_s": tc.wall, "accepted_steps": steps,
-            "rejected_steps": int(ds["n_rejected"].sum()), "traj_steps_per_s": steps / tr.wall,
-            "peak_rss_mb": _peak_rss_mb(), "batch_size": batch, "lanes_per_device": min(fast.default_lanes(), batch),
+    return {"engine": ds.attrs.get("engine", used), "wall_s": tr.wall, "cpu_s": tr.cpu, "compile_s": tc.wall,
+            "accepted_steps": steps, "rejected_steps": int(ds["n_rejected"].sum()), "traj_steps_per_s": steps / tr.wall,
+            "peak_rss_mb": _peak_rss_mb(), "batch_size": batch,
+            "threads_or_lanes": (native.default_threads() if used == "native" else min(fast.default_lanes(), batch)),
             "verdicts": {k: int((ds["verdict"].values == i).sum()) for i, k in enumerate(
                 ("converged", "flipped", "diverged", "undecided", "failed"))},
             "_verdict": ds["verdict"].values.ravel()}
@@ -296,8 +322,9 @@ def run_numba(n: int, t1: float, k: int) -> dict | None:
 
 
 def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, k_verdict: int) -> dict:
-    """Fused final states vs diffrax baseline and SciPy; fused verdicts vs the diffrax engine path."""
-    from . import fast
+    """Final states of the native engine vs the diffrax baseline and SciPy; its verdicts (and those of
+    run_spec and of the fused engine) vs the diffrax engine path."""
+    from . import fast, native
     from .engine import IntegrateConfig, solve_batch
     from .registry import get_system
 
@@ -308,25 +335,50 @@ def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, 
     p["alpha"] = alphas(n)
     sub = _scipy_subset(n, k_verdict)
     psub = {k: v[sub] for k, v in p.items()}
+    nat = native.solve(s, psub, icfg, s.verdict, with_state=True)
     fused = fast.solve(s, psub, icfg, s.verdict, with_state=True)
     ref = solve_batch(s, psub, IntegrateConfig(**{**icfg.__dict__, "engine": "diffrax"}))
     out["verdict_check_n"] = int(len(sub))
+    out["verdicts_equal_native_vs_diffrax_engine"] = int((nat["verdict"] == ref["verdict"]).sum())
     out["verdicts_equal_fused_vs_diffrax_engine"] = int((fused["verdict"] == ref["verdict"]).sum())
     out["verdicts_equal_run_spec_vs_diffrax_engine"] = int((stab["_verdict"][sub] == ref["verdict"]).sum())
     if dfx is not None:
-        d = np.abs(fused["state_t1"] - dfx["_state"][sub]).max(axis=1)
-        out["max_abs_state_diff_fused_vs_diffrax"] = float(d.max())
-        out["median_abs_state_diff_fused_vs_diffrax"] = float(np.median(d))
-        out["frac_state_within_1e-6_fused_vs_diffrax"] = float((d <= 1e-6).mean())
+        for name, res in (("native", nat), ("fused", fused)):
+            d = np.abs(res["state_t1"] - dfx["_state"][sub]).max(axis=1)
+            out[f"max_abs_state_diff_{name}_vs_diffrax"] = float(d.max())
+            out[f"median_abs_state_diff_{name}_vs_diffrax"] = float(np.median(d))
+            out[f"frac_state_within_1e-6_{name}_vs_diffrax"] = float((d <= 1e-6).mean())
     if sp is not None:
         pos = {int(i): j for j, i in enumerate(sub)}
         rows = [pos[i] for i in sp["indices"] if i in pos]
         if rows:
             sps = sp["_state"][[j for j, i in enumerate(sp["indices"]) if i in pos]]
-            out["max_abs_state_diff_fused_vs_scipy"] = float(np.abs(fused["state_t1"][rows] - sps).max())
+            out["max_abs_state_diff_native_vs_scipy"] = float(np.abs(nat["state_t1"][rows] - sps).max())
             if dfx is not None:
                 out["max_abs_state_diff_diffrax_vs_scipy"] = float(
                     np.abs(dfx["_state"][[sub[j] for j in rows]] - sps).max())
+    return out
+
+
+def native_flops(t1: float) -> dict:
+    """Operations per step of the native engine, counted in its generated C (see native.flops_per_step)."""
+    from . import native
+    from .engine import IntegrateConfig
+    from .registry import get_system
+
+    s = get_system(SYSTEM)
+    n = 64
+    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in paper_constants().items()}
+    p["alpha"] = alphas(n)
+    icfg = IntegrateConfig(t1=t1, rtol=RTOL, atol=ATOL)
+    kern, _ = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
+    res = native.solve(s, p, icfg, s.verdict, static=[k for k in p if k != "alpha"])
+    ck_per_step = len(icfg.checkpoints()) / float(np.mean(res["n_steps"]))
+    out = native.flops_per_step(kern, ck_per_step)
+    out["checkpoints_per_step"] = ck_per_step
+    out["rejected_per_accepted"] = float(res["n_rejected"].sum() / res["n_steps"].sum())
+    # a rejected attempt costs a step without checkpoints
+    out["per_accepted_step"] = out["total"] + out["rejected_per_accepted"] * out["step"]
     return out
 
 
@@ -365,7 +417,7 @@ def _strip(d: dict) -> dict:
 
 
 def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/bench.json", quick: bool = False,
-         scipy_k: int | None = None, skip_diffrax_above: int | None = None) -> dict:
+         scipy_k: int | None = None, skip_diffrax_above: int | None = None, with_fused: bool = True) -> dict:
     import jax
 
     from . import fast
@@ -385,9 +437,16 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
         result["flops"] = step_flops()
     except Exception as exc:  # cost analysis is best effort
         result["flops"] = {"error": repr(exc)}
+    try:
+        result["native_flops"] = native_flops(t1)
+    except Exception as exc:
+        result["native_flops"] = {"error": repr(exc)}
     for n in sizes:
         print(f"[bench] N={n} t1={t1}: stabjax ...", flush=True)
         row = {"stabjax": run_stabjax(n, t1)}
+        if with_fused:
+            print(f"[bench] N={n}: stabjax fused (XLA) engine ...", flush=True)
+            row["stabjax_fused"] = run_stabjax(n, t1, engine="fused")
         if skip_diffrax_above is None or n <= skip_diffrax_above:
             print(f"[bench] N={n}: diffrax vmap ...", flush=True)
             row["diffrax_vmap"] = run_diffrax(n, t1)
@@ -408,11 +467,16 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
         ratios["speedup_per_trajectory_vs_scipy"] = row["scipy_dop853"]["wall_s_per_trajectory"] / (st["wall_s"] / n)
         if "numba_dopri5" in row:
             ratios["speedup_per_trajectory_vs_numba"] = row["numba_dopri5"]["wall_s_per_trajectory"] / (st["wall_s"] / n)
-        fl = result["flops"].get("module_flops_per_lane")
-        if fl:
-            per_step = fl * 6 / 10
-            ratios["est_flops_per_step"] = per_step
-            ratios["fraction_of_f64_peak"] = per_step * st["traj_steps_per_s"] / (result["peak"]["peak_gflops_f64"] * 1e9)
+        if "stabjax_fused" in row:
+            f = row["stabjax_fused"]
+            ratios["speedup_wall_vs_fused"] = f["wall_s"] / st["wall_s"]
+            ratios["fused_traj_steps_per_s"] = f["traj_steps_per_s"]
+            if "diffrax_vmap" in row:
+                ratios["fused_speedup_wall_vs_diffrax"] = row["diffrax_vmap"]["wall_s"] / f["wall_s"]
+        nf = result["native_flops"].get("per_accepted_step")
+        if nf and st.get("engine") == "native":
+            ratios["est_flops_per_step"] = nf
+            ratios["fraction_of_f64_peak"] = nf * st["traj_steps_per_s"] / (result["peak"]["peak_gflops_f64"] * 1e9)
         row["ratios"] = ratios
         result["sizes"][str(n)] = {k: (_strip(v) if isinstance(v, dict) else v) for k, v in row.items()}
         print(f"[bench] N={n}: " + json.dumps(ratios), flush=True)
@@ -442,9 +506,14 @@ def markdown(r: dict) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for n, row in r["sizes"].items():
         st = row["stabjax"]
-        lines.append(f"| {n} | stabjax (run_spec, fused) | {st['wall_s']:.2f} | {st['compile_s']:.1f} | "
-                     f"{st['accepted_steps']:,} | {st['traj_steps_per_s']:.3g} | {st['peak_rss_mb']:.0f} | "
-                     f"verdicts {st['verdicts']} |")
+        for key, label in (("stabjax", f"stabjax (run_spec, {st.get('engine', '?')} engine)"),
+                           ("stabjax_fused", "stabjax (run_spec, fused XLA engine)")):
+            if key not in row:
+                continue
+            e = row[key]
+            lines.append(f"| {n} | {label} | {e['wall_s']:.2f} | {e['compile_s']:.1f} | "
+                         f"{e['accepted_steps']:,} | {e['traj_steps_per_s']:.3g} | {e['peak_rss_mb']:.0f} | "
+                         f"verdicts {e['verdicts']} |")
         if "diffrax_vmap" in row:
             d = row["diffrax_vmap"]
             lines.append(f"| {n} | jit(vmap(diffrax)) | {d['wall_s']:.2f} | {d['compile_s']:.1f} | {d['accepted_steps']:,} | "
@@ -464,8 +533,14 @@ def markdown(r: dict) -> str:
         lines.append(f"- N = {n}: " + ", ".join(f"{k} {v:.3g}" for k, v in row["ratios"].items()) + "; "
                      + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in row["agreement"].items()))
     fl = r.get("flops", {})
+    nf = r.get("native_flops", {})
     pk = r["peak"]
-    lines += ["", f"Roofline: peak {pk['peak_gflops_f64']:.0f} GF/s float64 ({pk['assumption']}); "
+    lines += ["", f"Roofline: peak {pk['peak_gflops_f64']:.0f} GF/s float64 ({pk['assumption']}). Native engine: "
+                  f"{nf.get('per_accepted_step', float('nan')):.0f} flops per accepted step counted in its generated C "
+                  f"(step {nf.get('step', float('nan')):.0f}, checkpoints {nf.get('checkpoints', float('nan')):.0f} at "
+                  f"{nf.get('checkpoints_per_step', float('nan')):.2f} per step, rejected attempts "
+                  f"{nf.get('rejected_per_accepted', float('nan')):.2f} per accepted step; a libm call counted as "
+                  f"{nf.get('libm_flops', '?')} flops). "
                   f"XLA flops of the compiled fused loop per lane {fl.get('module_flops_per_lane', float('nan')):.0f} "
                   f"({fl.get('note', fl.get('error', ''))})."]
     return "\n".join(lines) + "\n"
@@ -480,5 +555,7 @@ if __name__ == "__main__":
     ap.add_argument("--out", default="results/bench.json")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--scipy-k", type=int, default=None)
+    ap.add_argument("--no-fused", action="store_true", help="skip the fused (XLA) engine contender")
     a = ap.parse_args()
-    main(sizes=[int(s) for s in a.sizes.split(",")], t1=a.t1, out=a.out, quick=a.quick, scipy_k=a.scipy_k)
+    main(sizes=[int(s) for s in a.sizes.split(",")], t1=a.t1, out=a.out, quick=a.quick, scipy_k=a.scipy_k,
+         with_fused=not a.no_fused)

@@ -276,11 +276,12 @@ def bench(
     t1: float = typer.Option(1e4),
     out: Path = typer.Option(Path("results/bench.json")),
     quick: bool = typer.Option(False, help="tiny sizes (smoke test)"),
+    fused: bool = typer.Option(True, help="also run the fused (XLA) engine as a named contender"),
 ):
     """Benchmark the sweep engine against named baselines in one process."""
     from .bench import main as bench_main
 
-    bench_main(sizes=[int(s) for s in sizes.split(",")], t1=t1, out=out, quick=quick)
+    bench_main(sizes=[int(s) for s in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
 
 
 def main(argv: list[str] | None = None):

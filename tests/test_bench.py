@@ -17,8 +17,15 @@ def test_quick_benchmark_runs_and_agrees(tmp_path):
         assert c["wall_s"] > 0 and c["compile_s"] > 0 and c["accepted_steps"] > 0 and c["peak_rss_mb"] > 0
     assert row["scipy_dop853"]["wall_s_per_trajectory"] > 0
     a = row["agreement"]
-    assert a["verdicts_equal_fused_vs_diffrax_engine"] == a["verdict_check_n"] == int(n)
+    assert a["verdicts_equal_native_vs_diffrax_engine"] == a["verdict_check_n"] == int(n)
+    assert a["verdicts_equal_fused_vs_diffrax_engine"] == a["verdict_check_n"]
     assert a["verdicts_equal_run_spec_vs_diffrax_engine"] == a["verdict_check_n"]
+    assert a["max_abs_state_diff_native_vs_diffrax"] < 1e-6
     assert a["max_abs_state_diff_fused_vs_diffrax"] < 1e-6
-    assert a["max_abs_state_diff_fused_vs_scipy"] < 1e-6
-    assert "| stabjax (run_spec, fused) |" in out.with_suffix(".md").read_text()
+    assert a["max_abs_state_diff_native_vs_scipy"] < 1e-6
+    assert row["stabjax_fused"]["accepted_steps"] > 0
+    md = out.with_suffix(".md").read_text()
+    assert f"| stabjax (run_spec, {row['stabjax']['engine']} engine) |" in md
+    assert "| stabjax (run_spec, fused XLA engine) |" in md
+    nf = r["native_flops"]
+    assert nf["step"] > 0 and nf["counts"]["f_rhs"]["libm_calls"] >= 3  # cos, t**alpha (exp, log), cbrt
