@@ -15,9 +15,12 @@ times and keeps running statistics only (no per-step storage):
 
 Verdict rules (first match wins), thresholds in :class:`stabjax.system.VerdictConfig`:
 
-1. FAILED     solver did not reach t1 (max_steps, step-size collapse) or any NaN/Inf.
-2. DIVERGED   size observable above ``diverge_size``, or never settled and the late error
-              grows (slope > ``growth_tol``) while below flip_tol.
+1. FAILED     solver did not reach t1 (max_steps, step-size collapse) or any NaN/Inf --
+              unless a *finite* checkpoint had already shown the size observable above
+              ``diverge_size``: that run is DIVERGED (the failure came after the runaway, e.g.
+              an explicit solver chasing spun-up fast variables until max_steps).
+2. DIVERGED   size observable above ``diverge_size`` at a finite checkpoint, or never settled
+              and the late error grows (slope > ``growth_tol``) while below flip_tol.
 3. FLIPPED    final error > flip_tol (resting near the inverted position), or an excursion
               passed flip_tol inside the late window (flips persist up to the horizon).
               A flip early on followed by flip-free windows and convergence is *not* a
@@ -55,7 +58,8 @@ SUMMARY_DOC = {
     "peak_last": "peak error of the last excursion (NaN if none)",
     "peak_prev": "peak error of the excursion before the last (NaN if fewer than two)",
     "decay_exponent": "-(slope of log error vs log t) over the late window (NaN if error underflows)",
-    "size_max": "largest value of the size observable",
+    "size_max": "largest finite value of the size observable (-inf if none; non-finite checkpoints fail the "
+                "trajectory unless this already exceeded diverge_size)",
 }
 
 
@@ -89,7 +93,9 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     size_k = obs_k[1] if obs_k.shape[0] > 1 else jnp.zeros_like(ek)
     finite = c["finite"] & jnp.all(jnp.isfinite(obs_k))
     ek = jnp.where(jnp.isfinite(ek), ek, jnp.inf)
-    size_max = jnp.maximum(c["size_max"], jnp.where(jnp.isfinite(size_k), size_k, jnp.inf))
+    # over finite checkpoints only (non-finite ones are recorded in ``finite``), so that a run that
+    # grew past diverge_size and then blew up can be told from a NaN run; never NaN (native max)
+    size_max = jnp.maximum(c["size_max"], jnp.where(jnp.isfinite(size_k), size_k, -jnp.inf))
     settled = c["settled"] | (ek < cfg.settle_tol)
     t_settle = jnp.where(~c["settled"] & settled, t, c["t_settle"])
     above = settled & (ek > cfg.excursion_tol)
@@ -120,6 +126,18 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     )
 
 
+def resolve(verdict, failed, size_max, cfg: VerdictConfig):
+    """The rules every classifier shares, on top of its own ``verdict`` (rules 1 and 2, size part).
+
+    ``size_max``: largest size observable over the *finite* checkpoints; ``failed``: the solver
+    did not reach t1 or a checkpoint was not finite. A finite checkpoint with size above
+    ``diverge_size`` is evidence of divergence and wins (also over a later failure); otherwise a
+    failure is FAILED; otherwise ``verdict``. Returns int8.
+    """
+    size_div = size_max > cfg.diverge_size
+    return jnp.where(size_div, DIVERGED, jnp.where(failed, FAILED, verdict)).astype(jnp.int8)
+
+
 def finalize(c, solver_ok, cfg: VerdictConfig):
     """Verdict and summaries from the running state after the last checkpoint."""
     dtype = c["fit"].dtype
@@ -131,7 +149,7 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     size_max = c["size_max"]
 
     failed = ~solver_ok | ~c["finite"]
-    diverged = (size_max > cfg.diverge_size) | (~c["settled"] & (slope > cfg.growth_tol) & (e1 < cfg.flip_tol))
+    diverged = ~c["settled"] & (slope > cfg.growth_tol) & (e1 < cfg.flip_tol)
     flipped = (e1 > cfg.flip_tol) | c["late_flip"]
     # Below floor_tol the error sits at the solver's noise floor (~rtol) and its log-log slope is
     # noise of either sign, so the trend is only asked of errors above it. There is no shortcut on
@@ -139,10 +157,8 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     # whole late window must stay below converged_tol.
     not_growing = jnp.isnan(slope) | (slope <= 0.0) | (c["max_late"] < cfg.floor_tol)
     converged = c["settled"] & ~c["late_exc"] & (c["max_late"] < cfg.converged_tol) & not_growing
-    verdict = jnp.where(
-        failed, FAILED,
-        jnp.where(diverged, DIVERGED, jnp.where(flipped, FLIPPED, jnp.where(converged, CONVERGED, UNDECIDED))),
-    ).astype(jnp.int8)
+    rest = jnp.where(diverged, DIVERGED, jnp.where(flipped, FLIPPED, jnp.where(converged, CONVERGED, UNDECIDED)))
+    verdict = resolve(rest, failed, size_max, cfg)
     return dict(
         verdict=verdict,
         error_t1=e1,

@@ -84,3 +84,44 @@ def test_small_bumps_in_late_window_are_not_converged():
     """Paper A: returning to 1e-12 between bumps of 0.1 rad is not convergence (no final-error shortcut)."""
     e = 1e-12 + bump(TS, 2000, 50, 2.5) + bump(TS, 8000, 80, 0.1)
     assert run(e)["verdict"] == V.UNDECIDED
+
+
+def test_growth_past_diverge_size_then_solver_failure_is_diverged():
+    """A runaway whose spun-up state then exhausts max_steps: the finite checkpoints already show it."""
+    cfg = CFG.replace(diverge_size=1.0)  # attitude in rad, as for the gyrodyne
+    e = 1.0 / (1 + TS)
+    size = np.geomspace(1e-3, 1e3, len(TS))  # passes diverge_size at t = 5000
+    cut = 3 * len(TS) // 4
+    size[cut:] = np.inf  # unreached checkpoints after the solver stopped (diffrax fills inf)
+    e[cut:] = np.inf
+    assert size[cut - 1] > cfg.diverge_size
+    r = run(e, size=size, ok=False, cfg=cfg)
+    assert r["verdict"] == V.DIVERGED
+    np.testing.assert_allclose(r["size_max"], size[cut - 1])  # largest finite size, not inf
+    # NaN instead of inf, and solver "ok" but state non-finite: the same evidence, the same verdict
+    size[cut:] = np.nan
+    assert run(e, size=size, ok=False, cfg=cfg)["verdict"] == V.DIVERGED
+    assert run(e, size=size, ok=True, cfg=cfg)["verdict"] == V.DIVERGED
+    # the same history cut before the size reached diverge_size: no evidence, failed
+    size[len(TS) // 2 - 10:] = np.nan
+    assert run(e, size=size, ok=False, cfg=cfg)["verdict"] == V.FAILED
+
+
+def test_nan_without_prior_growth_is_failed():
+    e = 1.0 / (1 + TS)
+    size = np.full_like(TS, 0.1)
+    e[-10:] = np.nan
+    size[-10:] = np.nan
+    r = run(e, size=size)
+    assert r["verdict"] == V.FAILED
+    np.testing.assert_allclose(r["size_max"], 0.1)
+    size[-10:] = np.inf  # an infinite size is not evidence either: only finite checkpoints count
+    assert run(e, size=size)["verdict"] == V.FAILED
+
+
+def test_solver_failure_without_growth_is_failed():
+    e = 1.0 / (1 + TS)
+    size = np.full_like(TS, CFG.diverge_size * 0.99)
+    assert run(e, size=size, ok=False)["verdict"] == V.FAILED
+    # growth of the error alone (never settled, late slope > growth_tol) does not override a failure
+    assert run(np.geomspace(0.5, 1.0, len(TS)), ok=False)["verdict"] == V.FAILED

@@ -60,6 +60,7 @@ from ..params import Param, ParamSet, check_positive, require
 from ..system import System, VerdictConfig
 from ..errors import ValidationError
 from . import gyrodyne_theory as th
+from .. import verdict as V
 
 CONVERGED, FLIPPED, DIVERGED, UNDECIDED, FAILED = 0, 1, 2, 3, 4
 
@@ -326,7 +327,12 @@ class Gyrodyne(System):
         growth1, growth2: least-squares slopes of log E1, log E2 against t over the late window
         t >= t0 + (1 - late_fraction)(t1 - t0) [1/s]. CONVERGED: growth1 < -growth_tol;
         DIVERGED: growth1 > growth_tol or the perturbed copy's angles exceed diverge_size;
-        UNDECIDED: |growth1| <= growth_tol (neutral within resolution); FAILED: solver/NaN.
+        UNDECIDED: |growth1| <= growth_tol (neutral within resolution); FAILED: solver/NaN (or
+        too few late points for growth1). The failed/size precedence is the generic one
+        (:func:`stabjax.verdict.resolve`): angles above diverge_size at a finite checkpoint make
+        the run DIVERGED even if the solver failed or the state went non-finite later (the full
+        model's attitude runaways, whose spun-up gimbals exhaust max_steps); ``size_max`` is the
+        largest finite size.
         """
         t1 = ts[-1]
         late = ts >= t0 + (1.0 - cfg.late_fraction) * (t1 - t0)
@@ -342,13 +348,12 @@ class Gyrodyne(System):
             return jnp.where((n >= 3) & (den > 0), (n * sxy - sx * sy) / jnp.where(den > 0, den, 1.0), jnp.nan)
 
         g1, g2 = slope(obs[:, 0]), slope(obs[:, 2])
-        size_max = jnp.max(jnp.where(jnp.isfinite(obs[:, 1]), obs[:, 1], jnp.inf))
+        size_max = jnp.max(jnp.where(jnp.isfinite(obs[:, 1]), obs[:, 1], -jnp.inf))
         failed = ~solver_ok | ~finite | jnp.isnan(g1)
-        diverged = (size_max > cfg.diverge_size) | (g1 > cfg.growth_tol)
-        converged = g1 < -cfg.growth_tol
-        verdict = jnp.where(failed, FAILED, jnp.where(diverged, DIVERGED, jnp.where(converged, CONVERGED, UNDECIDED)))
+        rest = jnp.where(g1 > cfg.growth_tol, DIVERGED, jnp.where(g1 < -cfg.growth_tol, CONVERGED, UNDECIDED))
+        verdict = V.resolve(rest, failed, size_max, cfg)
         return dict(
-            verdict=verdict.astype(jnp.int8),
+            verdict=verdict,
             growth1=g1, growth2=g2,
             E1_t1=obs[-1, 0], E2_t1=obs[-1, 2],
             E1_ref_max=jnp.max(obs[:, 3]),
