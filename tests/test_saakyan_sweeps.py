@@ -58,3 +58,25 @@ def test_no_mu_sweep_small_batch_is_classified_diverged():
     assert (ds["verdict"].sel(use_mu=0.0).values == DIVERGED).all()
     assert (ds["verdict"].sel(use_mu=1.0).values == CONVERGED).all()
     assert ds["theory_unstable_no_mu"].sel(use_mu=0.0).values.min() == 1
+
+
+def test_generic_classifier_on_the_fused_engine():
+    """No system-specific classify(): the fused engine takes all five loops, and the generic rules
+    (size = |w1|/lam, diverge_size = SPIN_DIVERGE; noise floor floor_tol) give the shipped no-mu
+    finding: runaway without mu is DIVERGED, not flipped; with mu the run converges."""
+    from stabjax import fast
+    from stabjax.engine import IntegrateConfig, batch_params
+    from stabjax.registry import get_system
+    from stabjax.verdict import DIVERGED
+
+    names = ("saakyan_moving", "saakyan_fixed", "saakyan_gravity", "saakyan_gyrostat", "saakyan_gyrostat_gravity")
+    assert all(getattr(get_system(n), "classify", None) is None for n in names)
+    s = get_system("saakyan_fixed")
+    assert s.verdict.diverge_size == s.SPIN_DIVERGE == 10.0 and s.observables[1] == "spin_dev"
+    assert s.verdict.floor_tol == 1e-6  # the former NOISE_FLOOR
+    p = batch_params(s, dict(I=(4.0, 3.0, 2.0), H=(0.3, -0.5, 0.8), lam=1.0, K=5.0, init=1, rho=1e-3), 2)
+    p["use_mu"] = np.array([0.0, 1.0])
+    icfg = IntegrateConfig(t1=100.0, rtol=1e-8, atol=1e-10, n_checkpoints=400, engine="fused")
+    out = fast.solve(s, p, icfg, s.verdict)  # raises fast.Unsupported if it cannot run lane-wise
+    assert list(out["verdict"]) == [DIVERGED, CONVERGED]
+    assert out["size_max"][0] > s.SPIN_DIVERGE and out["size_max"][1] < 2.0

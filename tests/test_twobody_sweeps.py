@@ -51,3 +51,37 @@ def test_near_unstable_and_b_rate_end_to_end():
     np.testing.assert_allclose(m, want, atol=1e-9)
     # b* = 6 rho at |Omega_r| = 6 with rho = 2.3458 / 3 (MODELS.md C.5), both signs (rho differs by sign)
     assert abs(ds["derived_b_star_physical"].values[-1, 0, 0] - 6 * 2.3458 / 3) < 1e-3
+
+
+@pytest.mark.parametrize("name", ["twobody_uniaxial", "twobody_triaxial_rotating"])
+def test_generic_classifier_on_the_fused_engine(name):
+    """No system-specific classify(): the fused engine takes these loops (no primitive without a
+    lane-wise rule) and the default start converges there."""
+    from stabjax import fast
+    from stabjax.engine import IntegrateConfig, batch_params
+    from stabjax.registry import get_system
+
+    s = get_system(name)
+    assert getattr(s, "classify", None) is None
+    icfg = IntegrateConfig(engine="fused", **SMALL)
+    out = fast.solve(s, batch_params(s, None, 1), icfg, s.verdict)  # fast.Unsupported if it cannot run
+    assert out["verdict"][0] == CONVERGED
+
+
+def test_noise_floor_is_converged_by_the_generic_rule():
+    """What the removed classify() added (late window settled below 1e-3 converged_tol = 1e-6 rad:
+    converged, whatever the sign of the noisy log-log slope) is the generic floor_tol rule."""
+    import jax.numpy as jnp
+
+    from stabjax import verdict as V
+    from stabjax.registry import get_system
+
+    s = get_system("twobody_uniaxial")
+    assert s.verdict.floor_tol == 1e-6 and s.verdict.converged_tol == 1e-3  # the former 1e-3 * converged_tol
+    ts = np.linspace(0.0, 300.0, 400)
+    err = np.where(ts < 50.0, 1.0 - ts / 60.0, 1e-9 * (1.0 + 0.5 * ts / 300.0))  # settles, then a rising floor
+    obs = jnp.asarray(np.stack([err, np.ones_like(ts)], axis=1))
+    out = V.classify(jnp.asarray(ts), obs, jnp.asarray(True), s.verdict, 0.0)
+    assert float(out["decay_exponent"]) < 0 and int(out["verdict"]) == CONVERGED
+    out = V.classify(jnp.asarray(ts), obs, jnp.asarray(True), s.verdict.replace(floor_tol=0.0), 0.0)
+    assert int(out["verdict"]) == V.UNDECIDED  # the plain slope rule alone: undecided
