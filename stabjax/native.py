@@ -126,8 +126,10 @@ class _CEmit(fast._Lanes):
     left scalar), while a loop of doubles only becomes AVX-512 code throughout.
     """
 
-    def __init__(self, prefix="v"):
+    def __init__(self, prefix="v", fast_trig: bool = False):
         super().__init__(1)
+        self.fast_trig = fast_trig
+        self.trig_args: list[str] = []  # arguments of inline sin/cos (range-checked, see TRIG_LIMIT)
         self.lines: list[str] = []
         self.prefix = prefix
         self.n = 0
@@ -208,6 +210,9 @@ class _CEmit(fast._Lanes):
             return self.new(dt, f"nextafter({r[0]}, {r[1]})")
         if name == "rem":
             return self.new(dt, f"fmod({r[0]}, {r[1]})")
+        if name in ("sin", "cos") and fl and self.fast_trig and not params.get("accuracy"):
+            self.trig_args.append(r[0])
+            return self.new(dt, f"j{name}({r[0]})")
         if name in _INLINE and fl and not params.get("accuracy"):
             return self.new(dt, f"{_INLINE[name]}({r[0]})")
         if name in _LIBM1 and fl and not params.get("accuracy"):
@@ -388,24 +393,27 @@ class _NativeModel:
                 out.append(o)
             return out
 
-        # -- rhs(t, y, a) -> dy --
-        em = _CEmit()
-        y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-        outs = em.eval_closed(jax.make_jaxpr(system.rhs)(ex_t, ex_y, ex_args), [fast._obj0(Sym("t", np.float64)), y[0]]
-                              + args_objs(em))
-        if outs[0].shape != (self.n_state,):
-            raise fast._Unsupported(f"rhs output shape {outs[0].shape}")
-        _store(em, outs, "out", [np.float64])
-        rhs = _function("f_rhs", em.lines, "const double t, const double *restrict y, const double *restrict a, "
-                                           "double *restrict out")
-        # -- observe(t, y, a) -> obs --
-        em = _CEmit()
-        y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-        outs = em.eval_closed(jax.make_jaxpr(system.observe)(ex_t, ex_y, ex_args),
-                              [fast._obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
-        _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
-        obs = _function("f_obs", em.lines, "const double t, const double *restrict y, const double *restrict a, "
-                                           "double *restrict out")
+        # -- rhs(t, y, a) -> dy and observe(t, y, a) -> obs, each twice: with inline sin/cos (reporting
+        #    arguments beyond TRIG_LIMIT in "big") and with libm's (the "_x" variant, for those blocks) --
+        sigs = "const double t, const double *restrict y, const double *restrict a, double *restrict out"
+        parts = []
+        for name, fn in (("f_rhs", system.rhs), ("f_obs", system.observe)):
+            closed = jax.make_jaxpr(fn)(ex_t, ex_y, ex_args)
+            for fast_trig in (True, False):
+                em = _CEmit(fast_trig=fast_trig)
+                y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+                outs = em.eval_closed(closed, [fast._obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+                if name == "f_rhs" and outs[0].shape != (self.n_state,):
+                    raise fast._Unsupported(f"rhs output shape {outs[0].shape}")
+                _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
+                if fast_trig:
+                    checks = " + ".join(f"(fabs({x}) > TRIG_LIMIT ? 1.0 : 0.0)" for x in em.trig_args) or "0.0"
+                    em.lines.append(f"big[0] = {checks};")
+                    parts.append(_function(name, em.lines, sigs + ", double *restrict big"))
+                else:
+                    parts.append(_function(name + "_x", em.lines, sigs))
+        rhs = "\n".join(parts)
+        obs = ""
         # -- classifier update(c, t, obs) -> c --
         em = _CEmit()
         c_in, _ = _inputs(em, self.c_shapes, "c")
@@ -494,7 +502,8 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
             {body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);""")
+        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, BIG + l, W);
+        REDO_IF_BIG(f_rhs_x(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W));""")
     row = _A[5]
     new_body = _unrolled(NS, lambda q: f"YN[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
@@ -602,6 +611,30 @@ static inline double jcbrt(const double x) {{
     return copysign((y + (c == c ? c : 0.0)) * (tiny != 0.0 ? 0x1p-333 : 1.0), x);  /* 0, inf: c is NaN, y exact */
 }}
 
+/* sin and cos inline (the one libm call left in a right-hand side cost ~20% of the step:
+   measured). Cody-Waite reduction by pi/2 in four pieces (exact products for |x| < 2**26 pi/2)
+   and fdlibm's kernels, ~1 ulp. Beyond TRIG_LIMIT the generated function reports it through
+   its "big" output and the kernel recomputes that block with libm (f_rhs_x / f_obs_x). */
+#define TRIG_LIMIT 0x1.921fb54442d18p+26
+static inline double jsincos_q(const double x, const double shift) {{
+    const double n = rint(x * 0x1.45f306dc9c883p-1);
+    double r = x - n * 0x1.921fb58000000p+0;
+    r = r - n * -0x1.dde9740000000p-27;
+    r = r - n * 0x1.1a62630000000p-54;
+    r = r - n * 0x1.8a2e038000000p-81;
+    const double m = n + shift;
+    const double q = m - 4.0 * floor(0.25 * m);
+    const double z = r * r, w = z * z;
+    const double rs = 0x1.111111110f8a6p-7 + z * (-0x1.a01a019c161d5p-13 + z * 0x1.71de357b1fe7dp-19) + z * w * (-0x1.ae5e68a2b9cebp-26 + z * 0x1.5d93a5acfd57cp-33);
+    const double sn = r + z * r * (-0x1.5555555555549p-3 + z * rs);
+    const double rc = z * (0x1.555555555554cp-5 + z * (-0x1.6c16c16c15177p-10 + z * 0x1.a01a019cb1590p-16)) + w * w * (-0x1.27e4f809c52adp-22 + z * (0x1.1ee9ebdb4b1c4p-29 + z * -0x1.8fae9be8838d4p-37));
+    const double hz = 0.5 * z, v = 1.0 - hz;
+    const double cs = v + (((1.0 - v) - hz) + z * rc);
+    return q == 0.0 ? sn : (q == 1.0 ? cs : (q == 2.0 ? -sn : -cs));
+}}
+static inline double jsin(const double x) {{ return jsincos_q(x, 0.0); }}
+static inline double jcos(const double x) {{ return jsincos_q(x, 1.0); }}
+
 /* x**y as exp(y log|x|) with libm's special cases for y = 0 and negative x (glibc's vector pow is
    ~2x the cost of exp + log; measured). Relative error about (2 + |y log x|) ulp. */
 static inline double jpow(const double x, const double y) {{
@@ -647,7 +680,7 @@ static double initial_step(const job_t *jb, double *Y, double *F, double *YT, do
     const int small = (d0 < 1e-5) | (d1 < 1e-5);
     const double h0 = small ? 1e-6 : 0.01 * (d0 / d1);
     for (int q = 0; q < NS; q++) YT[q * W + l] = Y[q * W + l] + h0 * F[q * W + l];
-    f_rhs(jb->t0 + h0, YT + l, A + l, F1 + l, W);
+    f_rhs_x(jb->t0 + h0, YT + l, A + l, F1 + l, W);
     double s = 0.0;
     for (int q = 0; q < NS; q++) {{ const double r = (F1[q * W + l] - F[q * W + l]) / scale[q]; s += r * r; }}
     const double d2 = sqrt(s / NS) / h0;
@@ -663,7 +696,7 @@ int64_t stabjax_run(const job_t *jb) {{
         NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN;
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
     /* checkpoint items of one step, and each lane's FIFO of observed checkpoints (time, observables) */
-    double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN;
+    double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN, BIG[W] ALIGN, BIGI[NI] ALIGN;
     int IL[NI] ALIGN;
     static __thread double FT[W * QCAP], FO[W * QCAP * NO];
     int QH[W], QN[W];
@@ -682,11 +715,17 @@ int64_t stabjax_run(const job_t *jb) {{
             for (int q = 0; q < NS; q++) Y[q * W + (l)] = jb->y0in[j_ * NS + q]; \\
             for (int q = 0; q < NC; q++) C[q * W + (l)] = jb->c0[q]; \\
             T[l] = t0; CK[l] = 0; NACC[l] = 0; NREJ[l] = 0; QH[l] = 0; QN[l] = 0; \\
-            f_rhs(t0, Y + (l), A + (l), KS[0] + (l), W); \\
+            f_rhs_x(t0, Y + (l), A + (l), KS[0] + (l), W); \\
             const double h_ = initial_step(jb, Y, KS[0], YT, KS[1], A, (l)); \\
             double tn_ = t0 + h_ < t1 ? t0 + h_ : t1; \\
             TN[l] = tn_ > t1_floor ? t1 : tn_; \\
         }} else {{ IDX[l] = -1; ACT[l] = 0.0; }} \\
+    }} while (0)
+
+#define REDO_IF_BIG(CALL) do {{ \\
+        double any_ = 0.0; \\
+        for (int l = 0; l < W; l++) any_ += BIG[l]; \\
+        if (any_ != 0.0) for (int l = 0; l < W; l++) CALL; \\
     }} while (0)
 
 #define DRAIN_ONE(L) do {{ \\
@@ -713,7 +752,8 @@ int64_t stabjax_run(const job_t *jb) {{
             {new_body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, W);
+        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, BIG + l, W);
+        REDO_IF_BIG(f_rhs_x(TN[l], YN + l, A + l, KS[6] + l, W));
 
         /* error estimate and diffrax's PIDController (I-controller defaults) */
         #pragma omp simd
@@ -775,7 +815,13 @@ int64_t stabjax_run(const job_t *jb) {{
                     {pack_a_body}
                 }}
                 #pragma omp simd
-                for (int i = 0; i < m; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, NI);
+                for (int i = 0; i < m; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, BIGI + i, NI);
+                {{
+                    double any_ = 0.0;
+                    for (int i = 0; i < m; i++) any_ += BIGI[i];
+                    if (any_ != 0.0)
+                        for (int i = 0; i < m; i++) f_obs_x(IT_[i], PYT + i, PA + i, POBS + i, NI);
+                }}
                 for (int i = 0; i < m; i++) {{
                     const int L = IL[i];
                     if (QN[L] == QCAP) DRAIN_ONE(L);
@@ -843,8 +889,11 @@ int64_t stabjax_run(const job_t *jb) {{
 
 /* one trajectory's rhs, observables and classifier update at stride 1 (tests compare them with JAX) */
 void stabjax_eval(const double t, const double *y, const double *a, double *dy, double *obs) {{
-    f_rhs(t, y, a, dy, 1);
-    f_obs(t, y, a, obs, 1);
+    double big = 0.0, bigo = 0.0;
+    f_rhs(t, y, a, dy, &big, 1);
+    if (big != 0.0) f_rhs_x(t, y, a, dy, 1);
+    f_obs(t, y, a, obs, &bigo, 1);
+    if (bigo != 0.0) f_obs_x(t, y, a, obs, 1);
 }}
 
 void stabjax_update(const double *c, const double t, const double *o, double *out) {{

@@ -225,3 +225,22 @@ def test_inline_exp_log_cbrt_pow_match_libm():
     with np.errstate(all="ignore"):
         want = px**py
     np.testing.assert_allclose(native.inline_math(kern, "pow", px, py), want, rtol=1e-15, equal_nan=True)
+
+
+def test_trig_beyond_reduction_range_falls_back_to_libm():
+    """cos(omega0 t**alpha) at t = 1e12: beyond TRIG_LIMIT the block is recomputed with libm.
+
+    alpha = 1 is folded as a constant (t**1 = t exactly): with a lane-varying alpha, t**alpha is
+    exp(alpha log t), whose ~27 ulp at t = 1e12 move the cosine's argument by ~1e-3, the same
+    for any pow of finite accuracy at such arguments."""
+    p = batch_params(SYS, None, 2)
+    p["alpha"] = np.array([1.0, 1.0])
+    kern, dyn = native.kernel_for(SYS, ICFG, SYS.verdict, p)
+    a, _ = kern.model.host_inputs(dyn, 2)
+    q = {k: jnp.asarray(v[0]) for k, v in p.items()}
+    y = np.array([0.1, -0.2, 0.3, 0.6, 0.48, 0.64])
+    for t in (3.0, 1e12, 1e15):
+        ref = np.asarray(SYS.rhs(t, jnp.asarray(y), SYS.prepare(q)))
+        dy, _ = native.evaluate(kern, t, y, a[0])
+        np.testing.assert_allclose(dy, ref, rtol=1e-12, atol=1e-14, err_msg=f"t={t}")
+    assert "jcos(" in kern.source and "TRIG_LIMIT" in kern.source
