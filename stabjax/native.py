@@ -109,7 +109,6 @@ _CMP = {"eq": "==", "ne": "!=", "lt": "<", "le": "<=", "gt": ">", "ge": ">="}
 _LIBM1 = {n: n for n in ("exp", "log", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh",
                          "acosh", "atanh", "sqrt", "cbrt", "log1p", "expm1", "exp2", "erf", "erfc", "floor", "ceil",
                          "lgamma")}
-_INLINE = {"exp": "jexp", "log": "jlog", "cbrt": "jcbrt"}  # inline C versions (see the kernel's jexp/jlog)
 _IDENTITY = frozenset({"copy", "copy_p", "reduce_precision", "optimization_barrier"})
 # libm functions for which glibc's libmvec has x86-64 vector variants (declared ``omp declare simd``)
 _VECTOR_LIBM = ("exp", "log", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh",
@@ -126,10 +125,8 @@ class _CEmit(fast._Lanes):
     left scalar), while a loop of doubles only becomes AVX-512 code throughout.
     """
 
-    def __init__(self, prefix="v", fast_trig: bool = False):
+    def __init__(self, prefix="v"):
         super().__init__(1)
-        self.fast_trig = fast_trig
-        self.trig_args: list[str] = []  # arguments of inline sin/cos (range-checked, see TRIG_LIMIT)
         self.lines: list[str] = []
         self.prefix = prefix
         self.n = 0
@@ -210,11 +207,6 @@ class _CEmit(fast._Lanes):
             return self.new(dt, f"nextafter({r[0]}, {r[1]})")
         if name == "rem":
             return self.new(dt, f"fmod({r[0]}, {r[1]})")
-        if name in ("sin", "cos") and fl and self.fast_trig and not params.get("accuracy"):
-            self.trig_args.append(r[0])
-            return self.new(dt, f"j{name}({r[0]})")
-        if name in _INLINE and fl and not params.get("accuracy"):
-            return self.new(dt, f"{_INLINE[name]}({r[0]})")
         if name in _LIBM1 and fl and not params.get("accuracy"):
             return self.new(dt, f"{_LIBM1[name]}({r[0]})")
         if boolean and name in ("and", "or", "xor", "not"):
@@ -268,7 +260,7 @@ class _CEmit(fast._Lanes):
             if yv == 0.5:
                 return self.new(dtypes[0], f"sqrt({r[0]})")
             if abs(yv - 1.0 / 3.0) <= 1e-15:  # sigma - 1 with sigma = 4/3 is 1/3 - 1 ulp; cbrt is within rounding
-                return self.new(dtypes[0], f"jcbrt({r[0]})")
+                return self.new(dtypes[0], f"cbrt({r[0]})")
             if yv == -0.5:
                 return self.new(dtypes[0], f"1.0 / sqrt({r[0]})")
             if yv == int(yv) and abs(yv) <= 4:
@@ -393,27 +385,24 @@ class _NativeModel:
                 out.append(o)
             return out
 
-        # -- rhs(t, y, a) -> dy and observe(t, y, a) -> obs, each twice: with inline sin/cos (reporting
-        #    arguments beyond TRIG_LIMIT in "big") and with libm's (the "_x" variant, for those blocks) --
-        sigs = "const double t, const double *restrict y, const double *restrict a, double *restrict out"
-        parts = []
-        for name, fn in (("f_rhs", system.rhs), ("f_obs", system.observe)):
-            closed = jax.make_jaxpr(fn)(ex_t, ex_y, ex_args)
-            for fast_trig in (True, False):
-                em = _CEmit(fast_trig=fast_trig)
-                y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-                outs = em.eval_closed(closed, [fast._obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
-                if name == "f_rhs" and outs[0].shape != (self.n_state,):
-                    raise fast._Unsupported(f"rhs output shape {outs[0].shape}")
-                _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
-                if fast_trig:
-                    checks = " + ".join(f"(fabs({x}) > TRIG_LIMIT ? 1.0 : 0.0)" for x in em.trig_args) or "0.0"
-                    em.lines.append(f"big[0] = {checks};")
-                    parts.append(_function(name, em.lines, sigs + ", double *restrict big"))
-                else:
-                    parts.append(_function(name + "_x", em.lines, sigs))
-        rhs = "\n".join(parts)
-        obs = ""
+        # -- rhs(t, y, a) -> dy --
+        em = _CEmit()
+        y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+        outs = em.eval_closed(jax.make_jaxpr(system.rhs)(ex_t, ex_y, ex_args), [fast._obj0(Sym("t", np.float64)), y[0]]
+                              + args_objs(em))
+        if outs[0].shape != (self.n_state,):
+            raise fast._Unsupported(f"rhs output shape {outs[0].shape}")
+        _store(em, outs, "out", [np.float64])
+        rhs = _function("f_rhs", em.lines, "const double t, const double *restrict y, const double *restrict a, "
+                                           "double *restrict out")
+        # -- observe(t, y, a) -> obs --
+        em = _CEmit()
+        y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+        outs = em.eval_closed(jax.make_jaxpr(system.observe)(ex_t, ex_y, ex_args),
+                              [fast._obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+        _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
+        obs = _function("f_obs", em.lines, "const double t, const double *restrict y, const double *restrict a, "
+                                           "double *restrict out")
         # -- classifier update(c, t, obs) -> c --
         em = _CEmit()
         c_in, _ = _inputs(em, self.c_shapes, "c")
@@ -502,8 +491,7 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
             {body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, BIG + l, W);
-        REDO_IF_BIG(f_rhs_x(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W));""")
+        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);""")
     row = _A[5]
     new_body = _unrolled(NS, lambda q: f"YN[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
@@ -534,111 +522,10 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
 #define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (scalar) */
 #define QLONG 32        /* extra classifier passes in a step while some FIFO is longer than this */
 
-/* exp and log inline (no libm call): a vector libm call inside the right-hand side makes GCC save
-   every live AVX-512 register around it; replacing the calls by these cut the step time by more
-   than half (measured, benchmarks/NOTES.md). exp: Cody-Waite reduction by ln 2 and a degree-13
-   Taylor polynomial (|r| <= 0.35, truncation < 1e-17), 2**n applied in two factors so that
-   subnormal results come out right; log: x = m 2**e, m in [sqrt(1/2), sqrt(2)), log m =
-   2 atanh(f / (2 + f)) by its series to s**23. Both within 2 ulp (tests/test_native.py), IEEE
-   special cases as libm. */
-static inline double jexp(const double x) {{
-    const double xc = x > 709.8 ? 709.8 : (x < -745.2 ? -745.2 : x);
-    const double n = rint(xc * 0x1.71547652b82fep+0);
-    const double r = (xc - n * 0x1.62e42feep-1) - n * 0x1.a39ef35793c76p-33;
-    double p = 0x1.6124613a86d09p-33;
-    p = p * r + 0x1.1eed8eff8d898p-29;
-    p = p * r + 0x1.ae64567f544e4p-26;
-    p = p * r + 0x1.27e4fb7789f5cp-22;
-    p = p * r + 0x1.71de3a556c734p-19;
-    p = p * r + 0x1.a01a01a01a01ap-16;
-    p = p * r + 0x1.a01a01a01a01ap-13;
-    p = p * r + 0x1.6c16c16c16c17p-10;
-    p = p * r + 0x1.1111111111111p-7;
-    p = p * r + 0x1.5555555555555p-5;
-    p = p * r + 0x1.5555555555555p-3;
-    p = p * r + 0x1.0000000000000p-1;
-    p = p * r + 0x1.0000000000000p+0;
-    p = p * r + 0x1.0000000000000p+0;
-    const int64_t ni = (int64_t)n;
-    const int64_t n1 = ni >> 1, n2 = ni - n1;
-    const int64_t b1 = (n1 + 1023) << 52, b2 = (n2 + 1023) << 52;
-    double s1, s2;
-    memcpy(&s1, &b1, 8);
-    memcpy(&s2, &b2, 8);
-    const double y = p * s1 * s2;
-    const double y1 = x > 0x1.62e42fefa39efp+9 ? INFINITY : y;
-    return x < -0x1.74910d52d3051p+9 ? 0.0 : y1;
-}}
-
-static inline double jlog(const double x) {{
-    const double tiny = x < 0x1p-1022 ? 1.0 : 0.0;
-    const double xs = tiny != 0.0 ? x * 0x1p54 : x;
-    int64_t bits;
-    memcpy(&bits, &xs, 8);
-    const int64_t mb = (bits & 0x000fffffffffffffLL) | 0x3ff0000000000000LL;
-    double m;
-    memcpy(&m, &mb, 8);
-    const double big = m > 0x1.6a09e667f3bcdp+0 ? 1.0 : 0.0;
-    const double mm = big != 0.0 ? 0.5 * m : m;
-    const double e = (double)((bits >> 52) - 1023) + big - (tiny != 0.0 ? 54.0 : 0.0);
-    const double f = mm - 1.0;
-    const double s = f / (2.0 + f);
-    const double z = s * s;
-    double R = 0x1.642c8590b2164p-5;
-    R = R * z + 0x1.8618618618618p-5;
-    R = R * z + 0x1.af286bca1af28p-5;
-    R = R * z + 0x1.e1e1e1e1e1e1ep-5;
-    R = R * z + 0x1.1111111111111p-4;
-    R = R * z + 0x1.3b13b13b13b14p-4;
-    R = R * z + 0x1.745d1745d1746p-4;
-    R = R * z + 0x1.c71c71c71c71cp-4;
-    R = R * z + 0x1.2492492492492p-3;
-    R = R * z + 0x1.999999999999ap-3;
-    R = R * z + 0x1.5555555555555p-2;
-    const double lm = 2.0 * s + 2.0 * s * z * R;
-    const double y = e * 0x1.62e42feep-1 + (lm + e * 0x1.a39ef35793c76p-33);
-    const double y1 = x >= 0.0 ? y : NAN;
-    const double y2 = x == 0.0 ? -INFINITY : y1;
-    return x == INFINITY ? INFINITY : y2;
-}}
-
-/* cbrt: exp(log|x| / 3), then one Newton step (exp/log alone lose up to |log x| / 3 ulp) */
-static inline double jcbrt(const double x) {{
-    const double tiny = fabs(x) < 0x1p-1000 ? 1.0 : 0.0;  /* y**3 would be subnormal: scale by 2**999 */
-    const double ax = fabs(x) * (tiny != 0.0 ? 0x1p999 : 1.0);
-    const double y = jexp(jlog(ax) * 0x1.5555555555555p-2);
-    const double c = (ax - y * y * y) / (3.0 * y * y);
-    return copysign((y + (c == c ? c : 0.0)) * (tiny != 0.0 ? 0x1p-333 : 1.0), x);  /* 0, inf: c is NaN, y exact */
-}}
-
-/* sin and cos inline (the one libm call left in a right-hand side cost ~20% of the step:
-   measured). Cody-Waite reduction by pi/2 in four pieces (exact products for |x| < 2**26 pi/2)
-   and fdlibm's kernels, ~1 ulp. Beyond TRIG_LIMIT the generated function reports it through
-   its "big" output and the kernel recomputes that block with libm (f_rhs_x / f_obs_x). */
-#define TRIG_LIMIT 0x1.921fb54442d18p+26
-static inline double jsincos_q(const double x, const double shift) {{
-    const double n = rint(x * 0x1.45f306dc9c883p-1);
-    double r = x - n * 0x1.921fb58000000p+0;
-    r = r - n * -0x1.dde9740000000p-27;
-    r = r - n * 0x1.1a62630000000p-54;
-    r = r - n * 0x1.8a2e038000000p-81;
-    const double m = n + shift;
-    const double q = m - 4.0 * floor(0.25 * m);
-    const double z = r * r, w = z * z;
-    const double rs = 0x1.111111110f8a6p-7 + z * (-0x1.a01a019c161d5p-13 + z * 0x1.71de357b1fe7dp-19) + z * w * (-0x1.ae5e68a2b9cebp-26 + z * 0x1.5d93a5acfd57cp-33);
-    const double sn = r + z * r * (-0x1.5555555555549p-3 + z * rs);
-    const double rc = z * (0x1.555555555554cp-5 + z * (-0x1.6c16c16c15177p-10 + z * 0x1.a01a019cb1590p-16)) + w * w * (-0x1.27e4f809c52adp-22 + z * (0x1.1ee9ebdb4b1c4p-29 + z * -0x1.8fae9be8838d4p-37));
-    const double hz = 0.5 * z, v = 1.0 - hz;
-    const double cs = v + (((1.0 - v) - hz) + z * rc);
-    return q == 0.0 ? sn : (q == 1.0 ? cs : (q == 2.0 ? -sn : -cs));
-}}
-static inline double jsin(const double x) {{ return jsincos_q(x, 0.0); }}
-static inline double jcos(const double x) {{ return jsincos_q(x, 1.0); }}
-
 /* x**y as exp(y log|x|) with libm's special cases for y = 0 and negative x (glibc's vector pow is
    ~2x the cost of exp + log; measured). Relative error about (2 + |y log x|) ulp. */
 static inline double jpow(const double x, const double y) {{
-    const double r = jexp(y * jlog(fabs(x)));
+    const double r = exp(y * log(fabs(x)));
     const double yi = rint(y);
     const double half = 0.5 * yi;
     const double sgn = rint(half) != half ? -1.0 : 1.0;
@@ -680,7 +567,7 @@ static double initial_step(const job_t *jb, double *Y, double *F, double *YT, do
     const int small = (d0 < 1e-5) | (d1 < 1e-5);
     const double h0 = small ? 1e-6 : 0.01 * (d0 / d1);
     for (int q = 0; q < NS; q++) YT[q * W + l] = Y[q * W + l] + h0 * F[q * W + l];
-    f_rhs_x(jb->t0 + h0, YT + l, A + l, F1 + l, W);
+    f_rhs(jb->t0 + h0, YT + l, A + l, F1 + l, W);
     double s = 0.0;
     for (int q = 0; q < NS; q++) {{ const double r = (F1[q * W + l] - F[q * W + l]) / scale[q]; s += r * r; }}
     const double d2 = sqrt(s / NS) / h0;
@@ -696,7 +583,7 @@ int64_t stabjax_run(const job_t *jb) {{
         NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN;
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
     /* checkpoint items of one step, and each lane's FIFO of observed checkpoints (time, observables) */
-    double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN, BIG[W] ALIGN, BIGI[NI] ALIGN;
+    double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN;
     int IL[NI] ALIGN;
     static __thread double FT[W * QCAP], FO[W * QCAP * NO];
     int QH[W], QN[W];
@@ -715,17 +602,11 @@ int64_t stabjax_run(const job_t *jb) {{
             for (int q = 0; q < NS; q++) Y[q * W + (l)] = jb->y0in[j_ * NS + q]; \\
             for (int q = 0; q < NC; q++) C[q * W + (l)] = jb->c0[q]; \\
             T[l] = t0; CK[l] = 0; NACC[l] = 0; NREJ[l] = 0; QH[l] = 0; QN[l] = 0; \\
-            f_rhs_x(t0, Y + (l), A + (l), KS[0] + (l), W); \\
+            f_rhs(t0, Y + (l), A + (l), KS[0] + (l), W); \\
             const double h_ = initial_step(jb, Y, KS[0], YT, KS[1], A, (l)); \\
             double tn_ = t0 + h_ < t1 ? t0 + h_ : t1; \\
             TN[l] = tn_ > t1_floor ? t1 : tn_; \\
         }} else {{ IDX[l] = -1; ACT[l] = 0.0; }} \\
-    }} while (0)
-
-#define REDO_IF_BIG(CALL) do {{ \\
-        double any_ = 0.0; \\
-        for (int l = 0; l < W; l++) any_ += BIG[l]; \\
-        if (any_ != 0.0) for (int l = 0; l < W; l++) CALL; \\
     }} while (0)
 
 #define DRAIN_ONE(L) do {{ \\
@@ -752,8 +633,7 @@ int64_t stabjax_run(const job_t *jb) {{
             {new_body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, BIG + l, W);
-        REDO_IF_BIG(f_rhs_x(TN[l], YN + l, A + l, KS[6] + l, W));
+        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, W);
 
         /* error estimate and diffrax's PIDController (I-controller defaults) */
         #pragma omp simd
@@ -767,7 +647,7 @@ int64_t stabjax_run(const job_t *jb) {{
             {err_body}
             const double err = sqrt(s / NS);
             const double kp = err < 1.0 ? 1.0 : 0.0;
-            double fac = {_coef(SAFETY)} * jexp(-0.2 * jlog(err));
+            double fac = {_coef(SAFETY)} * exp(-0.2 * log(err));
             const double lo = kp != 0.0 ? 1.0 : {_coef(FACTORMIN)}, hi = kp != 0.0 ? {_coef(FACTORMAX)} : {_coef(SAFETY)};
             /* err is in [0, inf] (NaN errors became inf above), so fac is never NaN: plain clip */
             fac = fac > lo ? fac : lo;
@@ -815,13 +695,7 @@ int64_t stabjax_run(const job_t *jb) {{
                     {pack_a_body}
                 }}
                 #pragma omp simd
-                for (int i = 0; i < m; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, BIGI + i, NI);
-                {{
-                    double any_ = 0.0;
-                    for (int i = 0; i < m; i++) any_ += BIGI[i];
-                    if (any_ != 0.0)
-                        for (int i = 0; i < m; i++) f_obs_x(IT_[i], PYT + i, PA + i, POBS + i, NI);
-                }}
+                for (int i = 0; i < m; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, NI);
                 for (int i = 0; i < m; i++) {{
                     const int L = IL[i];
                     if (QN[L] == QCAP) DRAIN_ONE(L);
@@ -889,21 +763,12 @@ int64_t stabjax_run(const job_t *jb) {{
 
 /* one trajectory's rhs, observables and classifier update at stride 1 (tests compare them with JAX) */
 void stabjax_eval(const double t, const double *y, const double *a, double *dy, double *obs) {{
-    double big = 0.0, bigo = 0.0;
-    f_rhs(t, y, a, dy, &big, 1);
-    if (big != 0.0) f_rhs_x(t, y, a, dy, 1);
-    f_obs(t, y, a, obs, &bigo, 1);
-    if (bigo != 0.0) f_obs_x(t, y, a, obs, 1);
+    f_rhs(t, y, a, dy, 1);
+    f_obs(t, y, a, obs, 1);
 }}
 
 void stabjax_update(const double *c, const double t, const double *o, double *out) {{
     f_upd(c, t, o, out, 1);
-}}
-
-/* the inline math on arrays, for tests: 0 exp, 1 log, 2 cbrt, 3 pow(x, y) */
-void stabjax_math(const int which, const double *x, const double *y, double *out, const int64_t n) {{
-    for (int64_t i = 0; i < n; i++)
-        out[i] = which == 0 ? jexp(x[i]) : which == 1 ? jlog(x[i]) : which == 2 ? jcbrt(x[i]) : jpow(x[i], y[i]);
 }}
 """
     return src
@@ -998,7 +863,6 @@ def _build(source: str) -> ctypes.CDLL:
         if hasattr(lib, "stabjax_eval"):
             lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
             lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
-            lib.stabjax_math.argtypes = [ctypes.c_int, dp, dp, dp, ctypes.c_int64]
         _COMPILE_LOG.append({"key": key, "flags": " ".join(flags), "seconds": time.perf_counter() - t, "cached": cached})
         lib._stabjax_flags = flags
         return lib
@@ -1101,17 +965,6 @@ def warm(system, icfg, vcfg, params, *, static=None) -> float:
     c = kern.model.c_tree_from(np.zeros((n, kern.model.n_c)))
     jax.block_until_ready(kern._finalize(c, jnp.zeros((n,), bool)))
     return time.perf_counter() - t
-
-
-def inline_math(kern: _Kernel, name: str, x: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
-    """The kernel's inline exp/log/cbrt/pow on an array (tests compare them with libm)."""
-    which = {"exp": 0, "log": 1, "cbrt": 2, "pow": 3}[name]
-    x = np.ascontiguousarray(x, np.float64)
-    y = np.ascontiguousarray(np.zeros_like(x) if y is None else y, np.float64)
-    out = np.empty_like(x)
-    dp = ctypes.POINTER(ctypes.c_double)
-    kern.lib.stabjax_math(which, x.ctypes.data_as(dp), y.ctypes.data_as(dp), out.ctypes.data_as(dp), x.size)
-    return out
 
 
 def would_run(system, icfg) -> bool:

@@ -197,38 +197,8 @@ def test_sweep_runs_native_with_progress_and_records_engine(tmp_path):
     np.testing.assert_array_equal(ds["verdict"].values, ref["verdict"].values)
 
 
-def test_inline_exp_log_cbrt_pow_match_libm():
-    """The kernel's own exp/log/cbrt/pow (inline, vectorised; see native.py) against NumPy's libm."""
-    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(4))
-    rng = np.random.default_rng(3)
-
-    def ulps(got, ref):
-        ok = np.isfinite(ref) & (ref != 0)
-        return float(np.max(np.abs(got[ok] - ref[ok]) / np.spacing(np.abs(ref[ok]))))
-
-    x = np.concatenate([rng.uniform(-745, 709, 50_000), rng.normal(0, 1, 20_000), rng.uniform(-1e-3, 1e-3, 5_000)])
-    assert ulps(native.inline_math(kern, "exp", x), np.exp(x)) <= 2
-    xl = np.concatenate([10 ** rng.uniform(-307, 308, 50_000), rng.uniform(0.5, 2.0, 20_000),
-                         1 + rng.uniform(-1e-6, 1e-6, 5_000), 10 ** rng.uniform(-323, -309, 1_000)])
-    assert ulps(native.inline_math(kern, "log", xl), np.log(xl)) <= 2
-    xc = np.concatenate([xl, -xl[:5_000]])
-    assert ulps(native.inline_math(kern, "cbrt", xc), np.cbrt(xc)) <= 2
-    t, a = rng.uniform(0, 1e4, 50_000), rng.uniform(0.3, 1.0, 50_000)  # t**alpha of paper A
-    assert ulps(native.inline_math(kern, "pow", t, a), t**a) <= 32  # exp(y log x): (2 + |y log x|) ulp
-    special = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, -1.0, 1.0, 710.0, -746.0, 5e-324])
-    with np.errstate(all="ignore"):
-        for name, ref in (("exp", np.exp), ("log", np.log), ("cbrt", np.cbrt)):
-            got, want = native.inline_math(kern, name, special), ref(special)
-            np.testing.assert_allclose(got, want, rtol=4e-16, atol=0, equal_nan=True, err_msg=name)
-    px = np.array([-2.0, -2.0, -8.0, 0.0, 0.0, 0.0, 3.0, np.nan])
-    py = np.array([2.0, 3.0, 1 / 3, 2.0, -1.0, 0.0, 0.0, 0.0])
-    with np.errstate(all="ignore"):
-        want = px**py
-    np.testing.assert_allclose(native.inline_math(kern, "pow", px, py), want, rtol=1e-15, equal_nan=True)
-
-
-def test_trig_beyond_reduction_range_falls_back_to_libm():
-    """cos(omega0 t**alpha) at t = 1e12: beyond TRIG_LIMIT the block is recomputed with libm.
+def test_huge_trig_arguments():
+    """cos(omega0 t**alpha) at t = 1e12 and 1e15 (libm's range reduction, as in JAX).
 
     alpha = 1 is folded as a constant (t**1 = t exactly): with a lane-varying alpha, t**alpha is
     exp(alpha log t), whose ~27 ulp at t = 1e12 move the cosine's argument by ~1e-3, the same
@@ -243,4 +213,3 @@ def test_trig_beyond_reduction_range_falls_back_to_libm():
         ref = np.asarray(SYS.rhs(t, jnp.asarray(y), SYS.prepare(q)))
         dy, _ = native.evaluate(kern, t, y, a[0])
         np.testing.assert_allclose(dy, ref, rtol=1e-12, atol=1e-14, err_msg=f"t={t}")
-    assert "jcos(" in kern.source and "TRIG_LIMIT" in kern.source
