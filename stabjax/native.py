@@ -774,6 +774,13 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     return src
 
 
+def _eval_only(src: str) -> str:
+    """The kernel source without the integration loop (tests of the translation compile faster)."""
+    i = src.index("typedef struct {")
+    j = src.index("/* one trajectory's rhs")
+    return src[:i] + "int64_t stabjax_run(const void *jb) { return -1; }\n\n" + src[j:]
+
+
 # ==== compiling and loading ==================================================================
 
 
@@ -880,13 +887,15 @@ def available() -> bool:
 
 
 class _Kernel:
-    def __init__(self, system, icfg, vcfg, static, dyn_shapes, width):
+    def __init__(self, system, icfg, vcfg, static, dyn_shapes, width, eval_only=False):
         ts = icfg.checkpoints()
         self.ts = np.ascontiguousarray(ts, np.float64)
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
         self.model = _NativeModel(system, static, dyn_shapes, vcfg, t_late)
         self.width = width
         self.source = _kernel_source(self.model, width)
+        if eval_only:
+            self.source = _eval_only(self.source)
         self.lib = _build(self.source)
         self.vcfg = vcfg
         self.icfg = icfg
@@ -894,8 +903,8 @@ class _Kernel:
 
 
 @functools.lru_cache(maxsize=32)
-def _kernel(system, icfg, vcfg, static: fast._Static, dyn_shapes: tuple, width: int) -> _Kernel:
-    return _Kernel(system, icfg, vcfg, static.values, dict(dyn_shapes), width)
+def _kernel(system, icfg, vcfg, static: fast._Static, dyn_shapes: tuple, width: int, eval_only=False) -> _Kernel:
+    return _Kernel(system, icfg, vcfg, static.values, dict(dyn_shapes), width, eval_only)
 
 
 def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -984,10 +993,12 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = None, check: bool = True):
+def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = None, check: bool = True,
+               eval_only: bool = False):
     """The compiled kernel for this batch's shapes and constants, and the dynamic parameters.
 
-    ``check=False`` builds it even for a system with its own ``classify`` (tests of the translation).
+    ``check=False`` builds it even for a system with its own ``classify``, ``eval_only=True``
+    without the integration loop (both for tests of the translation: :func:`evaluate`, :func:`update`).
     """
     if icfg.solver not in SUPPORTED_SOLVERS:
         raise Unsupported(f"solver {icfg.solver!r} (native engine: {', '.join(SUPPORTED_SOLVERS)})")
@@ -995,7 +1006,7 @@ def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = N
         raise Unsupported(f"{system.name} has its own classify()")
     st, dyn = fast.split_static(params, static)
     shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items()))
-    return _kernel(system, icfg, vcfg, fast._Static(st), shapes, int(width or DEFAULT_WIDTH)), dyn
+    return _kernel(system, icfg, vcfg, fast._Static(st), shapes, int(width or DEFAULT_WIDTH), eval_only), dyn
 
 
 def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Iterable[str] | None = None,

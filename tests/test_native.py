@@ -152,7 +152,7 @@ def test_translation_of_every_model_equals_jax(name):
     p = S.check(p) if hasattr(S, "check") else p
     icfg = IntegrateConfig(t1=10.0, n_checkpoints=16)
     for static in (None, []):
-        kern, dyn = native.kernel_for(S, icfg, S.verdict, p, static=static, check=False)
+        kern, dyn = native.kernel_for(S, icfg, S.verdict, p, static=static, check=False, eval_only=True)
         a, y0 = kern.model.host_inputs(dyn, n)
         for i in range(n):
             q = {k: jnp.asarray(v[i]) for k, v in p.items()}
