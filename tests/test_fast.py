@@ -15,22 +15,13 @@ from stabjax import verdict as V
 from stabjax.engine import IntegrateConfig, batch_params, solve_batch
 from stabjax.registry import get_system, list_systems
 
+from references import monoaxial_rhs
+
 SYS = get_system("monoaxial")
 R = np.ones(3) / math.sqrt(3)
 ALPHAS = np.linspace(0.3, 1.0, 8)
 # rtol 1e-10 so that three different integrators agree to well below 1e-6 at t1
 ICFG = IntegrateConfig(t1=800.0, rtol=1e-10, atol=1e-12, n_checkpoints=200)
-
-
-def numpy_rhs(t, y, J, D, a, mu, b, sigma, alpha, omega0, r):
-    """Independent NumPy transcription of MODELS.md A, (2), (4), (14), torques on s/|s|."""
-    w, s = y[:3], y[3:]
-    sh = s / np.linalg.norm(s)
-    u = np.cross(sh - r, r)
-    m_r = -a * np.linalg.norm(sh - r) ** (mu - 1) * np.cross(sh, r)
-    m_p = b * math.cos(omega0 * t**alpha) * np.linalg.norm(u) ** (sigma - 1) * u
-    dw = (-np.cross(w, J * w) - D @ w + m_r + m_p) / J
-    return np.concatenate([dw, -np.cross(w, s)])
 
 
 def batch():
@@ -72,7 +63,7 @@ def test_final_states_match_scipy_dop853(fused, i):
     p = batch()
     y0 = np.concatenate([p["w0"][i], p["s0"][i]])
     args = (p["J"][i], p["D"][i], p["a"][i], p["mu"][i], p["b"][i], p["sigma"][i], p["alpha"][i], p["omega0"][i], p["r"][i])
-    sol = solve_ivp(numpy_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
+    sol = solve_ivp(monoaxial_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
     assert sol.success
     np.testing.assert_allclose(fused["state_t1"][i], sol.y[:, -1], atol=1e-6, rtol=0)
 

@@ -10,27 +10,18 @@ from scipy.integrate import solve_ivp
 from stabjax.engine import IntegrateConfig, batch_params, simulate, solve_batch
 from stabjax.registry import get_system
 
+from references import monoaxial_rhs
+
 SYS = get_system("monoaxial")
 R = np.ones(3) / math.sqrt(3)
 S0 = np.array([math.sin(0.8), math.sin(0.5) * math.cos(0.8), math.cos(0.5) * math.cos(0.8)])
-
-
-def reference_rhs(t, y, J, D, a, mu, b, sigma, alpha, omega0, r):
-    """Independent NumPy transcription of (2), (4), (14) with torques evaluated on s/|s|."""
-    w, s = y[:3], y[3:]
-    sh = s / np.linalg.norm(s)
-    sxr = np.cross(sh, r)
-    m_r = -a * np.linalg.norm(sh - r) ** (mu - 1) * sxr
-    m_p = b * np.cos(omega0 * t**alpha) * np.linalg.norm(np.cross(sh - r, r)) ** (sigma - 1) * np.cross(sh - r, r)
-    dw = (-np.cross(w, J * w) - D @ w + m_r + m_p) / J
-    return np.concatenate([dw, -np.cross(w, s)])
 
 
 def reference(alpha, t_eval, **kw):
     p = dict(J=np.array([5.0, 6, 4]), D=2 * np.eye(3), a=1.0, mu=1.5, b=2.0, sigma=4 / 3, alpha=alpha, omega0=1.0, r=R)
     p.update(kw)
     y0 = np.concatenate([np.ones(3), S0])
-    sol = solve_ivp(reference_rhs, (0, t_eval[-1]), y0, method="DOP853", rtol=1e-12, atol=1e-14, t_eval=t_eval,
+    sol = solve_ivp(monoaxial_rhs, (0, t_eval[-1]), y0, method="DOP853", rtol=1e-12, atol=1e-14, t_eval=t_eval,
                     args=tuple(p.values()))
     assert sol.success
     return sol.y.T

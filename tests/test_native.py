@@ -1,7 +1,6 @@
 """The native engine (stabjax.native: jaxprs translated to C, SIMD Tsit5 loop) against SciPy
 DOP853, diffrax and the diffrax engine path; its C translation of every registered model against
 JAX; failures, interruption, fallbacks and the sweep runner's use of it."""
-import math
 
 import jax
 import jax.numpy as jnp
@@ -14,22 +13,13 @@ from stabjax import verdict as V
 from stabjax.engine import IntegrateConfig, batch_params, engine_chain, last_engine, solve_batch
 from stabjax.registry import get_system, list_systems
 
+from references import monoaxial_rhs
+
 pytestmark = pytest.mark.skipif(not native.available(), reason="no working C compiler")
 
 SYS = get_system("monoaxial")
 ALPHAS = np.linspace(0.3, 1.0, 40)
 ICFG = IntegrateConfig(t1=800.0, rtol=1e-10, atol=1e-12, n_checkpoints=200)
-
-
-def numpy_rhs(t, y, J, D, a, mu, b, sigma, alpha, omega0, r):
-    """Independent NumPy transcription of MODELS.md A, (2), (4), (14), torques on s/|s|."""
-    w, s = y[:3], y[3:]
-    sh = s / np.linalg.norm(s)
-    u = np.cross(sh - r, r)
-    m_r = -a * np.linalg.norm(sh - r) ** (mu - 1) * np.cross(sh, r)
-    m_p = b * math.cos(omega0 * t**alpha) * np.linalg.norm(u) ** (sigma - 1) * u
-    dw = (-np.cross(w, J * w) - D @ w + m_r + m_p) / J
-    return np.concatenate([dw, -np.cross(w, s)])
 
 
 def batch(n=len(ALPHAS)):
@@ -51,7 +41,7 @@ def test_final_states_match_scipy_dop853(nat, i):
     p = batch()
     y0 = np.concatenate([p["w0"][i], p["s0"][i]])
     args = (p["J"][i], p["D"][i], p["a"][i], p["mu"][i], p["b"][i], p["sigma"][i], p["alpha"][i], p["omega0"][i], p["r"][i])
-    sol = solve_ivp(numpy_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
+    sol = solve_ivp(monoaxial_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
     assert sol.success and nat["solver_status"][i] == 0
     np.testing.assert_allclose(nat["state_t1"][i], sol.y[:, -1], atol=1e-6, rtol=0)
 
