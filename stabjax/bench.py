@@ -215,7 +215,9 @@ def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
             "_verdict": ds["verdict"].values.ravel()}
 
 
-def _diffrax_baseline_fn(t1: float):
+def _diffrax_baseline_fn(t1: float, solver: str = "Tsit5"):
+    """The plain baseline: ``jit(vmap(diffeqsolve))`` of the paper example over alpha (``solver``:
+    a diffrax solver class name; the numba baseline's test uses Dopri5)."""
     import diffrax
     import jax
     import jax.numpy as jnp
@@ -234,7 +236,7 @@ def _diffrax_baseline_fn(t1: float):
         return jnp.concatenate([dw, -jnp.cross(w, s)])
 
     def one(y0, alpha):
-        sol = diffrax.diffeqsolve(diffrax.ODETerm(rhs), diffrax.Tsit5(), 0.0, t1, None, y0, args=alpha,
+        sol = diffrax.diffeqsolve(diffrax.ODETerm(rhs), getattr(diffrax, solver)(), 0.0, t1, None, y0, args=alpha,
                                   saveat=diffrax.SaveAt(t1=True),
                                   stepsize_controller=diffrax.PIDController(rtol=RTOL, atol=ATOL),
                                   max_steps=2_000_000)

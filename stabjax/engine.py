@@ -196,8 +196,7 @@ def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: In
                 out = fast.solve(system, params, icfg, vcfg, lanes=icfg.lanes or None, static=static)
             else:
                 out = _solve_diffrax(system, params, icfg, vcfg)
-        except Unsupported as exc:  # e.g. a system with its own classify(): the next engine handles it
-            _LAST_ENGINE["why_not_" + name] = str(exc)
+        except Unsupported:  # e.g. a primitive without a rule: the next engine handles it
             continue
         _LAST_ENGINE["name"] = name
         return out

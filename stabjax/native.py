@@ -177,7 +177,7 @@ class _CEmit(fast._Lanes):
             # One select. XLA's max/min propagate a NaN in either operand; this returns the NaN only
             # when it is the second one. Exact NaN propagation needs a second select on the same
             # value, which GCC 12 merges into an OR of masks and then leaves the whole loop
-            # unvectorised (measured: ~2x slower kernel). The classifier never sees NaN here (it
+            # unvectorised (benchmarks/NOTES.md, N2). The classifier never sees NaN here (it
             # maps non-finite errors to inf first) and a NaN state fails the trajectory anyway.
             return self.new(dt, f"({r[0]} {op} {r[1]}) ? {r[0]} : {r[1]}")
         if name == "neg" and not boolean:
@@ -829,7 +829,6 @@ def cache_dir() -> Path:
 
 
 _LOAD_LOCK = threading.Lock()
-_COMPILE_LOG: list[dict] = []  # (source hash, flags, seconds, cached) of this process, for the benchmark
 
 
 def _build(source: str) -> ctypes.CDLL:
@@ -843,7 +842,6 @@ def _build(source: str) -> ctypes.CDLL:
         key = hashlib.sha256("\0".join([source, cc, *version, *flags, *libs, _cpu_key()]).encode()).hexdigest()[:24]
         d = cache_dir()
         so = d / f"stabjax_{key}.so"
-        t = time.perf_counter()
         with _LOAD_LOCK:
             if not so.exists():
                 d.mkdir(parents=True, exist_ok=True)
@@ -856,9 +854,6 @@ def _build(source: str) -> ctypes.CDLL:
                         errors.append(f"{' '.join(flags)}: {proc.stderr.strip()[-2000:]}")
                         continue
                     os.replace(out, so)  # atomic: concurrent processes never load a half-written file
-                cached = False
-            else:
-                cached = True
             try:
                 lib = ctypes.CDLL(str(so))
             except OSError as exc:
@@ -870,8 +865,6 @@ def _build(source: str) -> ctypes.CDLL:
         if hasattr(lib, "stabjax_eval"):
             lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
             lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
-        _COMPILE_LOG.append({"key": key, "flags": " ".join(flags), "seconds": time.perf_counter() - t, "cached": cached})
-        lib._stabjax_flags = flags
         return lib
     raise Unsupported("C compiler failed:\n" + "\n".join(errors))
 

@@ -44,10 +44,10 @@ def static_params(plan: Plan) -> list[str]:
 def bytes_per_trajectory(plan: Plan) -> int:
     """Working memory of one trajectory inside a compiled chunk.
 
-    diffrax path: the observables at every checkpoint dominate. Fused engine: no per-checkpoint
+    diffrax path: the observables at every checkpoint dominate. Native/fused engines: no per-checkpoint
     storage, only the parameters and the summaries of each queued trajectory (the lanes are few).
     """
-    if _fused(plan):
+    if _queued(plan):
         n_par = sum(int(np.prod(np.shape(v))) or 1 for v in plan.fixed.values())
         return 8 * (2 * n_par + 2 * N_SUMMARY_FIELDS + 64)
     k = len(plan.icfg.checkpoints())
@@ -56,12 +56,12 @@ def bytes_per_trajectory(plan: Plan) -> int:
 
 
 def default_batch(plan: Plan) -> int:
-    """Chunk size when none is given: the fused engine refills lanes from a queue, so longer
+    """Chunk size when none is given: the native/fused engines refill lanes from a queue, so longer
     queues (bigger chunks) waste less at the tail; progress is still reported per chunk."""
-    return 65536 if _fused(plan) else 4096
+    return 65536 if _queued(plan) else 4096
 
 
-def _fused(plan: Plan) -> bool:
+def _queued(plan: Plan) -> bool:
     """Whether a queued engine (native or fused: no per-checkpoint storage) takes this plan."""
     from .engine import engine_chain
 

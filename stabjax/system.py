@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from .params import Param, ParamSet
+from .params import ParamSet
 
 
 class Predicate(NamedTuple):

@@ -1,6 +1,5 @@
 """Spec resolution: axes, entry axes, sampling distributions, plan indexing, horizon check."""
 import numpy as np
-import pytest
 
 from stabjax.spec import make_plan
 

@@ -46,12 +46,10 @@ from __future__ import annotations
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import linalg as la
-from ..errors import ValidationError
 from ..params import Param, ParamSet, check_positive, require
 from ..system import System, VerdictConfig
 from . import saakyan_theory as theory
