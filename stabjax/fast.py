@@ -85,12 +85,14 @@ def _interp_weights(th):
 
 
 def default_lanes(platform: str | None = None) -> int:
-    """Lanes per device: small enough that a step's working set stays in cache on CPU, wide on GPU."""
+    """Lanes per device: small enough that a step's working set stays in cache on CPU, wide on GPU
+    (2^18 measured fastest on an H100: 2^16 leaves it idle between kernels, 2^20 is bound by
+    memory traffic; benchmarks/NOTES.md G2)."""
     env = os.environ.get("STABJAX_LANES")
     if env:
         return max(1, int(env))
     platform = platform or jax.default_backend()
-    return 256 if platform == "cpu" else 65536
+    return 256 if platform == "cpu" else 262144
 
 
 def _t1_clip_floor(t1: float) -> float:

@@ -57,8 +57,13 @@ def bytes_per_trajectory(plan: Plan) -> int:
 
 def default_batch(plan: Plan) -> int:
     """Chunk size when none is given: the native/fused engines refill lanes from a queue, so longer
-    queues (bigger chunks) waste less at the tail; progress is still reported per chunk."""
-    return 65536 if _queued(plan) else 4096
+    queues (bigger chunks) waste less at the tail; progress is still reported per chunk. On a GPU
+    the fused engine keeps 2^18 lanes busy, so a chunk holds 2^20 trajectories (NOTES.md G2)."""
+    if not _queued(plan):
+        return 4096
+    import jax
+
+    return 65536 if jax.default_backend() == "cpu" else 1 << 20
 
 
 def _queued(plan: Plan) -> bool:
