@@ -131,6 +131,23 @@ def peak_flops(info: dict) -> dict:
             "assumption": "2 FMA units per core, vector width from /proc/cpuinfo flags, nominal clock"}
 
 
+# float64 peak of GPUs by device-kind substring, TF/s without tensor cores (NVIDIA datasheets:
+# H100 SXM5 / H200 34, H100 PCIe 26, A100 9.7); only used to put the fused engine's rate in scale
+GPU_F64_PEAK_TFLOPS = (("H200", 34.0), ("H100 80GB HBM3", 34.0), ("H100 SXM", 34.0), ("H100", 25.6), ("A100", 9.7))
+
+
+def accelerator() -> dict | None:
+    """The JAX default device when it is not the CPU: kind, and its float64 peak where known."""
+    import jax
+
+    if jax.default_backend() == "cpu":
+        return None
+    kind = str(jax.devices()[0].device_kind)
+    peak = next((v for k, v in GPU_F64_PEAK_TFLOPS if k in kind), None)
+    return {"backend": jax.default_backend(), "device_kind": kind, "peak_tflops_f64": peak,
+            "peak_source": "NVIDIA datasheet, FP64 without tensor cores" if peak else None}
+
+
 # ---- the model --------------------------------------------------------------------------------
 
 
@@ -434,7 +451,7 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
                        f"atol {ATOL}, float64", "t1": t1, "quick": quick, "machine": info, "versions": versions(),
               "jax_devices": [str(d) for d in jax.devices()], "default_lanes": fast.default_lanes(),
               "env": {k: os.environ.get(k) for k in ("EQX_ON_ERROR", "XLA_FLAGS", "STABJAX_LANES")},
-              "peak": peak_flops(info), "sizes": {}}
+              "peak": peak_flops(info), "accelerator": accelerator(), "sizes": {}}
     try:
         result["flops"] = step_flops()
     except Exception as exc:  # cost analysis is best effort
@@ -476,7 +493,12 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
             if "diffrax_vmap" in row:
                 ratios["fused_speedup_wall_vs_diffrax"] = row["diffrax_vmap"]["wall_s"] / f["wall_s"]
         nf = result["native_flops"].get("per_accepted_step")
-        if nf and st.get("engine") == "native":
+        acc = result["accelerator"]
+        ff = result["flops"].get("module_flops_per_lane")
+        if acc and acc.get("peak_tflops_f64") and ff and st.get("engine") == "fused":
+            ratios["est_flops_per_step"] = ff * 6 / 10  # see step_flops' note
+            ratios["fraction_of_gpu_f64_peak"] = ff * 6 / 10 * st["traj_steps_per_s"] / (acc["peak_tflops_f64"] * 1e12)
+        elif nf and st.get("engine") == "native":
             ratios["est_flops_per_step"] = nf
             ratios["fraction_of_f64_peak"] = nf * st["traj_steps_per_s"] / (result["peak"]["peak_gflops_f64"] * 1e9)
         row["ratios"] = ratios
@@ -494,6 +516,15 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
     return result
 
 
+def _accelerator_lines(r: dict) -> list[str]:
+    acc = r.get("accelerator")
+    if not acc:
+        return []
+    peak = f", float64 peak {acc['peak_tflops_f64']:g} TF/s ({acc['peak_source']})" if acc.get("peak_tflops_f64") else ""
+    return [f"Accelerator: {acc['device_kind']} (JAX backend {acc['backend']}{peak}). The stabjax and diffrax rows ran "
+            "on it; SciPy and numba ran on the host CPU above, whose peak the roofline line below refers to."]
+
+
 def markdown(r: dict) -> str:
     m = r["machine"]
     lines = [f"# stabjax benchmark ({'quick smoke test' if r['quick'] else 'full'})", "",
@@ -503,7 +534,7 @@ def markdown(r: dict) -> str:
              f"at end {r.get('loadavg_at_end')}.",
              "Versions: " + ", ".join(f"{k} {v}" for k, v in r["versions"].items()) + ".",
              f"JAX devices: {len(r['jax_devices'])} ({r['jax_devices'][0] if r['jax_devices'] else '?'}); "
-             f"lanes per device {r['default_lanes']}.", "",
+             f"lanes per device {r['default_lanes']}."] + _accelerator_lines(r) + ["",
              "| N | contender | wall s | compile s | accepted steps | traj-steps/s | peak RSS MB | notes |",
              "|---|---|---|---|---|---|---|---|"]
     for n, row in r["sizes"].items():

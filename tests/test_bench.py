@@ -29,3 +29,28 @@ def test_quick_benchmark_runs_and_agrees(tmp_path):
     assert "| stabjax (run_spec, fused XLA engine) |" in md
     nf = r["native_flops"]
     assert nf["step"] > 0 and nf["counts"]["f_rhs"]["libm_calls"] >= 3  # cos, t**alpha (exp, log), cbrt
+
+
+def test_gpu_defaults_and_accelerator_report(monkeypatch):
+    """On a GPU backend the fused engine gets 2^18 lanes and 2^20-trajectory chunks (NOTES.md G2)
+    and the benchmark names the accelerator with its float64 peak; CPU defaults are unchanged."""
+    import jax
+
+    from stabjax import fast
+    from stabjax.spec import make_plan
+    from stabjax.sweep import default_batch
+
+    plan = make_plan(bench.spec(4, 1.0))
+    assert fast.default_lanes("cpu") == 256 and default_batch(plan) == 65536
+    assert bench.accelerator() is None
+
+    class Dev:
+        device_kind = "NVIDIA H100 80GB HBM3"
+
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(jax, "devices", lambda *a: [Dev()])
+    assert fast.default_lanes() == 262144 and default_batch(plan) == 1 << 20
+    acc = bench.accelerator()
+    assert acc["device_kind"] == Dev.device_kind and acc["peak_tflops_f64"] == 34.0
+    r = {"accelerator": acc}
+    assert "NVIDIA H100 80GB HBM3" in bench._accelerator_lines(r)[0]
