@@ -126,8 +126,14 @@ def test_diffrax_path_subchunks_large_batches(monkeypatch):
     whole = E._solve_diffrax(SYS, p, icfg, SYS.verdict)
     monkeypatch.setattr(E, "DIFFRAX_CHUNK", 3)
     split = E._solve_diffrax(SYS, p, icfg, SYS.verdict)
+    # XLA:CPU gives bit-identical results for any batch size; on a GPU another batch shape may
+    # change the rounding of a reduction (seen on an H100: 1.2e-14 relative), nothing more
+    exact = jax.default_backend() == "cpu"
     for k in whole:
-        np.testing.assert_array_equal(split[k], whole[k], err_msg=k)
+        if exact or not np.issubdtype(whole[k].dtype, np.floating):
+            np.testing.assert_array_equal(split[k], whole[k], err_msg=k)
+        else:
+            np.testing.assert_allclose(split[k], whole[k], rtol=1e-12, atol=0, err_msg=k)
 
 
 def test_engine_config_validation():

@@ -82,14 +82,20 @@ def test_equilibrium_stays_put():
 
 def test_inverted_position_is_an_unstable_equilibrium():
     """(0, -r) is an equilibrium of (14) (MODELS.md A.3): the field vanishes there exactly; the
-    restoring torque makes it unstable, so fused-multiply-add rounding (~1e-17) is enough to leave."""
+    restoring torque makes it unstable, so a start 1e-9 rad away leaves it. (The perturbation is
+    explicit: on CPU rounding alone (~1e-17) happens to push the exact start off, on an H100 it
+    does not, and an equilibrium that is kept exactly is correct.)"""
     p = {k: jnp.asarray(v) for k, v in SYS.check(SYS.params.resolve({"s0": -R, "w0": [0, 0, 0]})).items()}
     args = SYS.prepare(p)
     y = SYS.initial_state(p)
     for t in (0.0, 1.0, 50.0, 1234.5):
         np.testing.assert_array_equal(np.asarray(SYS.rhs(t, y, args)), 0.0)
-    ds = simulate("monoaxial", {"s0": -R, "w0": [0, 0, 0]}, t1=2000, ts=[1, 2000])
-    np.testing.assert_allclose(ds.s.values[0], -R, atol=1e-12)
+    e = np.cross(R, [1.0, 0.0, 0.0])
+    e /= np.linalg.norm(e)
+    eps = 1e-9
+    s0 = -R * np.cos(eps) + e * np.sin(eps)
+    ds = simulate("monoaxial", {"s0": s0, "w0": [0, 0, 0]}, t1=2000, ts=[1, 2000])
+    np.testing.assert_allclose(ds.s.values[0], -R, atol=1e-8)  # still near -r at t = 1
     assert ds.angle.values[-1] < 1e-3  # ends at the stable program orientation s = r
 
 
