@@ -520,7 +520,8 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
 #define ALIGN __attribute__((aligned(64)))
 #define NI (4 * W)      /* checkpoint items observed together */
 #define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (scalar) */
-#define QLONG 32        /* extra classifier passes in a step while some FIFO is longer than this */
+#define QLONG 240       /* extra classifier passes in a step while some FIFO is longer than this */
+#define QBUSY (3 * W / 4) /* a classifier pass runs only while this many lanes have an item waiting */
 
 /* x**y as exp(y log|x|) with libm's special cases for y = 0 and negative x (glibc's vector pow is
    ~2x the cost of exp + log; measured). Relative error about (2 + |y log x|) ulp. */
@@ -609,11 +610,15 @@ int64_t stabjax_run(const job_t *jb) {{
         }} else {{ IDX[l] = -1; ACT[l] = 0.0; }} \\
     }} while (0)
 
+/* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
+   calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block) */
 #define DRAIN_ONE(L) do {{ \\
         const int p_ = QH[L]; \\
+        for (int l_ = 0; l_ < W; l_++) {{ HAS[l_] = 0.0; TC[l_] = T[l_]; }} \\
         TC[L] = FT[(L) * QCAP + p_]; \\
         for (int q = 0; q < NO; q++) OBS[q * W + (L)] = FO[((L) * QCAP + p_) * NO + q]; \\
-        f_upd(C + (L), TC[L], OBS + (L), CN + (L), W); \\
+        _Pragma("omp simd") \\
+        for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W); \\
         for (int q = 0; q < NC; q++) C[q * W + (L)] = CN[q * W + (L)]; \\
         QH[L] = (p_ + 1) % QCAP; QN[L]--; \\
     }} while (0)
@@ -678,8 +683,14 @@ int64_t stabjax_run(const job_t *jb) {{
                     if (CK[l0] < K && ts[CK[l0]] <= TN[l0]) break;  /* item buffer full: this lane again */
                 }}
                 if (m == 0) break;
+                /* pad the batch to whole 8-wide vectors with copies of its last item (observed, never
+                   queued): every item then takes the vector path, whose atan2 may differ from the
+                   scalar epilogue's in the last bit, and results do not depend on how items fell
+                   into batches (that is, on thread scheduling) */
+                const int mv = ((m + 7) & ~7) < NI ? ((m + 7) & ~7) : NI;
+                for (int i = m; i < mv; i++) {{ IL[i] = IL[m - 1]; IT_[i] = IT_[m - 1]; }}
                 #pragma omp simd
-                for (int i = 0; i < m; i++) {{
+                for (int i = 0; i < mv; i++) {{
                     const int L = IL[i];
                     const double h = H[L];
                     const double th = h > 0 ? (IT_[i] - T[L]) / h : 0.0;
@@ -695,7 +706,7 @@ int64_t stabjax_run(const job_t *jb) {{
                     {pack_a_body}
                 }}
                 #pragma omp simd
-                for (int i = 0; i < m; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, NI);
+                for (int i = 0; i < mv; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, NI);
                 for (int i = 0; i < m; i++) {{
                     const int L = IL[i];
                     if (QN[L] == QCAP) DRAIN_ONE(L);
@@ -706,15 +717,22 @@ int64_t stabjax_run(const job_t *jb) {{
                 }}
             }}
         }}
+        /* Classifier passes pop one item per lane. A lane early in its trajectory queues hundreds of
+           checkpoints while the others queue none, so passing whenever any item waits left 2 of 3
+           lanes idle (385k passes for 2.05M items at N = 1024). Items now wait until most lanes
+           have one (or a FIFO is long); a lane's FIFO is drained before it is written out, so the
+           per-lane sequence of updates, and every result, is unchanged (NOTES.md N14). */
         for (;;) {{
-            int any = 0, longest = 0;
+            int busy = 0, qmax = 0;
+            for (int l = 0; l < W; l++) {{ busy += QN[l] > 0; qmax = QN[l] > qmax ? QN[l] : qmax; }}
+            if (busy == 0 || (busy < QBUSY && qmax <= QLONG)) break;
+            int any = 0;
             for (int l = 0; l < W; l++) {{
                 if (QN[l] > 0) {{
                     const int pos = QH[l];
                     HAS[l] = 1.0; TC[l] = FT[l * QCAP + pos];
                     for (int q = 0; q < NO; q++) OBS[q * W + l] = FO[(l * QCAP + pos) * NO + q];
                     QH[l] = (pos + 1) % QCAP; QN[l]--; any = 1;
-                    longest = QN[l] > longest ? QN[l] : longest;
                 }} else {{
                     HAS[l] = 0.0; TC[l] = T[l];
                 }}
@@ -727,7 +745,6 @@ int64_t stabjax_run(const job_t *jb) {{
                 const double has = HAS[l];
                 {cmix_body}
             }}
-            if (longest <= QLONG) break;
         }}
 
         /* commit */

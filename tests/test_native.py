@@ -67,6 +67,31 @@ def test_results_do_not_depend_on_threads_width_or_static_folding(nat):
     np.testing.assert_array_equal(again["state_t1"], nat["state_t1"])  # deterministic, whatever the scheduling
 
 
+def test_every_summary_is_bit_identical_across_threads_and_runs(nat):
+    """Which trajectories share a SIMD block depends on thread scheduling; every observation and
+    classifier update goes through the same vector code (item batches padded, FIFO drains
+    vectorised), so no summary may move even in its last bit (NOTES.md N14)."""
+    p = batch()
+    runs = [native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=t) for t in (1, 2, 2)]
+    for other in runs:
+        for k in nat:
+            np.testing.assert_array_equal(other[k], nat[k], err_msg=k)
+
+
+def test_classifier_queue_overflow_and_late_drains_change_nothing():
+    """Checkpoints so dense that lane FIFOs fill (QCAP) and hold items until the lane finishes: the
+    summaries equal those of the diffrax engine path, which classifies checkpoint by checkpoint."""
+    icfg = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=4000)
+    p = batch(20)
+    nat = native.solve(SYS, p, icfg, SYS.verdict, threads=1)
+    ref = solve_batch(SYS, p, IntegrateConfig(**{**icfg.__dict__, "engine": "diffrax"}))
+    np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
+    for k in ("n_excursions", "n_flips", "t_settle", "t_first_flip"):
+        np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
+    for k in ("error_t1", "error_max_late", "error_max_settled", "peak_last", "decay_exponent"):
+        np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
+
+
 def test_failures_are_reported_not_raised():
     p = batch_params(SYS, None, 3)
     p["b"][1] = np.nan  # right-hand side NaN from t = 0
