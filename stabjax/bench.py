@@ -497,7 +497,8 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
         ff = result["flops"].get("module_flops_per_lane")
         if acc and acc.get("peak_tflops_f64") and ff and st.get("engine") == "fused":
             ratios["est_flops_per_step"] = ff * 6 / 10  # see step_flops' note
-            ratios["fraction_of_gpu_f64_peak"] = ff * 6 / 10 * st["traj_steps_per_s"] / (acc["peak_tflops_f64"] * 1e12)
+            ratios["fraction_of_gpu_f64_peak"] = (ratios["est_flops_per_step"] * st["traj_steps_per_s"]
+                                                  / (acc["peak_tflops_f64"] * 1e12))
         elif nf and st.get("engine") == "native":
             ratios["est_flops_per_step"] = nf
             ratios["fraction_of_f64_peak"] = nf * st["traj_steps_per_s"] / (result["peak"]["peak_gflops_f64"] * 1e9)

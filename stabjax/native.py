@@ -520,7 +520,7 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
 #define NO {NO}
 #define ALIGN __attribute__((aligned(64)))
 #define NI (4 * W)      /* checkpoint items observed together */
-#define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (scalar) */
+#define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (DRAIN_ONE) */
 #define QLONG 240       /* extra classifier passes in a step while some FIFO is longer than this */
 #define QBUSY (3 * W / 4) /* a classifier pass runs only while this many lanes have an item waiting */
 
@@ -616,7 +616,7 @@ int64_t stabjax_run(const job_t *jb) {{
    calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block) */
 #define DRAIN_ONE(L) do {{ \\
         const int p_ = QH[L]; \\
-        for (int l_ = 0; l_ < W; l_++) {{ HAS[l_] = 0.0; TC[l_] = T[l_]; }} \\
+        for (int l_ = 0; l_ < W; l_++) TC[l_] = T[l_];  /* other lanes: computed, discarded */ \\
         TC[L] = FT[(L) * QCAP + p_]; \\
         for (int q = 0; q < NO; q++) OBS[q * W + (L)] = FO[((L) * QCAP + p_) * NO + q]; \\
         _Pragma("omp simd") \\
@@ -773,7 +773,7 @@ int64_t stabjax_run(const job_t *jb) {{
         if (cand != 0.0) for (int l = 0; l < W; l++) {{
             if (ACT[l] == 0.0) continue;
             const int reached = (T[l] >= t1) & (CK[l] >= K);
-            const int stuck = !reached & ((NACC[l] + NREJ[l] >= (double)jb->max_steps) | !finite_row(KS[0] + l));
+            const int stuck = !reached & ((NACC[l] + NREJ[l] >= max_steps_d) | !finite_row(KS[0] + l));
             if (!(reached | stuck)) continue;
             const int64_t j = IDX[l];
             while (QN[l] > 0) DRAIN_ONE(l);

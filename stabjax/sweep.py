@@ -45,7 +45,8 @@ def bytes_per_trajectory(plan: Plan) -> int:
     """Working memory of one trajectory inside a compiled chunk.
 
     diffrax path: the observables at every checkpoint dominate. Native/fused engines: no per-checkpoint
-    storage, only the parameters and the summaries of each queued trajectory (the lanes are few).
+    storage, only the parameters and the summaries of each queued trajectory (lane state lives in
+    cache on CPU, on the device on a GPU).
     """
     if _queued(plan):
         n_par = sum(int(np.prod(np.shape(v))) or 1 for v in plan.fixed.values())
