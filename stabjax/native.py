@@ -39,6 +39,7 @@ import functools
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -56,6 +57,7 @@ from . import verdict as V
 from .fast import _A, _C, _E, FACTORMAX, FACTORMIN, SAFETY, STATUS_MAX_STEPS, STATUS_OK
 
 SUPPORTED_SOLVERS = ("tsit5",)
+_DROP_ZERO = True
 DEFAULT_WIDTH = int(os.environ.get("STABJAX_NATIVE_WIDTH", "16"))  # lanes per SIMD block
 
 
@@ -125,8 +127,11 @@ class _CEmit(fast._Lanes):
     left scalar), while a loop of doubles only becomes AVX-512 code throughout.
     """
 
+    drop_zero_terms = _DROP_ZERO
+
     def __init__(self, prefix="v"):
         super().__init__(1)
+        self.drop_zero_terms = _DROP_ZERO
         self.lines: list[str] = []
         self.prefix = prefix
         self.n = 0
@@ -313,6 +318,63 @@ def _function(name: str, body: list[str], params: str) -> str:
             f"{{\n    {lines}\n}}\n")
 
 
+_DEF = re.compile(r"const double (v\d+) = (.*);$")
+_VAR = re.compile(r"\bv\d+\b")
+
+
+def _split_t(lines: list[str]):
+    """Split a right-hand side into the part that depends on ``t`` and args only, and the rest.
+
+    Tsit5's sixth stage and the next step's first (FSAL) one are both taken at ``t + h``, so the
+    t-only part (in paper A ``cos(omega0 t**alpha)``: a log, an exp and a cos) is computed once
+    for both. Returns ``(t_lines, frontier, y_lines)``: ``t_lines`` compute the t-only values
+    that the rest reads (``frontier``) and store them as ``tv[k*S]``; ``y_lines`` load them and
+    compute the derivative. None when no such value exists (an autonomous system).
+    """
+    cls: dict[str, str] = {}
+    defs = []
+    for ln in lines:
+        m = _DEF.match(ln)
+        if m is None:  # a store of an output
+            defs.append((None, ln))
+            continue
+        name, expr = m.groups()
+        refs = _VAR.findall(expr)
+        if "y[" in expr or any(cls[r] == "y" for r in refs):
+            cls[name] = "y"
+        elif re.search(r"\bt\b", expr) or any(cls[r] == "t" for r in refs):
+            cls[name] = "t"
+        else:
+            cls[name] = "a"
+        defs.append((name, ln))
+    exprs = {name: _DEF.match(ln).group(2) for name, ln in defs if name is not None}
+    t_side = {name for name, c in cls.items() if c != "y"}
+    while True:
+        frontier = []
+        for name, ln in defs:
+            if name is not None and cls[name] != "y":
+                continue
+            for r in _VAR.findall(ln if name is None else exprs[name]):
+                if cls[r] == "t" and r not in frontier:
+                    frontier.append(r)
+        # GCC contracts a product (or a negated one) into the FMA of the sum that consumes it; a
+        # product stored between the two parts would be rounded once more. Such values are
+        # computed in the second part from their factors instead, so both forms are the same
+        # arithmetic, bit for bit (tests/test_native.py).
+        fused = [v for v in frontier if re.fullmatch(r"-?\S+ \* \S+|-\S+", exprs[v])]
+        if not fused:
+            break
+        for v in fused:
+            cls[v] = "y"
+    if not frontier:
+        return None
+    t_lines = [ln for name, ln in defs if name in t_side]
+    t_lines += [f"tv[{k}*S] = {v};" for k, v in enumerate(frontier)]
+    y_lines = [f"const double {v} = tv[{k}*S];" for k, v in enumerate(frontier)]
+    y_lines += [ln for name, ln in defs if name is None or cls[name] != "t"]
+    return t_lines, frontier, y_lines
+
+
 # ==== the model ==================================================================================
 
 
@@ -395,6 +457,12 @@ class _NativeModel:
         _store(em, outs, "out", [np.float64])
         rhs = _function("f_rhs", em.lines, "const double t, const double *restrict y, const double *restrict a, "
                                            "double *restrict out")
+        split = _split_t(em.lines)
+        self.n_tv = 0 if split is None else len(split[1])
+        if split is not None:
+            rhs += "\n" + _function("f_rhs_t", split[0], "const double t, const double *restrict a, double *restrict tv")
+            rhs += "\n" + _function("f_rhs_y", split[2], "const double *restrict tv, const double *restrict y, "
+                                                         "const double *restrict a, double *restrict out")
         # -- observe(t, y, a) -> obs --
         em = _CEmit()
         y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
@@ -479,19 +547,32 @@ def _unrolled(n: int, line: Callable[[int], str]) -> str:
 def _kernel_source(model: _NativeModel, W: int) -> str:
     NS, NA, NC, NO = model.n_state, max(model.n_args, 1), model.n_c, max(model.n_obs, 1)
     stage_loops = []
+    # The sixth stage and the next step's first are both at t + h: the t-only part of the
+    # right-hand side (paper A: cos(omega0 t**alpha), a log, an exp and a cos) is computed once for
+    # both, at TN (diffrax takes the sixth at t + 1.0 * h, which can differ from TN in the last bit)
+    share = model.n_tv > 0 and _C[4] == 1.0 and _C[5] == 1.0
     # stages 2..6 of Tsit5 (FSAL: K0 = f(t, y)); stage i uses row _A[i-1] and node _C[i-1]
     for i in range(1, 6):
         row = _A[i - 1]
         body = _unrolled(NS, lambda q: f"YT[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
-        stage_loops.append(f"""
+        pre = ""
+        call = f"f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);"
+        if share and i == 5:
+            pre = """
+        #pragma omp simd
+        for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);"""
+            call = f"f_rhs_y(TV + l, YT + l, A + l, KS[{i}] + l, W);"
+        stage_loops.append(f"""{pre}
         #pragma omp simd
         for (int l = 0; l < W; l++) {{
             const double h = H[l];
             {body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(_C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);""")
+        for (int l = 0; l < W; l++) {call}""")
+    last_call = ("f_rhs_y(TV + l, YN + l, A + l, KS[6] + l, W)" if share
+                 else "f_rhs(TN[l], YN + l, A + l, KS[6] + l, W)")
     row = _A[5]
     new_body = _unrolled(NS, lambda q: f"YN[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
@@ -508,6 +589,17 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
     interp_body = _unrolled(NS, lambda q: f"PYT[{q} * NI + i] = Y[{q} * W + L] + h * (" + " + ".join(
         f"b{j + 1} * KS[{j}][{q} * W + L]" for j in range(7)) + ");")
     pack_a_body = _unrolled(model.n_args, lambda q: f"PA[{q} * NI + i] = A[{q} * W + L];")
+    interp0_body = _unrolled(NS, lambda q: f"PY0[{q} * W + l] = Y[{q} * W + l] + h * (" + " + ".join(
+        f"b{j + 1} * KS[{j}][{q} * W + l]" for j in range(7)) + ");")
+    # Tsit5's dense-output weights b_j(theta) (diffrax's Tsit5Interpolation)
+    bpoly = """const double th2 = th * th;
+            const double b1 = -1.0530884977290216 * th * (th - 1.3299890189751412) * (th2 - 1.4364028541716351 * th + 0.7139816917074209);
+            const double b2 = 0.1017 * th2 * (th2 - 2.1966568338249754 * th + 1.2949852507374631);
+            const double b3 = 2.490627285651252793 * th2 * (th2 - 2.38535645472061657 * th + 1.57803468208092486);
+            const double b4 = -16.54810288924490272 * (th - 1.21712927295533244) * (th - 0.61620406037800089) * th2;
+            const double b5 = 47.37952196281928122 * (th - 1.203071208372362603) * (th - 0.658047292653547382) * th2;
+            const double b6 = -34.87065786149660974 * (th - 1.2) * (th - 0.666666666666666667) * th2;
+            const double b7 = 2.5 * (th - 1) * (th - 0.6) * th2;"""
     cmix_body = _unrolled(model.n_c, lambda q: f"C[{q} * W + l] = has != 0.0 ? CN[{q} * W + l] : C[{q} * W + l];")
     commit_body = _unrolled(NS, lambda q: f"Y[{q} * W + l] = kp != 0.0 ? YN[{q} * W + l] : Y[{q} * W + l]; "
                                           f"KS[0][{q} * W + l] = kp != 0.0 ? KS[6][{q} * W + l] : KS[0][{q} * W + l];")
@@ -518,6 +610,7 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
 #define NA {NA}
 #define NC {NC}
 #define NO {NO}
+#define NTV {max(model.n_tv, 1)}  /* t-only values of the rhs shared by the sixth and seventh stage */
 #define ALIGN __attribute__((aligned(64)))
 #define NI (4 * W)      /* checkpoint items observed together */
 #define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (DRAIN_ONE) */
@@ -582,10 +675,13 @@ int64_t stabjax_run(const job_t *jb) {{
     /* per-lane flags and counters are doubles too (see _CEmit): every simd loop is pure V8DF */
     double Y[NS * W] ALIGN, KS[7][NS * W] ALIGN, YT[NS * W] ALIGN, YN[NS * W] ALIGN, A[NA * W] ALIGN, C[NC * W] ALIGN,
         CN[NC * W] ALIGN, OBS[NO * W] ALIGN, T[W] ALIGN, TN[W] ALIGN, H[W] ALIGN, TP[W] ALIGN, TNX[W] ALIGN, TC[W] ALIGN,
-        NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN;
+        NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN, TV[NTV * W] ALIGN;
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
     /* checkpoint items of one step, and each lane's FIFO of observed checkpoints (time, observables) */
     double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN;
+    /* round 0: each lane's first checkpoint in a step (time of its next checkpoint, whether it has
+       one in this step, its time, state and observables) */
+    double NEXTT[W] ALIGN, R0[W] ALIGN, TC0[W] ALIGN, PY0[NS * W] ALIGN, OB0[NO * W] ALIGN;
     int IL[NI] ALIGN;
     static __thread double FT[W * QCAP], FO[W * QCAP * NO];
     int QH[W], QN[W];
@@ -604,12 +700,12 @@ int64_t stabjax_run(const job_t *jb) {{
             for (int q = 0; q < NA; q++) A[q * W + (l)] = jb->ain[j_ * NA + q]; \\
             for (int q = 0; q < NS; q++) Y[q * W + (l)] = jb->y0in[j_ * NS + q]; \\
             for (int q = 0; q < NC; q++) C[q * W + (l)] = jb->c0[q]; \\
-            T[l] = t0; CK[l] = 0; NACC[l] = 0; NREJ[l] = 0; QH[l] = 0; QN[l] = 0; \\
+            T[l] = t0; CK[l] = 0; NEXTT[l] = ts[0]; NACC[l] = 0; NREJ[l] = 0; QH[l] = 0; QN[l] = 0; \\
             f_rhs(t0, Y + (l), A + (l), KS[0] + (l), W); \\
             const double h_ = initial_step(jb, Y, KS[0], YT, KS[1], A, (l)); \\
             double tn_ = t0 + h_ < t1 ? t0 + h_ : t1; \\
             TN[l] = tn_ > t1_floor ? t1 : tn_; \\
-        }} else {{ IDX[l] = -1; ACT[l] = 0.0; }} \\
+        }} else {{ IDX[l] = -1; ACT[l] = 0.0; NEXTT[l] = INFINITY; }} \\
     }} while (0)
 
 /* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
@@ -640,7 +736,7 @@ int64_t stabjax_run(const job_t *jb) {{
             {new_body}
         }}
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, W);
+        for (int l = 0; l < W; l++) {last_call};
 
         /* error estimate and diffrax's PIDController (I-controller defaults) */
         #pragma omp simd
@@ -675,14 +771,52 @@ int64_t stabjax_run(const job_t *jb) {{
            observables wait in the lane's FIFO; one vectorised classifier pass per step pops one item
            per lane (more passes while a FIFO is long). Measured before: 2.9 masked passes over 16
            lanes per step, 4 lanes busy in each. */
-        {{
+        /* Round 0: the first checkpoint of each lane in this step, observed in lane layout. Most
+           steps that cross a checkpoint cross exactly one (N = 1024: 1.15 M of 2.05 M items came
+           one per lane-step, 0.49 M two), and an item costs 7 * NS gathered loads in the item batches
+           below; here the same arithmetic reads the lane's own slots. Same formulas, same vector
+           code: the items' values do not depend on which path observed them. */
+        double any0 = 0.0;
+        #pragma omp simd reduction(max:any0)
+        for (int l = 0; l < W; l++) {{
+            const double r0 = KEEP[l] != 0.0 ? (NEXTT[l] <= TN[l] ? 1.0 : 0.0) : 0.0;
+            const double tc = r0 != 0.0 ? NEXTT[l] : T[l];
+            const double h = H[l];
+            const double th = h > 0 ? (tc - T[l]) / h : 0.0;
+            {bpoly}
+            {interp0_body}
+            R0[l] = r0; TC0[l] = tc;
+            any0 = r0 > any0 ? r0 : any0;
+        }}
+        if (any0 != 0.0) {{
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_obs(TC0[l], PY0 + l, A + l, OB0 + l, W);
+            for (int l = 0; l < W; l++) {{
+                if (R0[l] == 0.0) continue;
+                if (QN[l] == QCAP) DRAIN_ONE(l);
+                const int pos = (QH[l] + QN[l]) % QCAP;
+                FT[l * QCAP + pos] = TC0[l];
+                for (int q = 0; q < NO; q++) FO[(l * QCAP + pos) * NO + q] = OB0[q * W + l];
+                QN[l]++;
+                CK[l]++;
+                NEXTT[l] = CK[l] < K ? ts[CK[l]] : INFINITY;
+            }}
+        }}
+        double more = 0.0;
+        #pragma omp simd reduction(max:more)
+        for (int l = 0; l < W; l++) {{
+            const double mo = KEEP[l] != 0.0 ? (NEXTT[l] <= TN[l] ? 1.0 : 0.0) : 0.0;
+            more = mo > more ? mo : more;
+        }}
+        if (more != 0.0) {{
             int l0 = 0;
             for (;;) {{
                 int m = 0;
                 for (; l0 < W && m < NI; l0++) {{
-                    if (KEEP[l0] == 0.0) continue;
+                    if (KEEP[l0] == 0.0 || NEXTT[l0] > TN[l0]) continue;
                     while (CK[l0] < K && ts[CK[l0]] <= TN[l0] && m < NI) {{ IL[m] = l0; IT_[m] = ts[CK[l0]]; CK[l0]++; m++; }}
-                    if (CK[l0] < K && ts[CK[l0]] <= TN[l0]) break;  /* item buffer full: this lane again */
+                    NEXTT[l0] = CK[l0] < K ? ts[CK[l0]] : INFINITY;
+                    if (NEXTT[l0] <= TN[l0]) break;  /* item buffer full: this lane again */
                 }}
                 if (m == 0) break;
                 /* pad the batch to whole 8-wide vectors with copies of its last item (observed, never
@@ -696,14 +830,7 @@ int64_t stabjax_run(const job_t *jb) {{
                     const int L = IL[i];
                     const double h = H[L];
                     const double th = h > 0 ? (IT_[i] - T[L]) / h : 0.0;
-                    const double th2 = th * th;
-                    const double b1 = -1.0530884977290216 * th * (th - 1.3299890189751412) * (th2 - 1.4364028541716351 * th + 0.7139816917074209);
-                    const double b2 = 0.1017 * th2 * (th2 - 2.1966568338249754 * th + 1.2949852507374631);
-                    const double b3 = 2.490627285651252793 * th2 * (th2 - 2.38535645472061657 * th + 1.57803468208092486);
-                    const double b4 = -16.54810288924490272 * (th - 1.21712927295533244) * (th - 0.61620406037800089) * th2;
-                    const double b5 = 47.37952196281928122 * (th - 1.203071208372362603) * (th - 0.658047292653547382) * th2;
-                    const double b6 = -34.87065786149660974 * (th - 1.2) * (th - 0.666666666666666667) * th2;
-                    const double b7 = 2.5 * (th - 1) * (th - 0.6) * th2;
+                    {bpoly}
                     {interp_body}
                     {pack_a_body}
                 }}
@@ -794,6 +921,11 @@ int64_t stabjax_run(const job_t *jb) {{
 void stabjax_eval(const double t, const double *y, const double *a, double *dy, double *obs) {{
     f_rhs(t, y, a, dy, 1);
     f_obs(t, y, a, obs, 1);
+}}
+
+/* the rhs as the loop takes it at t + h: t-only part and the rest (tests: equal to f_rhs bit for bit) */
+void stabjax_eval_split(const double t, const double *y, const double *a, double *dy) {{
+    {"double tv[NTV]; f_rhs_t(t, a, tv, 1); f_rhs_y(tv, y, a, dy, 1);" if model.n_tv else "f_rhs(t, y, a, dy, 1);"}
 }}
 
 void stabjax_update(const double *c, const double t, const double *o, double *out) {{
@@ -894,6 +1026,7 @@ def _build(source: str) -> ctypes.CDLL:
         if hasattr(lib, "stabjax_eval"):
             lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
             lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
+            lib.stabjax_eval_split.argtypes = [ctypes.c_double, dp, dp, dp]
         return lib
     raise Unsupported("C compiler failed:\n" + "\n".join(errors))
 
@@ -929,8 +1062,13 @@ def _kernel(system, icfg, vcfg, static: fast._Static, dyn_shapes: tuple, width: 
     return _Kernel(system, icfg, vcfg, static.values, dict(dyn_shapes), width, eval_only)
 
 
-def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The compiled rhs and observables of one trajectory (prepared args ``a`` as from host_inputs)."""
+def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray, *,
+             split: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled rhs and observables of one trajectory (prepared args ``a`` as from host_inputs).
+
+    ``split=True`` computes the rhs as the loop's sixth and seventh stages do: its t-only part
+    first (:func:`_split_t`), then the rest.
+    """
     m = kern.model
     y = np.ascontiguousarray(y, np.float64)
     a = np.ascontiguousarray(a if m.n_args else np.zeros(1), np.float64)
@@ -938,6 +1076,8 @@ def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray) -> tuple[np.
     dp = ctypes.POINTER(ctypes.c_double)
     kern.lib.stabjax_eval(float(t), y.ctypes.data_as(dp), a.ctypes.data_as(dp), dy.ctypes.data_as(dp),
                           obs.ctypes.data_as(dp))
+    if split:
+        kern.lib.stabjax_eval_split(float(t), y.ctypes.data_as(dp), a.ctypes.data_as(dp), dy.ctypes.data_as(dp))
     return dy, obs[: m.n_obs]
 
 
@@ -959,7 +1099,8 @@ def op_counts(kern: _Kernel) -> dict[str, int]:
     """Arithmetic operations (+ - * /, sqrt) and libm calls per evaluation of each generated function,
     counted in the C source (jpow counts as exp + log), for the roofline estimate of the benchmark."""
     out = {}
-    for name in ("f_rhs", "f_obs", "f_upd"):
+    names = ("f_rhs", "f_obs", "f_upd") + (("f_rhs_t",) if kern.model.n_tv else ())
+    for name in names:
         body = kern.model.functions.split(f"void {name}(", 1)[1].split("\n}\n", 1)[0]
         lines = [ln.split("=", 1)[1] for ln in body.splitlines() if ln.strip().startswith("const double v")]
         arith = sum(ln.count(" + ") + ln.count(" - ") + ln.count(" * ") + ln.count(" / ") + ln.count("sqrt(")
@@ -979,6 +1120,8 @@ def flops_per_step(kern: _Kernel, checkpoints_per_step: float, libm_flops: int =
     stages = sum(ns * (2 * k + 1) for k in nnz) + 6  # y + h * sum(a_ij k_j), stage times
     err = ns * (2 * sum(1 for x in _E if x != 0.0) + 8) + 12  # error estimate, scale, ratio, rms, controller
     rhs = 6 * (c["f_rhs"]["arith"] + libm_flops * c["f_rhs"]["libm_calls"])
+    if "f_rhs_t" in c:  # the sixth and seventh stage share their t-only part
+        rhs -= c["f_rhs_t"]["arith"] + libm_flops * c["f_rhs_t"]["libm_calls"]
     per_ck = 30 + ns * 15 + c["f_obs"]["arith"] + c["f_upd"]["arith"] + libm_flops * (
         c["f_obs"]["libm_calls"] + c["f_upd"]["libm_calls"])
     step = rhs + stages + err + 2 * libm_flops

@@ -179,9 +179,27 @@ def test_translation_of_every_model_equals_jax(name):
             ref_obs = np.ravel(np.asarray(S.observe(t, jnp.asarray(y), args)))
             np.testing.assert_allclose(y0[i], np.asarray(S.initial_state(q)), rtol=1e-14, atol=1e-15)
             dy, obs = native.evaluate(kern, t, y, a[i])
+            # the sixth/seventh stages' form (t-only part computed apart) is the same arithmetic
+            np.testing.assert_array_equal(native.evaluate(kern, t, y, a[i], split=True)[0], dy)
             scale = max(1.0, float(np.max(np.abs(ref_dy))))
             np.testing.assert_allclose(dy, ref_dy, rtol=1e-11, atol=1e-12 * scale, err_msg=f"{name} rhs static={static}")
             np.testing.assert_allclose(obs, ref_obs, rtol=1e-11, atol=1e-12, err_msg=f"{name} observe static={static}")
+
+
+def test_rhs_split_and_zero_terms():
+    """The t-only part of paper A's rhs is cos(omega0 t**alpha) (shared by the stages at t + h); the
+    diagonal damping matrix costs no products with zero."""
+    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8), eval_only=True)
+    m = kern.model
+    t_part = m.functions.split("void f_rhs_t(", 1)[1].split("\n}\n", 1)[0]
+    assert m.n_tv == 1 and "cos(" in t_part and "jpow(t" in t_part and "y[" not in t_part
+    y_part = m.functions.split("void f_rhs_y(", 1)[1].split("\n}\n", 1)[0]
+    assert "cos(" not in y_part and "jpow(" not in y_part
+    rhs = m.functions.split("void f_rhs(", 1)[1].split("\n}\n", 1)[0]
+    assert "(0x0.0p+0) *" not in rhs and "(-0x0.0p+0) *" not in rhs
+    lines = ["const double v0 = y[0*S];", "const double v1 = a[0*S];", "const double v2 = v1 * v0;",
+             "out[0*S] = v2;"]
+    assert native._split_t(lines) is None  # autonomous: nothing to share
 
 
 def test_classifier_update_equals_jax():
