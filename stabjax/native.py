@@ -22,7 +22,13 @@ one loop that keeps a whole step in registers:
 * **The method is diffrax's** (as in :mod:`stabjax.fast`): Tsit5 with diffrax's tableau,
   error norm, I-controller defaults, Hairer's initial step and last-step clipping. Unlike the
   fused engine a step may contain any number of checkpoints (each from the dense output), so
-  the step sequence is the one ``diffeqsolve`` takes with ``SaveAt(t1=True)``.
+  the step sequence is the one ``diffeqsolve`` takes with ``SaveAt(t1=True)`` (up to rounding:
+  the sixth stage is taken at the step's end time, where diffrax computes ``t + 1.0 * h``, and
+  libmvec's last bits differ from XLA's).
+* **Checkpoints.** Each lane's first checkpoint of a step is interpolated and observed in lane
+  layout; later ones of the same step become items observed in SIMD batches over items; the
+  observables wait in per-lane FIFOs for vectorised classifier passes (benchmarks/NOTES.md N5,
+  N14, N17).
 * **Threads.** One call of the compiled function per core from Python threads (ctypes
   releases the GIL); the calls share the queue, a progress counter and a stop flag (Ctrl-C
   stops every thread after its current step).
