@@ -335,7 +335,8 @@ def _split_t(lines: list[str]):
     t-only part (in paper A ``cos(omega0 t**alpha)``: a log, an exp and a cos) is computed once
     for both. Returns ``(t_lines, frontier, y_lines)``: ``t_lines`` compute the t-only values
     that the rest reads (``frontier``) and store them as ``tv[k*S]``; ``y_lines`` load them and
-    compute the derivative. None when no such value exists (an autonomous system).
+    compute the derivative (they may still read ``t``, e.g. in a term ``t * y``). None when no
+    such value exists (an autonomous system).
     """
     cls: dict[str, str] = {}
     defs = []
@@ -467,8 +468,9 @@ class _NativeModel:
         self.n_tv = 0 if split is None else len(split[1])
         if split is not None:
             rhs += "\n" + _function("f_rhs_t", split[0], "const double t, const double *restrict a, double *restrict tv")
-            rhs += "\n" + _function("f_rhs_y", split[2], "const double *restrict tv, const double *restrict y, "
-                                                         "const double *restrict a, double *restrict out")
+            rhs += "\n" + _function("f_rhs_y", split[2], "const double t, const double *restrict tv, "
+                                                         "const double *restrict y, const double *restrict a, "
+                                                         "double *restrict out")
         # -- observe(t, y, a) -> obs --
         em = _CEmit()
         y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
@@ -568,7 +570,7 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
             pre = """
         #pragma omp simd
         for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);"""
-            call = f"f_rhs_y(TV + l, YT + l, A + l, KS[{i}] + l, W);"
+            call = f"f_rhs_y(TN[l], TV + l, YT + l, A + l, KS[{i}] + l, W);"
         stage_loops.append(f"""{pre}
         #pragma omp simd
         for (int l = 0; l < W; l++) {{
@@ -577,7 +579,7 @@ def _kernel_source(model: _NativeModel, W: int) -> str:
         }}
         #pragma omp simd
         for (int l = 0; l < W; l++) {call}""")
-    last_call = ("f_rhs_y(TV + l, YN + l, A + l, KS[6] + l, W)" if share
+    last_call = ("f_rhs_y(TN[l], TV + l, YN + l, A + l, KS[6] + l, W)" if share
                  else "f_rhs(TN[l], YN + l, A + l, KS[6] + l, W)")
     row = _A[5]
     new_body = _unrolled(NS, lambda q: f"YN[{q} * W + l] = Y[{q} * W + l] + h * ("
@@ -931,7 +933,7 @@ void stabjax_eval(const double t, const double *y, const double *a, double *dy, 
 
 /* the rhs as the loop takes it at t + h: t-only part and the rest (tests: equal to f_rhs bit for bit) */
 void stabjax_eval_split(const double t, const double *y, const double *a, double *dy) {{
-    {"double tv[NTV]; f_rhs_t(t, a, tv, 1); f_rhs_y(tv, y, a, dy, 1);" if model.n_tv else "f_rhs(t, y, a, dy, 1);"}
+    {"double tv[NTV]; f_rhs_t(t, a, tv, 1); f_rhs_y(t, tv, y, a, dy, 1);" if model.n_tv else "f_rhs(t, y, a, dy, 1);"}
 }}
 
 void stabjax_update(const double *c, const double t, const double *o, double *out) {{

@@ -200,6 +200,14 @@ def test_rhs_split_and_zero_terms():
     lines = ["const double v0 = y[0*S];", "const double v1 = a[0*S];", "const double v2 = v1 * v0;",
              "out[0*S] = v2;"]
     assert native._split_t(lines) is None  # autonomous: nothing to share
+    # a term t * y stays with the state; the product c * t that a sum consumes is not stored
+    lines = ["const double v0 = y[0*S];", "const double v1 = t * v0;", "const double v2 = (0x1p+1) * t;",
+             "const double v3 = cos(v2);", "const double v4 = v1 + v2;", "const double v5 = v4 * v3;",
+             "out[0*S] = v5;"]
+    t_lines, frontier, y_lines = native._split_t(lines)
+    assert frontier == ["v3"] and "const double v3 = cos(v2);" in t_lines
+    assert "const double v1 = t * v0;" in y_lines and "const double v2 = (0x1p+1) * t;" in y_lines
+    assert not any("cos(" in ln for ln in y_lines)
 
 
 def test_classifier_update_equals_jax():
