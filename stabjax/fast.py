@@ -310,9 +310,10 @@ class _Lanes:
     """Evaluator of closed jaxprs on object arrays whose elements are constants or (L,) vectors."""
 
     # In a dot product, drop the terms whose constant factor is exactly zero (the native emitter
-    # turns this on: a diagonal gain matrix K then costs 3 products instead of 9). IEEE would give
-    # NaN for 0 * inf; here such a term contributes nothing, which matters only for a non-finite
-    # state, where another term of the same row is already non-finite and the step is rejected.
+    # turns this on: a diagonal gain matrix K then costs 3 products instead of 9). IEEE gives NaN
+    # for 0 * inf, so the result differs only when the other factor is not finite; that factor is
+    # a component of the state or of a value computed from it, which makes the derivative
+    # non-finite elsewhere, so the step is rejected either way. (And in the sign of an exact zero.)
     drop_zero_terms = False
 
     def __init__(self, L: int):

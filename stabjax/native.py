@@ -63,7 +63,6 @@ from . import verdict as V
 from .fast import _A, _C, _E, FACTORMAX, FACTORMIN, SAFETY, STATUS_MAX_STEPS, STATUS_OK
 
 SUPPORTED_SOLVERS = ("tsit5",)
-_DROP_ZERO = True
 DEFAULT_WIDTH = int(os.environ.get("STABJAX_NATIVE_WIDTH", "16"))  # lanes per SIMD block
 
 
@@ -133,11 +132,10 @@ class _CEmit(fast._Lanes):
     left scalar), while a loop of doubles only becomes AVX-512 code throughout.
     """
 
-    drop_zero_terms = _DROP_ZERO
+    drop_zero_terms = True  # see fast._Lanes
 
     def __init__(self, prefix="v"):
         super().__init__(1)
-        self.drop_zero_terms = _DROP_ZERO
         self.lines: list[str] = []
         self.prefix = prefix
         self.n = 0
@@ -729,6 +727,15 @@ int64_t stabjax_run(const job_t *jb) {{
         QH[L] = (p_ + 1) % QCAP; QN[L]--; \\
     }} while (0)
 
+/* append an observed checkpoint (time TT, observables OO[q * STRIDE]) to lane L's FIFO */
+#define PUSH(L, TT, OO, STRIDE) do {{ \\
+        if (QN[L] == QCAP) DRAIN_ONE(L); \\
+        const int pos_ = (QH[L] + QN[L]) % QCAP; \\
+        FT[(L) * QCAP + pos_] = (TT); \\
+        for (int q = 0; q < NO; q++) FO[((L) * QCAP + pos_) * NO + q] = (OO)[q * (STRIDE)]; \\
+        QN[L]++; \\
+    }} while (0)
+
     for (int l = 0; l < W; l++) {{ QH[l] = 0; QN[l] = 0; }}
     int n_active = 0;
     for (int l = 0; l < W; l++) {{ REFILL(l); n_active += ACT[l] != 0.0; }}
@@ -801,11 +808,7 @@ int64_t stabjax_run(const job_t *jb) {{
             for (int l = 0; l < W; l++) f_obs(TC0[l], PY0 + l, A + l, OB0 + l, W);
             for (int l = 0; l < W; l++) {{
                 if (R0[l] == 0.0) continue;
-                if (QN[l] == QCAP) DRAIN_ONE(l);
-                const int pos = (QH[l] + QN[l]) % QCAP;
-                FT[l * QCAP + pos] = TC0[l];
-                for (int q = 0; q < NO; q++) FO[(l * QCAP + pos) * NO + q] = OB0[q * W + l];
-                QN[l]++;
+                PUSH(l, TC0[l], OB0 + l, W);
                 CK[l]++;
                 NEXTT[l] = CK[l] < K ? ts[CK[l]] : INFINITY;
             }}
@@ -844,14 +847,7 @@ int64_t stabjax_run(const job_t *jb) {{
                 }}
                 #pragma omp simd
                 for (int i = 0; i < mv; i++) f_obs(IT_[i], PYT + i, PA + i, POBS + i, NI);
-                for (int i = 0; i < m; i++) {{
-                    const int L = IL[i];
-                    if (QN[L] == QCAP) DRAIN_ONE(L);
-                    const int pos = (QH[L] + QN[L]) % QCAP;
-                    FT[L * QCAP + pos] = IT_[i];
-                    for (int q = 0; q < NO; q++) FO[(L * QCAP + pos) * NO + q] = POBS[q * NI + i];
-                    QN[L]++;
-                }}
+                for (int i = 0; i < m; i++) PUSH(IL[i], IT_[i], POBS + i, NI);
             }}
         }}
         /* Classifier passes pop one item per lane. A lane early in its trajectory queues hundreds of
