@@ -22,7 +22,9 @@ accepted steps (summed over trajectories; the vmapped baseline also gets its loc
 trajectory-steps per second, peak resident memory during the run, and agreement checks:
 verdicts of the fused engine against the diffrax engine path, final states of the fused engine
 against the diffrax baseline and against SciPy. Also the machine, the load average, library
-versions, XLA's flop count of one fused step and the fraction of the CPU's float64 peak.
+versions, XLA's flop count of one fused step and the fraction of the CPU's float64 peak: the
+nominal peak (cores x clock x FMA units x lanes) and the peak measured before and after the run
+(:func:`measured_peak`; the machine's speed drifts, and two virtual CPUs need not be two cores).
 """
 from __future__ import annotations
 
@@ -129,6 +131,99 @@ def peak_flops(info: dict) -> dict:
     return {"ghz": ghz, "flops_per_cycle_per_core": per_cycle, "cores": cores,
             "peak_gflops_f64": cores * ghz * per_cycle,
             "assumption": "2 FMA units per core, vector width from /proc/cpuinfo flags, nominal clock"}
+
+
+_PEAK_SRC = r"""
+#include <stdint.h>
+#ifdef __AVX512F__
+#define VB 64
+#else
+#define VB 32
+#endif
+typedef double vd __attribute__((vector_size(VB)));
+#define NACC 10  /* independent chains (a0..a9): two FMA units x 4-cycle latency need 8 */
+
+/* multiply-adds on NACC independent vector chains: the float64 throughput one thread reaches */
+double stabjax_peak_fma(int64_t iters) {
+    const vd z = {0.0}, m = z + 0.999999, c = z + 1e-7;
+    vd a0 = z + 1.0, a1 = z + 1.001, a2 = z + 1.002, a3 = z + 1.003, a4 = z + 1.004;
+    vd a5 = z + 1.005, a6 = z + 1.006, a7 = z + 1.007, a8 = z + 1.008, a9 = z + 1.009;
+    for (int64_t it = 0; it < iters; it++) {
+        a0 = a0 * m + c; a1 = a1 * m + c; a2 = a2 * m + c; a3 = a3 * m + c; a4 = a4 * m + c;
+        a5 = a5 * m + c; a6 = a6 * m + c; a7 = a7 * m + c; a8 = a8 * m + c; a9 = a9 * m + c;
+        /* opaque to the optimiser: the chains stay in registers, one multiply-add each per iteration */
+        __asm__ volatile("" : "+x"(a0), "+x"(a1), "+x"(a2), "+x"(a3), "+x"(a4), "+x"(a5), "+x"(a6), "+x"(a7),
+                         "+x"(a8), "+x"(a9));
+    }
+    const vd s = a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7 + a8 + a9;
+    double out = 0.0;
+    for (int j = 0; j < (int)(VB / 8); j++) out += s[j];
+    return out;
+}
+
+int stabjax_peak_lanes(void) { return VB / 8; }
+int stabjax_peak_chains(void) { return NACC; }
+
+/* one dependent chain of scalar multiply-adds: bound by latency, not by execution units, so two
+   threads on two real cores each keep their one-thread speed */
+double stabjax_peak_chain(int64_t iters) {
+    double x = 1.0;
+    for (int64_t it = 0; it < iters; it++) {
+        x = x * 0.999999 + 1e-7;
+        __asm__ volatile("" : "+x"(x));
+    }
+    return x;
+}
+"""
+
+
+def measured_peak(threads: int | None = None, seconds: float = 0.3) -> dict:
+    """float64 throughput this machine delivers, measured: multiply-adds on independent vector
+    chains in one thread and in ``threads`` concurrent threads (the roofline's measured ceiling),
+    and one latency-bound scalar chain (two threads on two real cores both keep one thread's speed;
+    shared cores or a CPU quota show as a slowdown). x86-64 only; ``{"error": ...}`` elsewhere."""
+    import ctypes
+    from concurrent.futures import ThreadPoolExecutor
+
+    from . import native
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return {"error": "measured peak: x86-64 only"}
+    try:
+        lib = native.compile_library(_PEAK_SRC)
+    except Exception as exc:
+        return {"error": repr(exc)}
+    for f in (lib.stabjax_peak_fma, lib.stabjax_peak_chain):
+        f.argtypes, f.restype = [ctypes.c_int64], ctypes.c_double
+    lanes, chains = lib.stabjax_peak_lanes(), lib.stabjax_peak_chains()
+    threads = int(threads or os.cpu_count() or 1)
+
+    def timed(fn, iters, k):
+        def one(_):
+            t = time.perf_counter()
+            fn(iters)  # ctypes releases the GIL for the call
+            return time.perf_counter() - t
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(k) as ex:
+            list(ex.map(one, range(k)))
+        return time.perf_counter() - t0
+
+    def calibrated(fn, flops_per_iter):
+        iters = 1_000_000
+        while timed(fn, iters, 1) < 0.05:
+            iters *= 4
+        iters = int(iters * seconds / max(timed(fn, iters, 1), 1e-9))
+        one = min(timed(fn, iters, 1) for _ in range(3))
+        many = min(timed(fn, iters, threads) for _ in range(3))
+        return iters * flops_per_iter / one / 1e9, threads * iters * flops_per_iter / many / 1e9
+
+    fma1, fman = calibrated(lib.stabjax_peak_fma, 2 * lanes * chains)
+    ch1, chn = calibrated(lib.stabjax_peak_chain, 1)
+    return {"gflops_f64_one_thread": fma1, "gflops_f64_all_threads": fman, "threads": threads,
+            "scaling_fma": fman / fma1, "scaling_latency_chain": chn / ch1,
+            "clock_ghz_from_chain": ch1 * 4,  # a float64 multiply-add's latency: 4 cycles (Skylake and later)
+            "method": f"{chains} independent {lanes}-lane multiply-add chains per thread; "
+                      "latency chain: one dependent scalar multiply-add"}
 
 
 # float64 peak of GPUs by device-kind substring, TF/s without tensor cores (NVIDIA datasheets:
@@ -451,7 +546,7 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
                        f"atol {ATOL}, float64", "t1": t1, "quick": quick, "machine": info, "versions": versions(),
               "jax_devices": [str(d) for d in jax.devices()], "default_lanes": fast.default_lanes(),
               "env": {k: os.environ.get(k) for k in ("EQX_ON_ERROR", "XLA_FLAGS", "STABJAX_LANES")},
-              "peak": peak_flops(info), "accelerator": accelerator(), "sizes": {}}
+              "peak": peak_flops(info), "measured_peak": measured_peak(seconds=0.02 if quick else 0.3), "accelerator": accelerator(), "sizes": {}}
     try:
         result["flops"] = step_flops()
     except Exception as exc:  # cost analysis is best effort
@@ -502,9 +597,14 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
         elif nf and st.get("engine") == "native":
             ratios["est_flops_per_step"] = nf
             ratios["fraction_of_f64_peak"] = nf * st["traj_steps_per_s"] / (result["peak"]["peak_gflops_f64"] * 1e9)
+            mp = result["measured_peak"].get("gflops_f64_all_threads")
+            if mp:
+                ratios["fraction_of_measured_f64_peak"] = nf * st["traj_steps_per_s"] / (mp * 1e9)
         row["ratios"] = ratios
         result["sizes"][str(n)] = {k: (_strip(v) if isinstance(v, dict) else v) for k, v in row.items()}
         print(f"[bench] N={n}: " + json.dumps(ratios), flush=True)
+    # the machine's speed drifts (benchmarks/NOTES.md): the same measurement again brackets the run
+    result["measured_peak_end"] = measured_peak(seconds=0.02 if quick else 0.3)
     try:
         result["loadavg_at_end"] = Path("/proc/loadavg").read_text().split()[:3]
     except OSError:
@@ -577,6 +677,15 @@ def markdown(r: dict) -> str:
                   f"{nf.get('libm_flops', '?')} flops). "
                   f"XLA flops of the compiled fused loop per lane {fl.get('module_flops_per_lane', float('nan')):.0f} "
                   f"({fl.get('note', fl.get('error', ''))})."]
+    for key, when in (("measured_peak", "before the run"), ("measured_peak_end", "after it")):
+        mp = r.get(key) or {}
+        if "gflops_f64_all_threads" in mp:
+            lines.append(f"Measured peak {when}: {mp['gflops_f64_one_thread']:.0f} GF/s float64 in one thread, "
+                         f"{mp['gflops_f64_all_threads']:.0f} GF/s in {mp['threads']} concurrent threads (scaling "
+                         f"{mp['scaling_fma']:.2f}; a latency-bound scalar chain scales {mp['scaling_latency_chain']:.2f}, "
+                         f"clock {mp['clock_ghz_from_chain']:.2f} GHz; {mp['method']}).")
+        elif mp:
+            lines.append(f"Measured peak {when}: {mp.get('error')}")
     return "\n".join(lines) + "\n"
 
 

@@ -1012,7 +1012,8 @@ def cache_dir() -> Path:
 _LOAD_LOCK = threading.Lock()
 
 
-def _build(source: str) -> ctypes.CDLL:
+def compile_library(source: str) -> ctypes.CDLL:
+    """Compile C ``source`` into a cached shared library with the first flag set the compiler accepts."""
     cc = compiler()
     if cc is None:
         raise Unsupported("no C compiler on PATH (set CC)")
@@ -1040,15 +1041,20 @@ def _build(source: str) -> ctypes.CDLL:
             except OSError as exc:
                 errors.append(f"{' '.join(flags)}: load failed: {exc}")
                 continue
-        lib.stabjax_run.argtypes = [ctypes.POINTER(_Job)]
-        lib.stabjax_run.restype = ctypes.c_int64
-        dp = ctypes.POINTER(ctypes.c_double)
-        if hasattr(lib, "stabjax_eval"):
-            lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
-            lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
-            lib.stabjax_eval_split.argtypes = [ctypes.c_double, dp, dp, dp]
         return lib
     raise Unsupported("C compiler failed:\n" + "\n".join(errors))
+
+
+def _build(source: str) -> ctypes.CDLL:
+    lib = compile_library(source)
+    lib.stabjax_run.argtypes = [ctypes.POINTER(_Job)]
+    lib.stabjax_run.restype = ctypes.c_int64
+    dp = ctypes.POINTER(ctypes.c_double)
+    if hasattr(lib, "stabjax_eval"):
+        lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
+        lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
+        lib.stabjax_eval_split.argtypes = [ctypes.c_double, dp, dp, dp]
+    return lib
 
 
 @functools.lru_cache(maxsize=1)

@@ -29,6 +29,37 @@ def test_quick_benchmark_runs_and_agrees(tmp_path):
     assert "| stabjax (run_spec, fused XLA engine) |" in md
     nf = r["native_flops"]
     assert nf["step"] > 0 and nf["counts"]["f_rhs"]["libm_calls"] >= 3  # cos, t**alpha (exp, log), cbrt
+    for key in ("measured_peak", "measured_peak_end"):
+        mp = on_disk[key]
+        assert "error" in mp or (mp["gflops_f64_one_thread"] > 0 and mp["gflops_f64_all_threads"] > 0), mp
+    if "gflops_f64_all_threads" in on_disk["measured_peak"]:
+        assert "Measured peak before the run" in md and row["ratios"].get("fraction_of_measured_f64_peak", 1) > 0
+
+
+def test_measured_peak_kernel_does_the_work_it_counts():
+    """The peak microbenchmark's flop count is honest: its result equals the same recurrence in
+    NumPy (chains x lanes multiply-adds per iteration, none optimised away)."""
+    import ctypes
+    import platform
+
+    import numpy as np
+    import pytest
+
+    from stabjax import native
+
+    if platform.machine() not in ("x86_64", "AMD64") or not native.available():
+        pytest.skip("x86-64 with a C compiler only")
+    lib = native.compile_library(bench._PEAK_SRC)
+    lib.stabjax_peak_fma.argtypes, lib.stabjax_peak_fma.restype = [ctypes.c_int64], ctypes.c_double
+    lib.stabjax_peak_chain.argtypes, lib.stabjax_peak_chain.restype = [ctypes.c_int64], ctypes.c_double
+    lanes, chains, iters = lib.stabjax_peak_lanes(), lib.stabjax_peak_chains(), 1000
+    acc = np.repeat(1.0 + 1e-3 * np.arange(chains), lanes)
+    x = 1.0
+    for _ in range(iters):
+        acc = acc * 0.999999 + 1e-7
+        x = x * 0.999999 + 1e-7
+    assert lib.stabjax_peak_fma(iters) == pytest.approx(acc.sum(), rel=1e-12)
+    assert lib.stabjax_peak_chain(iters) == pytest.approx(x, rel=1e-12)
 
 
 def test_gpu_defaults_and_accelerator_report(monkeypatch):
