@@ -1,0 +1,47 @@
+"""What a second thread gives: the measured float64 peak and the native kernel, one thread against two.
+
+The machine's two virtual CPUs are not always two full cores (benchmarks/NOTES.md N24), so each round
+measures the peak (``bench.measured_peak``) and then runs the benchmark's native kernel (monoaxial
+alpha sweep, T = 1e4, integration only) on one thread and on two, order reversed every other round:
+
+    python benchmarks/scaling.py --n 8192 --rounds 3
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from stabjax import bench, native
+from stabjax.engine import IntegrateConfig
+from stabjax.registry import get_system
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=8192)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=0.2, help="length of each peak measurement")
+    a = ap.parse_args()
+    s = get_system("monoaxial")
+    p = {k: np.broadcast_to(v, (a.n, *np.shape(v))).copy() for k, v in bench.paper_constants().items()}
+    p["alpha"] = bench.alphas(a.n)
+    icfg = IntegrateConfig(t1=1e4, rtol=1e-8, atol=1e-10)
+    kern, dyn = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
+    ain, y0 = kern.model.host_inputs(dyn, a.n)
+    for rnd in range(a.rounds):
+        mp = bench.measured_peak(threads=2, seconds=a.seconds)
+        wall = {}
+        for threads in (1, 2) if rnd % 2 == 0 else (2, 1):
+            t = time.perf_counter()
+            native.run_raw(kern, ain, y0, threads=threads)
+            wall[threads] = time.perf_counter() - t
+        print(f"round {rnd} ({time.strftime('%H:%M:%S')}): peak {mp['gflops_f64_one_thread']:.0f} / "
+              f"{mp['gflops_f64_all_threads']:.0f} GF/s (x{mp['scaling_fma']:.2f}), latency chain "
+              f"x{mp['scaling_latency_chain']:.2f}; kernel one thread {wall[1]:.2f} s, two {wall[2]:.2f} s "
+              f"(x{wall[1] / wall[2]:.2f})", flush=True)
+
+
+if __name__ == "__main__":
+    main()
