@@ -1,0 +1,354 @@
+"""Variants of the generated native kernel, measured against it in one process (NOTES.md N26).
+
+``benchmarks/ab_kernels.py`` compares two git revisions of the emitter; this script compares
+*source transforms* of the kernel the working tree generates (the benchmark's monoaxial alpha sweep,
+T = 1e4, integration only through ``native.run_raw``), which is how ideas are tried before they are
+worth a change to the emitter. Three commands:
+
+    python benchmarks/source_variants.py ab --n 4096 --pairs 4 --threads 1 nockpt noobs noupd
+    python benchmarks/source_variants.py regions --n 4096 --threads 1
+    python benchmarks/source_variants.py rhs
+
+``ab``: the base kernel and each named variant run in turn, order reversed every other round; per run
+the wall time, accepted/rejected steps, whether the raw summaries equal the base's bit for bit, and at
+the end each variant's wall over the base's, per round. Variants (``VARIANTS``) are either candidate
+changes (results must stay bit-identical) or ablations (results wrong on purpose, step sequence
+unchanged, to bound what a part of the loop costs).
+
+``regions``: the kernel with ``rdtsc`` between the loop's regions, cycles per loop iteration (one
+step attempt of 16 lanes). ``rdtsc`` does not wait for earlier instructions to finish, so a region
+that consumes a long-latency result is charged for the wait: read it as where the loop waits, not
+as what each region computes (N26).
+
+``rhs``: the model's right-hand side alone, 16 lanes, in a dependent chain (the state advanced by
+1e-9 * f, the time by 1e-3 * f), as C built from the kernel's own ``f_rhs``; next to it the cost of
+each libmvec call (latency and throughput) from ``benchmarks/probes/libmvec_calls.c``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from stabjax import bench, native
+from stabjax.engine import IntegrateConfig
+from stabjax.registry import get_system
+
+HERE = Path(__file__).resolve().parent
+
+
+def _one(src: str, old: str, new: str) -> str:
+    if src.count(old) != 1:
+        raise SystemExit(f"variant anchor not found exactly once in the generated kernel:\n{old}")
+    return src.replace(old, new)
+
+
+# ---- candidate changes (bit-identical results expected) ----------------------------------------
+
+_PUSH0 = """            for (int l = 0; l < W; l++) {
+                if (R0[l] == 0.0) continue;
+                PUSH(l, TC0[l], OB0 + l, W);
+                CK[l]++;
+                NEXTT[l] = CK[l] < K ? ts[CK[l]] : INFINITY;
+            }
+"""
+
+_VPUSH = r"""#if defined(__AVX512F__) && (W % 8) == 0 && (QCAP & (QCAP - 1)) == 0
+            for (int b = 0; b < W; b += 8) {
+                const __mmask8 m = _mm512_cmp_pd_mask(_mm512_load_pd(R0 + b), _mm512_setzero_pd(), _CMP_NEQ_UQ);
+                if (!m) continue;
+                const __m256i qn = _mm256_loadu_si256((const __m256i *)(QN + b));
+                if (_mm256_mask_cmpeq_epi32_mask(m, qn, _mm256_set1_epi32(QCAP))) {
+                    for (int l = b; l < b + 8; l++) {
+                        if (R0[l] == 0.0) continue;
+                        PUSH(l, TC0[l], OB0 + l, W);
+                        CK[l]++;
+                        NEXTT[l] = CK[l] < K ? ts[CK[l]] : INFINITY;
+                    }
+                    continue;
+                }
+                const __m256i qh = _mm256_loadu_si256((const __m256i *)(QH + b));
+                const __m256i lane = _mm256_add_epi32(_mm256_set1_epi32(b), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+                const __m256i pos = _mm256_and_si256(_mm256_add_epi32(qh, qn), _mm256_set1_epi32(QCAP - 1));
+                const __m256i it = _mm256_add_epi32(_mm256_mullo_epi32(lane, _mm256_set1_epi32(QCAP)), pos);
+                _mm512_mask_i32scatter_pd(FT, m, it, _mm512_load_pd(TC0 + b), 8);
+                const __m256i io = _mm256_mullo_epi32(it, _mm256_set1_epi32(NO));
+                for (int q = 0; q < NO; q++) _mm512_mask_i32scatter_pd(FO + q, m, io, _mm512_load_pd(OB0 + q * W + b), 8);
+                _mm256_storeu_si256((__m256i *)(QN + b), _mm256_mask_add_epi32(qn, m, qn, _mm256_set1_epi32(1)));
+                __m512i ck = _mm512_load_si512((const void *)(CK + b));
+                ck = _mm512_mask_add_epi64(ck, m, ck, _mm512_set1_epi64(1));
+                _mm512_store_si512((void *)(CK + b), ck);
+                const __mmask8 in = _mm512_mask_cmplt_epi64_mask(m, ck, _mm512_set1_epi64(K));
+                __m512d nx = _mm512_mask_blend_pd(m, _mm512_load_pd(NEXTT + b), _mm512_set1_pd(INFINITY));
+                _mm512_store_pd(NEXTT + b, _mm512_mask_i64gather_pd(nx, in, ck, ts, 8));
+            }
+#else
+"""
+
+_POP0 = """            int any = 0;
+            for (int l = 0; l < W; l++) {
+                if (QN[l] > 0) {
+                    const int pos = QH[l];
+                    HAS[l] = 1.0; TC[l] = FT[l * QCAP + pos];
+                    for (int q = 0; q < NO; q++) OBS[q * W + l] = FO[(l * QCAP + pos) * NO + q];
+                    QH[l] = (pos + 1) % QCAP; QN[l]--; any = 1;
+                } else {
+                    HAS[l] = 0.0; TC[l] = T[l];
+                }
+            }
+"""
+
+_VPOP = r"""#if defined(__AVX512F__) && (W % 8) == 0 && (QCAP & (QCAP - 1)) == 0
+            int any = 0;
+            for (int b = 0; b < W; b += 8) {
+                const __m256i qn = _mm256_loadu_si256((const __m256i *)(QN + b));
+                const __mmask8 m = _mm256_cmpgt_epi32_mask(qn, _mm256_setzero_si256());
+                _mm512_store_pd(HAS + b, _mm512_mask_blend_pd(m, _mm512_setzero_pd(), _mm512_set1_pd(1.0)));
+                if (!m) { _mm512_store_pd(TC + b, _mm512_load_pd(T + b)); continue; }
+                any = 1;
+                const __m256i qh = _mm256_loadu_si256((const __m256i *)(QH + b));
+                const __m256i lane = _mm256_add_epi32(_mm256_set1_epi32(b), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+                const __m256i it = _mm256_add_epi32(_mm256_mullo_epi32(lane, _mm256_set1_epi32(QCAP)), qh);
+                _mm512_store_pd(TC + b, _mm512_mask_i32gather_pd(_mm512_load_pd(T + b), m, it, FT, 8));
+                const __m256i io = _mm256_mullo_epi32(it, _mm256_set1_epi32(NO));
+                for (int q = 0; q < NO; q++)
+                    _mm512_store_pd(OBS + q * W + b, _mm512_mask_i32gather_pd(_mm512_load_pd(OBS + q * W + b), m, io, FO + q, 8));
+                const __m256i qh1 = _mm256_and_si256(_mm256_add_epi32(qh, _mm256_set1_epi32(1)), _mm256_set1_epi32(QCAP - 1));
+                _mm256_storeu_si256((__m256i *)(QH + b), _mm256_mask_mov_epi32(qh, m, qh1));
+                _mm256_storeu_si256((__m256i *)(QN + b), _mm256_mask_sub_epi32(qn, m, qn, _mm256_set1_epi32(1)));
+            }
+#else
+"""
+
+
+def _intrinsics(src: str) -> str:
+    return _one(src, "#include <string.h>\n", "#include <string.h>\n#include <immintrin.h>\n")
+
+
+def vpush(src: str) -> str:
+    """Round 0's FIFO push as masked AVX-512 scatters (no per-lane branch); scalar when a FIFO is full."""
+    return _intrinsics(_one(src, _PUSH0, _VPUSH + _PUSH0 + "#endif\n"))
+
+
+def vpop(src: str) -> str:
+    """The classifier pass's FIFO pop as masked AVX-512 gathers."""
+    return _intrinsics(_one(src, _POP0, _VPOP + _POP0 + "#endif\n"))
+
+
+def vboth(src: str) -> str:
+    return vpop(vpush(src))
+
+
+def stageloop(src: str) -> str:
+    """Stages 2-5 in a runtime loop over the stage: one inlined rhs body instead of four (-6.4 KB code)."""
+    import re
+
+    head = "        #pragma omp simd\n        for (int l = 0; l < W; l++) {\n            const double h = H[l];\n            YT[0 * W"
+    start = src.index(head)
+    tail = "KS[4] + l, W);\n"
+    end = src.index(tail, start) + len(tail)
+    parts = src[start:end].split("        #pragma omp simd\n")[1:]
+    combos, rhss = parts[0::2], parts[1::2]
+    cs = [re.search(r"T\[l\] \+ \(([^)]*)\) \* H\[l\]", r).group(1) for r in rhss]
+    out = ["        {\n            static const double SC_[5] = {0.0, " + ", ".join(cs) + "};\n",
+           "            #pragma GCC unroll 1\n            for (int s_ = 1; s_ <= 4; s_++) {\n                switch (s_) {\n"]
+    for i, c in enumerate(combos):
+        out.append(f"                case {i + 1}: {{\n        #pragma omp simd\n{c}                break; }}\n")
+    out.append("                }\n        #pragma omp simd\n        for (int l = 0; l < W; l++) "
+               "f_rhs(T[l] + SC_[s_] * H[l], YT + l, A + l, KS[s_] + l, W);\n            }\n        }\n")
+    return src[:start] + "".join(out) + src[end:]
+
+
+# ---- ablations (summaries wrong on purpose; the step sequence is unchanged) ---------------------
+
+def nockpt(src: str) -> str:
+    """Checkpoints are passed (CK advances, lanes still finish) but not interpolated, observed,
+    queued or classified."""
+    src = _one(src, "            for (int l = 0; l < W; l++) f_obs(TC0[l], PY0 + l, A + l, OB0 + l, W);\n", "")
+    src = _one(src, "                PUSH(l, TC0[l], OB0 + l, W);\n", "")
+    return _one(src, "                if (m == 0) break;\n", "                if (m == 0) break;\n                continue;\n")
+
+
+def noobs(src: str) -> str:
+    """Checkpoints interpolated and observed, never queued (so never classified)."""
+    src = _one(src, "                PUSH(l, TC0[l], OB0 + l, W);\n", "")
+    return _one(src, "                for (int i = 0; i < m; i++) PUSH(IL[i], IT_[i], POBS + i, NI);\n",
+                "                __asm__ volatile(\"\" :: \"r\"(POBS) : \"memory\");\n")
+
+
+def noupd(src: str) -> str:
+    """Checkpoints observed, queued and popped by the classifier passes; the update itself skipped."""
+    return _one(src, "            #pragma omp simd\n            for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);\n", "")
+
+
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd)}
+
+
+# ---- region timing ------------------------------------------------------------------------------
+
+_REGIONS = [
+    ("        /* error estimate and diffrax's PIDController", "stages"),
+    ("        double any0 = 0.0;\n", "error+controller"),
+    ("            for (int l = 0; l < W; l++) {\n                if (R0[l] == 0.0) continue;\n", "round0: interp+observe"),
+    ("        double more = 0.0;\n", "round0: push"),
+    ("        for (;;) {\n            int busy = 0", "later checkpoints"),
+    ("            #pragma omp simd\n            for (int l = 0; l < W; l++) f_upd(", "classifier: scan+pop"),
+    ("        }\n\n        /* commit */\n", "classifier: update"),
+]
+
+
+def timed(src: str) -> str:
+    """rdtsc between the loop's regions; per-thread cycle sums printed to stderr when a thread ends."""
+    src = _one(src, "        if (*jb->stop) break;\n", "        if (*jb->stop) break;\n        uint64_t tk_ = __rdtsc();\n")
+    names = []
+    for anchor, name in _REGIONS:
+        k = len(names)
+        names.append(name)
+        indent = " " * (len(anchor) - len(anchor.lstrip(" ")))
+        src = _one(src, anchor, f"{indent}{{ uint64_t t2_ = __rdtsc(); TACC_[{k}] += t2_ - tk_; tk_ = t2_; }}\n" + anchor)
+    names.append("commit+finish")
+    n = len(names)
+    report = ("    { static const char *nm[] = {" + ", ".join(f'"{x}"' for x in names) + "}; double tot = 0;\n"
+              f"      for (int i = 0; i < {n}; i++) tot += TACC_[i];\n"
+              f"      for (int i = 0; i < {n}; i++) fprintf(stderr, \"%-24s %5.1f%% %8.0f cycles per iteration\\n\","
+              " nm[i], 100 * TACC_[i] / tot, TACC_[i] / (double)NIT_);\n"
+              "      fprintf(stderr, \"%ld iterations, %.3g cycles (TSC)\\n\", NIT_, tot); }\n")
+    end = "    }\n    return finished;\n"
+    src = _one(src, end, f"        {{ uint64_t t2_ = __rdtsc(); TACC_[{n - 1}] += t2_ - tk_; NIT_++; }}\n    }}\n"
+               + report + "    return finished;\n")
+    return _one(src, "int64_t stabjax_run(const job_t *jb) {",
+                "#include <x86intrin.h>\n#include <stdio.h>\nstatic __thread double TACC_[16]; static __thread long NIT_;\n"
+                "int64_t stabjax_run(const job_t *jb) {")
+
+
+# ---- the rhs alone --------------------------------------------------------------------------------
+
+_RHS_MAIN = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+static double now_(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + 1e-9 * t.tv_nsec; }
+static double Y_[NS * W] ALIGN, K_[NS * W] ALIGN, A_[NA * W] ALIGN, T_[W] ALIGN;
+int main(int argc, char **argv) {
+    const long R = argc > 1 ? atol(argv[1]) : 1000000;
+    for (int l = 0; l < W; l++) {
+        for (int q = 0; q < NS; q++) Y_[q * W + l] = Y0_[q] + 1e-3 * l;
+        for (int q = 0; q < NA; q++) A_[q * W + l] = A0_[q];
+        T_[l] = 100.0 + l;
+    }
+    const double t0 = now_();
+    for (long r = 0; r < R; r++) {
+        #pragma omp simd
+        for (int l = 0; l < W; l++) f_rhs(T_[l], Y_ + l, A_ + l, K_ + l, W);
+        #pragma omp simd
+        for (int l = 0; l < W; l++) { for (int q = 0; q < NS; q++) Y_[q * W + l] += 1e-9 * K_[q * W + l]; T_[l] += 1e-3 * K_[l]; }
+    }
+    const double dt = now_() - t0;
+    double s = 0; for (int i = 0; i < NS * W; i++) s += K_[i];
+    printf("rhs alone, %d lanes, dependent chain: %.2f ns per lane-evaluation (checksum %g)\n", W, dt / (R * W) * 1e9, s);
+    return 0;
+}
+"""
+
+
+def _setup(n: int):
+    s = get_system("monoaxial")
+    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in bench.paper_constants().items()}
+    p["alpha"] = bench.alphas(n)
+    icfg = IntegrateConfig(t1=1e4, rtol=1e-8, atol=1e-10)
+    kern, dyn = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
+    ain, y0 = kern.model.host_inputs(dyn, n)
+    return kern, ain, y0
+
+
+def _variant_kernel(kern, transform):
+    k = copy.copy(kern)
+    k.source = transform(kern.source)
+    k.lib = native._build(k.source)
+    return k
+
+
+def _flags() -> list[str]:
+    for flags in native._flag_sets():
+        if "-DSTABJAX_LIBMVEC" in flags:
+            return [f for f in flags if f not in ("-fPIC", "-shared")]
+    raise SystemExit("needs the x86-64 libmvec build of the kernel")
+
+
+def cmd_ab(a) -> None:
+    kern, ain, y0 = _setup(a.n)
+    names = ["base", *a.variants]
+    kerns = {"base": kern, **{v: _variant_kernel(kern, VARIANTS[v]) for v in a.variants}}
+    walls: dict[str, list[float]] = {v: [] for v in names}
+    ref = None
+    for rnd in range(a.rounds):
+        for v in names if rnd % 2 == 0 else names[::-1]:
+            t = time.perf_counter()
+            r = native.run_raw(kerns[v], ain, y0, threads=a.threads)
+            w = time.perf_counter() - t
+            walls[v].append(w)
+            ref = r if ref is None else ref
+            same = np.array_equal(r["c"], ref["c"], equal_nan=True) and np.array_equal(r["y"], ref["y"], equal_nan=True)
+            print(f"{v:10s} round {rnd}: wall {w:.3f} s, {int(r['nacc'].sum())} accepted, {int(r['nrej'].sum())} "
+                  f"rejected, results {'equal to' if same else 'DIFFER from'} base", flush=True)
+    for v in a.variants:
+        ratios = [x / b for b, x in zip(walls["base"], walls[v])]
+        print(f"{v}/base wall per round: " + ", ".join(f"{x:.3f}" for x in ratios)
+              + f"; median {np.median(ratios):.3f}, faster in {sum(x < 1 for x in ratios)}/{len(ratios)}")
+
+
+def cmd_regions(a) -> None:
+    kern, ain, y0 = _setup(a.n)
+    k = _variant_kernel(kern, timed)
+    t = time.perf_counter()
+    r = native.run_raw(k, ain, y0, threads=a.threads)
+    w = time.perf_counter() - t
+    att = int(r["nacc"].sum() + r["nrej"].sum())
+    print(f"wall {w:.3f} s, {att} attempts, {w * a.threads / att * 1e9:.0f} ns of one thread per attempt")
+
+
+def cmd_rhs(a) -> None:
+    kern, ain, y0 = _setup(64)
+    src = kern.source
+    pre = src[: src.index("static inline int finite_row")]
+    a0 = np.asarray(ain[32]).ravel()  # alpha near the middle of the benchmark's range
+    consts = ("static const double Y0_[NS] = {" + ", ".join(repr(float(x)) for x in np.asarray(y0[0])) + "};\n"
+              "static const double A0_[NA] = {" + ", ".join(repr(float(x)) for x in a0) + "};\n")
+    with tempfile.TemporaryDirectory() as d:
+        c, exe = Path(d) / "rhs.c", Path(d) / "rhs"
+        c.write_text(pre + consts + _RHS_MAIN)
+        subprocess.run([native.compiler(), *_flags(), str(c), "-o", str(exe), "-lmvec", "-lm"], check=True)
+        probe, pexe = HERE / "probes" / "libmvec_calls.c", Path(d) / "calls"
+        subprocess.run([native.compiler(), "-O2", "-march=native", str(probe), "-o", str(pexe), "-lmvec", "-lm"], check=True)
+        for _ in range(a.rounds):
+            subprocess.run([str(exe), str(a.reps)], check=True)
+            subprocess.run([str(pexe)], check=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("ab", help="base kernel against variants, interleaved rounds")
+    p.add_argument("variants", nargs="+", choices=sorted(VARIANTS))
+    p.add_argument("--n", type=int, default=4096)
+    p.add_argument("--rounds", "--pairs", type=int, default=4)
+    p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("regions", help="cycles per loop region (rdtsc)")
+    p.add_argument("--n", type=int, default=4096)
+    p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("rhs", help="the rhs alone and the libmvec calls")
+    p.add_argument("--reps", type=int, default=1000000)
+    p.add_argument("--rounds", type=int, default=3)
+    a = ap.parse_args()
+    {"ab": cmd_ab, "regions": cmd_regions, "rhs": cmd_rhs}[a.cmd](a)
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
