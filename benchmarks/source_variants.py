@@ -11,18 +11,20 @@ worth a change to the emitter. Three commands:
 
 ``ab``: the base kernel and each named variant run in turn, order reversed every other round; per run
 the wall time, accepted/rejected steps, whether the raw summaries equal the base's bit for bit, and at
-the end each variant's wall over the base's, per round. Variants (``VARIANTS``) are either candidate
-changes (results must stay bit-identical) or ablations (results wrong on purpose, step sequence
-unchanged, to bound what a part of the loop costs).
+the end each variant's wall over the base's, per round. Variants (``VARIANTS``) are candidate changes
+(results must stay bit-identical), ablations (results wrong on purpose, step sequence unchanged, to
+bound what a part of the loop costs) or probes (``lfence`` between regions: same results, no overlap
+of the regions it separates, to see how much they overlap today).
 
 ``regions``: the kernel with ``rdtsc`` between the loop's regions, cycles per loop iteration (one
 step attempt of 16 lanes). ``rdtsc`` does not wait for earlier instructions to finish, so a region
 that consumes a long-latency result is charged for the wait: read it as where the loop waits, not
 as what each region computes (N26).
 
-``rhs``: the model's right-hand side alone, 16 lanes, in a dependent chain (the state advanced by
-1e-9 * f, the time by 1e-3 * f), as C built from the kernel's own ``f_rhs``; next to it the cost of
-each libmvec call (latency and throughput) from ``benchmarks/probes/libmvec_calls.c``.
+``rhs``: the kernel's own ``f_rhs``, and its ``f_obs`` + ``f_upd`` (observe a checkpoint, update the
+classifier), 16 lanes, each evaluation feeding the next: alone, one after the other, and side by side
+in one loop body (whether independent work overlaps); next to it the cost of each libmvec call
+(latency and throughput) from ``benchmarks/probes/libmvec_calls.c``.
 """
 from __future__ import annotations
 
@@ -187,7 +189,21 @@ def noupd(src: str) -> str:
     return _one(src, "            #pragma omp simd\n            for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);\n", "")
 
 
-VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd)}
+# ---- probes (same results; they only take away the overlap of neighbouring regions) --------------
+
+def lfence_ckpt(src: str) -> str:
+    """lfence before the checkpoint path (round 0) and before the commit: no instruction of the
+    checkpoint path overlaps the error estimate before it or the commit and next step after it."""
+    src = _one(src, "        double any0 = 0.0;\n", "        __builtin_ia32_lfence();\n        double any0 = 0.0;\n")
+    return _one(src, "        /* commit */\n", "        __builtin_ia32_lfence();\n        /* commit */\n")
+
+
+def lfence_step(src: str) -> str:
+    """lfence at the top of each iteration: one step attempt never overlaps the next."""
+    return _one(src, "        if (*jb->stop) break;\n", "        if (*jb->stop) break;\n        __builtin_ia32_lfence();\n")
+
+
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
@@ -235,23 +251,51 @@ _RHS_MAIN = r"""
 #include <time.h>
 static double now_(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + 1e-9 * t.tv_nsec; }
 static double Y_[NS * W] ALIGN, K_[NS * W] ALIGN, A_[NA * W] ALIGN, T_[W] ALIGN;
+static double PY_[NS * W] ALIGN, OB_[NO * W] ALIGN, C_[NC * W] ALIGN, CN_[NC * W] ALIGN, TC_[W] ALIGN;
+/* mode 1: the rhs, each evaluation feeding the next (state += 1e-9 f, time += 1e-3 f);
+   mode 2: observe + classifier update, each update feeding the next, in their own loops;
+   mode 3: both, one after the other; mode 4: both in one loop body (independent work side by side) */
 int main(int argc, char **argv) {
+    const int mode = MODE;  /* a compile-time constant: each mode is its own program */
     const long R = argc > 1 ? atol(argv[1]) : 1000000;
     for (int l = 0; l < W; l++) {
-        for (int q = 0; q < NS; q++) Y_[q * W + l] = Y0_[q] + 1e-3 * l;
+        for (int q = 0; q < NS; q++) { Y_[q * W + l] = Y0_[q] + 1e-3 * l; PY_[q * W + l] = 0.9 * Y_[q * W + l]; }
         for (int q = 0; q < NA; q++) A_[q * W + l] = A0_[q];
-        T_[l] = 100.0 + l;
+        for (int q = 0; q < NC; q++) C_[q * W + l] = C0_[q];
+        T_[l] = 100.0 + l; TC_[l] = 0.9 * T1_ + l;
     }
     const double t0 = now_();
     for (long r = 0; r < R; r++) {
+        if (mode == 1 || mode == 3) {
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_rhs(T_[l], Y_ + l, A_ + l, K_ + l, W);
+        }
+        if (mode == 2 || mode == 3) {
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_obs(TC_[l], PY_ + l, A_ + l, OB_ + l, W);
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_upd(C_ + l, TC_[l], OB_ + l, CN_ + l, W);
+        }
+        if (mode == 4) {
+            #pragma omp simd
+            for (int l = 0; l < W; l++) {
+                f_rhs(T_[l], Y_ + l, A_ + l, K_ + l, W);
+                f_obs(TC_[l], PY_ + l, A_ + l, OB_ + l, W);
+                f_upd(C_ + l, TC_[l], OB_ + l, CN_ + l, W);
+            }
+        }
         #pragma omp simd
-        for (int l = 0; l < W; l++) f_rhs(T_[l], Y_ + l, A_ + l, K_ + l, W);
-        #pragma omp simd
-        for (int l = 0; l < W; l++) { for (int q = 0; q < NS; q++) Y_[q * W + l] += 1e-9 * K_[q * W + l]; T_[l] += 1e-3 * K_[l]; }
+        for (int l = 0; l < W; l++) {
+            if (mode != 2) { for (int q = 0; q < NS; q++) Y_[q * W + l] += 1e-9 * K_[q * W + l]; T_[l] += 1e-3 * K_[l]; }
+            if (mode != 1) { for (int q = 0; q < NC; q++) C_[q * W + l] = CN_[q * W + l]; TC_[l] += 1e-3; PY_[l] += 1e-12 * OB_[l]; }
+        }
     }
     const double dt = now_() - t0;
-    double s = 0; for (int i = 0; i < NS * W; i++) s += K_[i];
-    printf("rhs alone, %d lanes, dependent chain: %.2f ns per lane-evaluation (checksum %g)\n", W, dt / (R * W) * 1e9, s);
+    double s = 0;  /* what each mode computed (the classifier state holds infinities and NaNs by design) */
+    for (int i = 0; i < NS * W; i++) s += K_[i];
+    for (int i = 0; i < NO * W; i++) s += OB_[i];
+    static const char *what[] = {"", "rhs", "observe + classifier update", "both, one after the other", "both in one loop body"};
+    printf("mode %d, %-28s %d lanes: %6.2f ns per lane (checksum %g)\n", mode, what[mode], W, dt / (R * W) * 1e9, s);
     return 0;
 }
 """
@@ -318,16 +362,22 @@ def cmd_rhs(a) -> None:
     src = kern.source
     pre = src[: src.index("static inline int finite_row")]
     a0 = np.asarray(ain[32]).ravel()  # alpha near the middle of the benchmark's range
-    consts = ("static const double Y0_[NS] = {" + ", ".join(repr(float(x)) for x in np.asarray(y0[0])) + "};\n"
-              "static const double A0_[NA] = {" + ", ".join(repr(float(x)) for x in a0) + "};\n")
+    def arr(name, size, xs):
+        return f"static const double {name}[{size}] = {{" + ", ".join(native._flit(x) for x in xs) + "};\n"
+
+    consts = (arr("Y0_", "NS", np.asarray(y0[0])) + arr("A0_", "NA", a0)
+              + arr("C0_", "NC", np.asarray(kern.model.c0).ravel()) + f"#define T1_ {float(kern.icfg.t1)!r}\n")
     with tempfile.TemporaryDirectory() as d:
-        c, exe = Path(d) / "rhs.c", Path(d) / "rhs"
+        c = Path(d) / "rhs.c"
         c.write_text(pre + consts + _RHS_MAIN)
-        subprocess.run([native.compiler(), *_flags(), str(c), "-o", str(exe), "-lmvec", "-lm"], check=True)
+        for mode in (1, 2, 3, 4):
+            subprocess.run([native.compiler(), *_flags(), f"-DMODE={mode}", str(c), "-o", str(Path(d) / f"rhs{mode}"),
+                            "-lmvec", "-lm"], check=True)
         probe, pexe = HERE / "probes" / "libmvec_calls.c", Path(d) / "calls"
         subprocess.run([native.compiler(), "-O2", "-march=native", str(probe), "-o", str(pexe), "-lmvec", "-lm"], check=True)
         for _ in range(a.rounds):
-            subprocess.run([str(exe), str(a.reps)], check=True)
+            for mode in (1, 2, 3, 4):
+                subprocess.run([str(Path(d) / f"rhs{mode}"), str(a.reps)], check=True)
             subprocess.run([str(pexe)], check=True)
 
 
