@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import re
 import subprocess
 import sys
 import tempfile
@@ -149,8 +150,6 @@ def vboth(src: str) -> str:
 
 def stageloop(src: str) -> str:
     """Stages 2-5 in a runtime loop over the stage: one inlined rhs body instead of four (-6.4 KB code)."""
-    import re
-
     head = "        #pragma omp simd\n        for (int l = 0; l < W; l++) {\n            const double h = H[l];\n            YT[0 * W"
     start = src.index(head)
     tail = "KS[4] + l, W);\n"
