@@ -202,7 +202,28 @@ def lfence_step(src: str) -> str:
     return _one(src, "        if (*jb->stop) break;\n", "        if (*jb->stop) break;\n        __builtin_ia32_lfence();\n")
 
 
-VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step)}
+def tonly_twice(src: str) -> str:
+    """The rhs's t-only part (``f_rhs_t``: for paper A ``cos(omega0 t**alpha)``, i.e. log, exp, cos)
+    evaluated once more at each of stages 2-5, at a time moved by 2**-30 relative (else GCC reuses the
+    rhs's own evaluation), into a scratch array: same results and step sequence,
+    so the extra time is what four t-only evaluations per attempt cost (an upper bound on what a
+    cheaper t-only part could save)."""
+    import re as _re
+
+    calls = _re.findall(r"        for \(int l = 0; l < W; l\+\+\) f_rhs\(T\[l\] \+ \(([^)]*)\) \* H\[l\], YT \+ l, A \+ l, "
+                        r"KS\[(\d)\] \+ l, W\);\n", src)
+    if len(calls) != 4:
+        raise SystemExit(f"expected the four stage rhs calls, found {len(calls)}")
+    for c, k in calls:
+        line = f"        for (int l = 0; l < W; l++) f_rhs(T[l] + ({c}) * H[l], YT + l, A + l, KS[{k}] + l, W);\n"
+        extra = ("        #pragma omp simd\n"
+                 f"        for (int l = 0; l < W; l++) f_rhs_t((T[l] + ({c}) * H[l]) * (1.0 + 0x1p-30), A + l, TVX_ + l, W);\n"
+                 "        __asm__ volatile(\"\" :: \"r\"(TVX_) : \"memory\");\n")
+        src = _one(src, line, line + extra)
+    return _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n    double TVX_[NTV * W] ALIGN;\n")
+
+
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step, tonly_twice)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
