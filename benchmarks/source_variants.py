@@ -223,7 +223,80 @@ def tonly_twice(src: str) -> str:
     return _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n    double TVX_[NTV * W] ALIGN;\n")
 
 
-VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step, tonly_twice)}
+
+
+def _poly(var: str, coefs: list[str]) -> str:
+    """Horner: coefs[0] + var * (coefs[1] + var * (...))."""
+    out = coefs[-1]
+    for c in reversed(coefs[:-1]):
+        out = f"({c} + {var} * {out})"
+    return out
+
+
+def tonly_incr(src: str) -> str:
+    """Probe for NOTES N28 (results differ from the kernel at the rounding level): at stages 2-5 the
+    forcing cos(omega0 t**alpha) at t + c h is computed from t**alpha and cos/sin of the phase at t
+    (recomputed every attempt) by log1p/expm1 Taylor polynomials in c h / t and angle addition with
+    sin/cos polynomials of the phase step, for blocks where every lane has h <= 2**-6 t and a phase
+    step <= 0.5; other blocks take the libm path. Only for paper A's t-only part (asserted)."""
+    body = src[src.index("void f_rhs_t("):]
+    body = body[: body.index("\n}\n")]
+    m = re.search(r"const double (v\d+) = jpow\(t, (v\d+)\);\n\s*const double (v\d+) = \(([^)]*)\) \* \1;\n"
+                  r"\s*const double (v\d+) = cos\(\3\);", body)
+    if m is None or "a[0*S]" not in body:
+        raise SystemExit("tonly_incr: the rhs's t-only part is not cos(omega0 * t**alpha) with alpha = a[0]")
+    om = m.group(4)
+    fact = [1.0]
+    for k in range(1, 20):
+        fact.append(fact[-1] * k)
+    # log1p(x) = x * (1 - x/2 + x^2/3 - ...), |x| <= 2**-6, terms to x**11
+    l1p = "x_ * " + _poly("x_", [f"({(-1.0) ** k / (k + 1)!r})" for k in range(11)])
+    # expm1(z) = z * (1 + z/2! + z^2/3! + ...), |z| <= 2**-6, terms to z**11
+    em1 = "z_ * " + _poly("z_", [f"({1.0 / fact[k + 1]!r})" for k in range(11)])
+    # sin d = d * (1 - d^2/3! + ...), cos d = 1 - d^2/2! + ..., |d| <= 0.5, to d**19 and d**18
+    sn = "d_ * " + _poly("d2_", [f"({(-1.0) ** k / fact[2 * k + 1]!r})" for k in range(10)])
+    cs = _poly("d2_", [f"({(-1.0) ** k / fact[2 * k]!r})" for k in range(10)])
+    decl = "    double RT_[W] ALIGN, P0_[W] ALIGN, C0_[W] ALIGN, S0_[W] ALIGN, TVS_[W] ALIGN;\n    int INCR_ = 0;\n"
+    src = _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n" + decl)
+    top = "        for (int l = 0; l < W; l++) H[l] = TN[l] - T[l];\n"
+    start = (top + "        INCR_ = 1;\n"
+             "        for (int l = 0; l < W; l++) if (!(T[l] > 0.0 && H[l] <= 0x1p-6 * T[l])) { INCR_ = 0; break; }\n"
+             "        if (INCR_) {\n"
+             "            #pragma omp simd\n"
+             "            for (int l = 0; l < W; l++) {\n"
+             "                RT_[l] = 1.0 / T[l];\n"
+             f"                P0_[l] = jpow(T[l], A[l]);\n"
+             f"                C0_[l] = cos(({om}) * P0_[l]);\n"
+             "            }\n"
+             "            #pragma omp simd\n"  # its own loop: GCC would fuse sin and cos into a scalar sincos
+             f"            for (int l = 0; l < W; l++) S0_[l] = sin(({om}) * P0_[l]);\n"
+             f"            for (int l = 0; l < W; l++) if (!(fabs(({om}) * P0_[l] * A[l]) * (H[l] * RT_[l]) * 1.0625 <= 0.5)) {{ INCR_ = 0; break; }}\n"
+             "        }\n")
+    src = _one(src, top, start)
+    calls = re.findall(r"        for \(int l = 0; l < W; l\+\+\) f_rhs\(T\[l\] \+ \(([^)]*)\) \* H\[l\], YT \+ l, A \+ l, "
+                       r"KS\[(\d)\] \+ l, W\);\n", src)
+    if len(calls) != 4:
+        raise SystemExit(f"expected the four stage rhs calls, found {len(calls)}")
+    for c, k in calls:
+        line = f"        for (int l = 0; l < W; l++) f_rhs(T[l] + ({c}) * H[l], YT + l, A + l, KS[{k}] + l, W);\n"
+        repl = ("        if (INCR_) {\n"
+                "            #pragma omp simd\n"
+                "            for (int l = 0; l < W; l++) {\n"
+                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
+                f"                const double z_ = A[l] * ({l1p});\n"
+                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
+                "                const double d2_ = d_ * d_;\n"
+                f"                TVS_[l] = C0_[l] * ({cs}) - S0_[l] * ({sn});\n"
+                "            }\n"
+                "            #pragma omp simd\n"
+                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
+                "        } else {\n"
+                "        #pragma omp simd\n" + line + "        }\n")
+        src = _one(src, "        #pragma omp simd\n" + line, repl)
+    return src
+
+
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step, tonly_twice, tonly_incr)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
@@ -359,8 +432,9 @@ def cmd_ab(a) -> None:
             walls[v].append(w)
             ref = r if ref is None else ref
             same = np.array_equal(r["c"], ref["c"], equal_nan=True) and np.array_equal(r["y"], ref["y"], equal_nan=True)
+            dy = "" if same else f" (final states: max |difference| {np.nanmax(np.abs(r['y'] - ref['y'])):.1e})"
             print(f"{v:10s} round {rnd}: wall {w:.3f} s, {int(r['nacc'].sum())} accepted, {int(r['nrej'].sum())} "
-                  f"rejected, results {'equal to' if same else 'DIFFER from'} base", flush=True)
+                  f"rejected, results {'equal to' if same else 'DIFFER from'} base{dy}", flush=True)
     for v in a.variants:
         ratios = [x / b for b, x in zip(walls["base"], walls[v])]
         print(f"{v}/base wall per round: " + ", ".join(f"{x:.3f}" for x in ratios)
