@@ -202,20 +202,23 @@ def lfence_step(src: str) -> str:
     return _one(src, "        if (*jb->stop) break;\n", "        if (*jb->stop) break;\n        __builtin_ia32_lfence();\n")
 
 
+def _stage_rhs_calls(src: str) -> list[tuple[str, str]]:
+    """(stage-time coefficient c, source line) of the four ``f_rhs`` calls at t + c h (stages 2-5)."""
+    pat = (r"        for \(int l = 0; l < W; l\+\+\) f_rhs\(T\[l\] \+ \(([^)]*)\) \* H\[l\], YT \+ l, A \+ l, "
+           r"KS\[\d\] \+ l, W\);\n")
+    calls = [(m.group(1), m.group(0)) for m in re.finditer(pat, src)]
+    if len(calls) != 4:
+        raise SystemExit(f"expected the four stage rhs calls, found {len(calls)}")
+    return calls
+
+
 def tonly_twice(src: str) -> str:
     """The rhs's t-only part (``f_rhs_t``: for paper A ``cos(omega0 t**alpha)``, i.e. log, exp, cos)
     evaluated once more at each of stages 2-5, at a time moved by 2**-30 relative (else GCC reuses the
     rhs's own evaluation), into a scratch array: same results and step sequence,
     so the extra time is what four t-only evaluations per attempt cost (an upper bound on what a
     cheaper t-only part could save)."""
-    import re as _re
-
-    calls = _re.findall(r"        for \(int l = 0; l < W; l\+\+\) f_rhs\(T\[l\] \+ \(([^)]*)\) \* H\[l\], YT \+ l, A \+ l, "
-                        r"KS\[(\d)\] \+ l, W\);\n", src)
-    if len(calls) != 4:
-        raise SystemExit(f"expected the four stage rhs calls, found {len(calls)}")
-    for c, k in calls:
-        line = f"        for (int l = 0; l < W; l++) f_rhs(T[l] + ({c}) * H[l], YT + l, A + l, KS[{k}] + l, W);\n"
+    for c, line in _stage_rhs_calls(src):
         extra = ("        #pragma omp simd\n"
                  f"        for (int l = 0; l < W; l++) f_rhs_t((T[l] + ({c}) * H[l]) * (1.0 + 0x1p-30), A + l, TVX_ + l, W);\n"
                  "        __asm__ volatile(\"\" :: \"r\"(TVX_) : \"memory\");\n")
@@ -273,12 +276,8 @@ def tonly_incr(src: str) -> str:
              f"            for (int l = 0; l < W; l++) if (!(fabs(({om}) * P0_[l] * A[l]) * (H[l] * RT_[l]) * 1.0625 <= 0.5)) {{ INCR_ = 0; break; }}\n"
              "        }\n")
     src = _one(src, top, start)
-    calls = re.findall(r"        for \(int l = 0; l < W; l\+\+\) f_rhs\(T\[l\] \+ \(([^)]*)\) \* H\[l\], YT \+ l, A \+ l, "
-                       r"KS\[(\d)\] \+ l, W\);\n", src)
-    if len(calls) != 4:
-        raise SystemExit(f"expected the four stage rhs calls, found {len(calls)}")
-    for c, k in calls:
-        line = f"        for (int l = 0; l < W; l++) f_rhs(T[l] + ({c}) * H[l], YT + l, A + l, KS[{k}] + l, W);\n"
+    for c, line in _stage_rhs_calls(src):
+        k = re.search(r"KS\[(\d)\]", line).group(1)
         repl = ("        if (INCR_) {\n"
                 "            #pragma omp simd\n"
                 "            for (int l = 0; l < W; l++) {\n"
