@@ -226,8 +226,6 @@ def tonly_twice(src: str) -> str:
     return _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n    double TVX_[NTV * W] ALIGN;\n")
 
 
-
-
 def _poly(var: str, coefs: list[str]) -> str:
     """Horner: coefs[0] + var * (coefs[1] + var * (...))."""
     out = coefs[-1]
@@ -268,7 +266,7 @@ def tonly_incr(src: str) -> str:
              "            #pragma omp simd\n"
              "            for (int l = 0; l < W; l++) {\n"
              "                RT_[l] = 1.0 / T[l];\n"
-             f"                P0_[l] = jpow(T[l], A[l]);\n"
+             "                P0_[l] = jpow(T[l], A[l]);\n"
              f"                C0_[l] = cos(({om}) * P0_[l]);\n"
              "            }\n"
              "            #pragma omp simd\n"  # its own loop: GCC would fuse sin and cos into a scalar sincos
@@ -295,7 +293,8 @@ def tonly_incr(src: str) -> str:
     return src
 
 
-VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step, tonly_twice, tonly_incr)}
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step,
+                                    tonly_twice, tonly_incr)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
