@@ -234,6 +234,30 @@ def _poly(var: str, coefs: list[str]) -> str:
     return out
 
 
+def _estrin(var: str, coefs: list[str]) -> str:
+    """Estrin's scheme: the same polynomial as :func:`_poly` with a dependency chain of depth
+    ~log2(degree) instead of degree (more multiplications, shorter latency)."""
+    terms, power = list(coefs), var
+    while len(terms) > 1:
+        nxt = [f"({terms[i]} + {power} * {terms[i + 1]})" for i in range(0, len(terms) - 1, 2)]
+        if len(terms) % 2:
+            nxt.append(terms[-1])
+        terms, power = nxt, f"({power} * {power})"
+    return terms[0]
+
+
+def tonly_carry_estrin(src: str) -> str:
+    """``tonly_carry`` with every polynomial by Estrin's scheme instead of Horner's (NOTES N29:
+    whether the polynomials' latency or their operation count is what costs)."""
+    global _poly
+    horner = _poly
+    _poly = _estrin
+    try:
+        return tonly_carry(src)
+    finally:
+        _poly = horner
+
+
 def tonly_incr(src: str) -> str:
     """Probe for NOTES N28 (results differ from the kernel at the rounding level): at stages 2-5 the
     forcing cos(omega0 t**alpha) at t + c h is computed from t**alpha and cos/sin of the phase at t
@@ -293,8 +317,91 @@ def tonly_incr(src: str) -> str:
     return src
 
 
+def tonly_carry(src: str) -> str:
+    """Probe for NOTES N29: ``tonly_incr`` with the two changes N28 asked for. The phase step is
+    reduced by quadrants (two-part pi/2, |step| <= 64) before the sin/cos polynomials, so only
+    h <= t/64 limits the incremental path; t**alpha and cos/sin of the phase at t are carried from the
+    previous attempt's t + h (computed there with the forcing the loop needs anyway, plus a sin),
+    recomputed only after a refill."""
+    body = src[src.index("void f_rhs_t("):]
+    body = body[: body.index("\n}\n")]
+    m = re.search(r"const double (v\d+) = jpow\(t, (v\d+)\);\n\s*const double (v\d+) = \(([^)]*)\) \* \1;\n"
+                  r"\s*const double (v\d+) = cos\(\3\);", body)
+    if m is None or "a[0*S]" not in body:
+        raise SystemExit("tonly_carry: the rhs's t-only part is not cos(omega0 * t**alpha) with alpha = a[0]")
+    om = m.group(4)
+    fact = [1.0]
+    for k in range(1, 20):
+        fact.append(fact[-1] * k)
+    l1p = "x_ * " + _poly("x_", [f"({(-1.0) ** k / (k + 1)!r})" for k in range(11)])
+    em1 = "z_ * " + _poly("z_", [f"({1.0 / fact[k + 1]!r})" for k in range(11)])
+    # |r| <= pi/4: sin to r**19, cos to r**18 (truncation < 1e-18)
+    sn = "r_ * " + _poly("r2_", [f"({(-1.0) ** k / fact[2 * k + 1]!r})" for k in range(10)])
+    cs = _poly("r2_", [f"({(-1.0) ** k / fact[2 * k]!r})" for k in range(10)])
+    arrays = ("RT_", "P0_", "C0_", "S0_", "TVS_", "PN_", "CN_", "SN_", "VAL_")
+    decl = ("    double " + ", ".join(f"{a}[W] ALIGN" for a in arrays) + ";\n    int INCR_ = 0;\n"
+            "    for (int l = 0; l < W; l++) VAL_[l] = 0.0;\n")
+    src = _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n" + decl)
+    src = _one(src, "T[l] = t0; CK[l] = 0;", "T[l] = t0; CK[l] = 0; VAL_[l] = 0.0;")
+    top = "        for (int l = 0; l < W; l++) H[l] = TN[l] - T[l];\n"
+    start = (top + "        INCR_ = 1;\n"
+             "        for (int l = 0; l < W; l++) if (!(T[l] > 0.0 && H[l] <= 0x1p-6 * T[l])) { INCR_ = 0; break; }\n"
+             "        if (INCR_) {\n"
+             "            int need_ = 0;\n"
+             "            for (int l = 0; l < W; l++) need_ |= VAL_[l] == 0.0;\n"
+             "            if (need_) {\n"
+             "                #pragma omp simd\n"
+             f"                for (int l = 0; l < W; l++) {{ P0_[l] = jpow(T[l], A[l]); C0_[l] = cos(({om}) * P0_[l]); VAL_[l] = 1.0; }}\n"
+             "                #pragma omp simd\n"
+             f"                for (int l = 0; l < W; l++) S0_[l] = sin(({om}) * P0_[l]);\n"
+             "            }\n"
+             "            #pragma omp simd\n"
+             "            for (int l = 0; l < W; l++) RT_[l] = 1.0 / T[l];\n"
+             f"            for (int l = 0; l < W; l++) if (!(fabs(({om}) * P0_[l] * A[l]) * (H[l] * RT_[l]) * 1.0625 <= 64.0)) {{ INCR_ = 0; break; }}\n"
+             "        }\n")
+    src = _one(src, top, start)
+    quad = ("                const double k_ = rint(d_ * 0x1.45f306dc9c883p-1);\n"  # 2/pi
+            "                const double r_ = (d_ - k_ * 0x1.921fb54400000p+0) - k_ * 0x1.0b4611a626331p-34;\n"
+            "                const double r2_ = r_ * r_;\n"
+            f"                const double sr_ = {sn};\n"
+            f"                const double cr_ = {cs};\n"
+            "                const double q_ = k_ - 4.0 * floor(0.25 * k_);\n"
+            "                const double cd_ = q_ == 0.0 ? cr_ : (q_ == 1.0 ? -sr_ : (q_ == 2.0 ? -cr_ : sr_));\n"
+            "                const double sd_ = q_ == 0.0 ? sr_ : (q_ == 1.0 ? cr_ : (q_ == 2.0 ? -sr_ : -cr_));\n")
+    for c, line in _stage_rhs_calls(src):
+        k = re.search(r"KS\[(\d)\]", line).group(1)
+        repl = ("        if (INCR_) {\n"
+                "            #pragma omp simd\n"
+                "            for (int l = 0; l < W; l++) {\n"
+                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
+                f"                const double z_ = A[l] * ({l1p});\n"
+                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
+                + quad +
+                "                TVS_[l] = C0_[l] * cd_ - S0_[l] * sd_;\n"
+                "            }\n"
+                "            #pragma omp simd\n"
+                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
+                "        } else {\n"
+                "        #pragma omp simd\n" + line + "        }\n")
+        src = _one(src, "        #pragma omp simd\n" + line, repl)
+    # the forcing at t + h: the same expression as f_rhs_t (so TV is unchanged), keeping t**alpha and sin
+    tn = "        for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);\n"
+    src = _one(src, tn, f"        for (int l = 0; l < W; l++) {{ PN_[l] = jpow(TN[l], A[l]); CN_[l] = cos(({om}) * PN_[l]); TV[l] = CN_[l]; }}\n"
+               "        #pragma omp simd\n"
+               f"        for (int l = 0; l < W; l++) SN_[l] = sin(({om}) * PN_[l]);\n")
+    commit_end = "            T[l] = TP[l]; TN[l] = TNX[l];\n        }\n"
+    src = _one(src, commit_end, commit_end +
+               "        #pragma omp simd\n"
+               "        for (int l = 0; l < W; l++) {\n"
+               "            const double kp_ = KEEP[l];\n"
+               "            P0_[l] = kp_ != 0.0 ? PN_[l] : P0_[l]; C0_[l] = kp_ != 0.0 ? CN_[l] : C0_[l];\n"
+               "            S0_[l] = kp_ != 0.0 ? SN_[l] : S0_[l]; VAL_[l] = kp_ != 0.0 ? 1.0 : VAL_[l];\n"
+               "        }\n")
+    return src
+
+
 VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step,
-                                    tonly_twice, tonly_incr)}
+                                    tonly_twice, tonly_incr, tonly_carry, tonly_carry_estrin)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
