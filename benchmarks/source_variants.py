@@ -249,13 +249,49 @@ def _estrin(var: str, coefs: list[str]) -> str:
 def tonly_carry_estrin(src: str) -> str:
     """``tonly_carry`` with every polynomial by Estrin's scheme instead of Horner's (NOTES N29:
     whether the polynomials' latency or their operation count is what costs)."""
-    global _poly
-    horner = _poly
-    _poly = _estrin
-    try:
-        return tonly_carry(src)
-    finally:
-        _poly = horner
+    return tonly_carry(src, poly=_estrin)
+
+
+def _incremental_stages(src: str, om: str, l1p: str, em1: str, phase_code: str) -> str:
+    """Stages 2-5: where ``INCR_`` holds, the forcing at t + c h from the phase step d_ (``phase_code``
+    turns d_ into TVS_[l]) and ``f_rhs_y``; elsewhere the kernel's own ``f_rhs``."""
+    for c, line in _stage_rhs_calls(src):
+        k = re.search(r"KS\[(\d)\]", line).group(1)
+        repl = ("        if (INCR_) {\n"
+                "            #pragma omp simd\n"
+                "            for (int l = 0; l < W; l++) {\n"
+                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
+                f"                const double z_ = A[l] * ({l1p});\n"
+                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
+                + phase_code +
+                "            }\n"
+                "            #pragma omp simd\n"
+                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
+                "        } else {\n"
+                "        #pragma omp simd\n" + line + "        }\n")
+        src = _one(src, "        #pragma omp simd\n" + line, repl)
+    return src
+
+
+def _forcing_and_series(src: str, name: str, angle: str, poly) -> tuple[str, str, str, str, str]:
+    """omega0 of paper A's t-only part ``cos(omega0 t**alpha)`` (asserted), and C expressions for
+    log1p(x_), expm1(z_) (|x_|, |z_| <= 2**-6, Taylor to the 11th power) and sin/cos of ``angle``
+    (to the 19th/18th power, in ``angle``2_ = angle**2) by ``poly``."""
+    body = src[src.index("void f_rhs_t("):]
+    body = body[: body.index("\n}\n")]
+    m = re.search(r"const double (v\d+) = jpow\(t, (v\d+)\);\n\s*const double (v\d+) = \(([^)]*)\) \* \1;\n"
+                  r"\s*const double (v\d+) = cos\(\3\);", body)
+    if m is None or "a[0*S]" not in body:
+        raise SystemExit(f"{name}: the rhs's t-only part is not cos(omega0 * t**alpha) with alpha = a[0]")
+    fact = [1.0]
+    for k in range(1, 20):
+        fact.append(fact[-1] * k)
+    a2 = angle[:-1] + "2_"
+    l1p = "x_ * " + poly("x_", [f"({(-1.0) ** k / (k + 1)!r})" for k in range(11)])
+    em1 = "z_ * " + poly("z_", [f"({1.0 / fact[k + 1]!r})" for k in range(11)])
+    sn = f"{angle} * " + poly(a2, [f"({(-1.0) ** k / fact[2 * k + 1]!r})" for k in range(10)])
+    cs = poly(a2, [f"({(-1.0) ** k / fact[2 * k]!r})" for k in range(10)])
+    return m.group(4), l1p, em1, sn, cs
 
 
 def tonly_incr(src: str) -> str:
@@ -264,23 +300,7 @@ def tonly_incr(src: str) -> str:
     (recomputed every attempt) by log1p/expm1 Taylor polynomials in c h / t and angle addition with
     sin/cos polynomials of the phase step, for blocks where every lane has h <= 2**-6 t and a phase
     step <= 0.5; other blocks take the libm path. Only for paper A's t-only part (asserted)."""
-    body = src[src.index("void f_rhs_t("):]
-    body = body[: body.index("\n}\n")]
-    m = re.search(r"const double (v\d+) = jpow\(t, (v\d+)\);\n\s*const double (v\d+) = \(([^)]*)\) \* \1;\n"
-                  r"\s*const double (v\d+) = cos\(\3\);", body)
-    if m is None or "a[0*S]" not in body:
-        raise SystemExit("tonly_incr: the rhs's t-only part is not cos(omega0 * t**alpha) with alpha = a[0]")
-    om = m.group(4)
-    fact = [1.0]
-    for k in range(1, 20):
-        fact.append(fact[-1] * k)
-    # log1p(x) = x * (1 - x/2 + x^2/3 - ...), |x| <= 2**-6, terms to x**11
-    l1p = "x_ * " + _poly("x_", [f"({(-1.0) ** k / (k + 1)!r})" for k in range(11)])
-    # expm1(z) = z * (1 + z/2! + z^2/3! + ...), |z| <= 2**-6, terms to z**11
-    em1 = "z_ * " + _poly("z_", [f"({1.0 / fact[k + 1]!r})" for k in range(11)])
-    # sin d = d * (1 - d^2/3! + ...), cos d = 1 - d^2/2! + ..., |d| <= 0.5, to d**19 and d**18
-    sn = "d_ * " + _poly("d2_", [f"({(-1.0) ** k / fact[2 * k + 1]!r})" for k in range(10)])
-    cs = _poly("d2_", [f"({(-1.0) ** k / fact[2 * k]!r})" for k in range(10)])
+    om, l1p, em1, sn, cs = _forcing_and_series(src, "tonly_incr", "d_", _poly)
     decl = "    double RT_[W] ALIGN, P0_[W] ALIGN, C0_[W] ALIGN, S0_[W] ALIGN, TVS_[W] ALIGN;\n    int INCR_ = 0;\n"
     src = _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n" + decl)
     top = "        for (int l = 0; l < W; l++) H[l] = TN[l] - T[l];\n"
@@ -298,46 +318,19 @@ def tonly_incr(src: str) -> str:
              f"            for (int l = 0; l < W; l++) if (!(fabs(({om}) * P0_[l] * A[l]) * (H[l] * RT_[l]) * 1.0625 <= 0.5)) {{ INCR_ = 0; break; }}\n"
              "        }\n")
     src = _one(src, top, start)
-    for c, line in _stage_rhs_calls(src):
-        k = re.search(r"KS\[(\d)\]", line).group(1)
-        repl = ("        if (INCR_) {\n"
-                "            #pragma omp simd\n"
-                "            for (int l = 0; l < W; l++) {\n"
-                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
-                f"                const double z_ = A[l] * ({l1p});\n"
-                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
-                "                const double d2_ = d_ * d_;\n"
-                f"                TVS_[l] = C0_[l] * ({cs}) - S0_[l] * ({sn});\n"
-                "            }\n"
-                "            #pragma omp simd\n"
-                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
-                "        } else {\n"
-                "        #pragma omp simd\n" + line + "        }\n")
-        src = _one(src, "        #pragma omp simd\n" + line, repl)
-    return src
+    return _incremental_stages(src, om, l1p, em1,
+                               "                const double d2_ = d_ * d_;\n"
+                               f"                TVS_[l] = C0_[l] * ({cs}) - S0_[l] * ({sn});\n")
 
 
-def tonly_carry(src: str) -> str:
+def tonly_carry(src: str, poly=None) -> str:
     """Probe for NOTES N29: ``tonly_incr`` with the two changes N28 asked for. The phase step is
     reduced by quadrants (two-part pi/2, |step| <= 64) before the sin/cos polynomials, so only
     h <= t/64 limits the incremental path; t**alpha and cos/sin of the phase at t are carried from the
     previous attempt's t + h (computed there with the forcing the loop needs anyway, plus a sin),
     recomputed only after a refill."""
-    body = src[src.index("void f_rhs_t("):]
-    body = body[: body.index("\n}\n")]
-    m = re.search(r"const double (v\d+) = jpow\(t, (v\d+)\);\n\s*const double (v\d+) = \(([^)]*)\) \* \1;\n"
-                  r"\s*const double (v\d+) = cos\(\3\);", body)
-    if m is None or "a[0*S]" not in body:
-        raise SystemExit("tonly_carry: the rhs's t-only part is not cos(omega0 * t**alpha) with alpha = a[0]")
-    om = m.group(4)
-    fact = [1.0]
-    for k in range(1, 20):
-        fact.append(fact[-1] * k)
-    l1p = "x_ * " + _poly("x_", [f"({(-1.0) ** k / (k + 1)!r})" for k in range(11)])
-    em1 = "z_ * " + _poly("z_", [f"({1.0 / fact[k + 1]!r})" for k in range(11)])
-    # |r| <= pi/4: sin to r**19, cos to r**18 (truncation < 1e-18)
-    sn = "r_ * " + _poly("r2_", [f"({(-1.0) ** k / fact[2 * k + 1]!r})" for k in range(10)])
-    cs = _poly("r2_", [f"({(-1.0) ** k / fact[2 * k]!r})" for k in range(10)])
+    # |r_| <= pi/4 after the quadrant reduction
+    om, l1p, em1, sn, cs = _forcing_and_series(src, "tonly_carry", "r_", poly or _poly)
     arrays = ("RT_", "P0_", "C0_", "S0_", "TVS_", "PN_", "CN_", "SN_", "VAL_")
     decl = ("    double " + ", ".join(f"{a}[W] ALIGN" for a in arrays) + ";\n    int INCR_ = 0;\n"
             "    for (int l = 0; l < W; l++) VAL_[l] = 0.0;\n")
@@ -368,22 +361,7 @@ def tonly_carry(src: str) -> str:
             "                const double q_ = k_ - 4.0 * floor(0.25 * k_);\n"
             "                const double cd_ = q_ == 0.0 ? cr_ : (q_ == 1.0 ? -sr_ : (q_ == 2.0 ? -cr_ : sr_));\n"
             "                const double sd_ = q_ == 0.0 ? sr_ : (q_ == 1.0 ? cr_ : (q_ == 2.0 ? -sr_ : -cr_));\n")
-    for c, line in _stage_rhs_calls(src):
-        k = re.search(r"KS\[(\d)\]", line).group(1)
-        repl = ("        if (INCR_) {\n"
-                "            #pragma omp simd\n"
-                "            for (int l = 0; l < W; l++) {\n"
-                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
-                f"                const double z_ = A[l] * ({l1p});\n"
-                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
-                + quad +
-                "                TVS_[l] = C0_[l] * cd_ - S0_[l] * sd_;\n"
-                "            }\n"
-                "            #pragma omp simd\n"
-                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
-                "        } else {\n"
-                "        #pragma omp simd\n" + line + "        }\n")
-        src = _one(src, "        #pragma omp simd\n" + line, repl)
+    src = _incremental_stages(src, om, l1p, em1, quad + "                TVS_[l] = C0_[l] * cd_ - S0_[l] * sd_;\n")
     # the forcing at t + h: the same expression as f_rhs_t (so TV is unchanged), keeping t**alpha and sin
     tn = "        for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);\n"
     src = _one(src, tn, f"        for (int l = 0; l < W; l++) {{ PN_[l] = jpow(TN[l], A[l]); CN_[l] = cos(({om}) * PN_[l]); TV[l] = CN_[l]; }}\n"
