@@ -19,8 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from stabjax import bench, native
-from stabjax.engine import IntegrateConfig
-from stabjax.registry import get_system
 
 
 def native_at(rev: str):
@@ -44,15 +42,8 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=4)
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
-    s = get_system("monoaxial")
-    p = {k: np.broadcast_to(v, (a.n, *np.shape(v))).copy() for k, v in bench.paper_constants().items()}
-    p["alpha"] = bench.alphas(a.n)
-    icfg = IntegrateConfig(t1=1e4, rtol=1e-8, atol=1e-10)
-    static = [k for k in p if k != "alpha"]
-    runs = {}
-    for name, mod in (("old", native_at(a.rev)), ("new", native)):
-        kern, dyn = mod.kernel_for(s, icfg, s.verdict, p, static=static)
-        runs[name] = (mod, kern, *kern.model.host_inputs(dyn, a.n))
+    runs = {name: (mod, *bench.native_kernel(a.n, mod=mod))
+            for name, mod in (("old", native_at(a.rev)), ("new", native))}
     walls: dict[str, list[float]] = {"old": [], "new": []}
     for rep in range(a.pairs):
         for name in ("old", "new") if rep % 2 == 0 else ("new", "old"):

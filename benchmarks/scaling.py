@@ -11,11 +11,7 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from stabjax import bench, native
-from stabjax.engine import IntegrateConfig
-from stabjax.registry import get_system
 
 
 def main() -> None:
@@ -24,12 +20,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=0.2, help="length of each peak measurement")
     a = ap.parse_args()
-    s = get_system("monoaxial")
-    p = {k: np.broadcast_to(v, (a.n, *np.shape(v))).copy() for k, v in bench.paper_constants().items()}
-    p["alpha"] = bench.alphas(a.n)
-    icfg = IntegrateConfig(t1=1e4, rtol=1e-8, atol=1e-10)
-    kern, dyn = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
-    ain, y0 = kern.model.host_inputs(dyn, a.n)
+    kern, ain, y0 = bench.native_kernel(a.n)
     for rnd in range(a.rounds):
         mp = bench.measured_peak(threads=2, seconds=a.seconds)
         wall = {}

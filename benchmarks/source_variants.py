@@ -40,8 +40,6 @@ from pathlib import Path
 import numpy as np
 
 from stabjax import bench, native
-from stabjax.engine import IntegrateConfig
-from stabjax.registry import get_system
 
 HERE = Path(__file__).resolve().parent
 
@@ -477,16 +475,6 @@ int main(int argc, char **argv) {
 """
 
 
-def _setup(n: int):
-    s = get_system("monoaxial")
-    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in bench.paper_constants().items()}
-    p["alpha"] = bench.alphas(n)
-    icfg = IntegrateConfig(t1=1e4, rtol=1e-8, atol=1e-10)
-    kern, dyn = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
-    ain, y0 = kern.model.host_inputs(dyn, n)
-    return kern, ain, y0
-
-
 def _variant_kernel(kern, transform):
     k = copy.copy(kern)
     k.source = transform(kern.source)
@@ -502,7 +490,7 @@ def _flags() -> list[str]:
 
 
 def cmd_ab(a) -> None:
-    kern, ain, y0 = _setup(a.n)
+    kern, ain, y0 = bench.native_kernel(a.n)
     names = ["base", *a.variants]
     kerns = {"base": kern, **{v: _variant_kernel(kern, VARIANTS[v]) for v in a.variants}}
     walls: dict[str, list[float]] = {v: [] for v in names}
@@ -525,7 +513,7 @@ def cmd_ab(a) -> None:
 
 
 def cmd_regions(a) -> None:
-    kern, ain, y0 = _setup(a.n)
+    kern, ain, y0 = bench.native_kernel(a.n)
     k = _variant_kernel(kern, timed)
     t = time.perf_counter()
     r = native.run_raw(k, ain, y0, threads=a.threads)
@@ -535,7 +523,7 @@ def cmd_regions(a) -> None:
 
 
 def cmd_rhs(a) -> None:
-    kern, ain, y0 = _setup(64)
+    kern, ain, y0 = bench.native_kernel(64)
     src = kern.source
     pre = src[: src.index("static inline int finite_row")]
     a0 = np.asarray(ain[32]).ravel()  # alpha near the middle of the benchmark's range

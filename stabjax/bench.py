@@ -177,24 +177,31 @@ double stabjax_peak_chain(int64_t iters) {
 """
 
 
+def peak_library():
+    """The compiled microbenchmark of :func:`measured_peak` (ctypes signatures set)."""
+    import ctypes
+
+    from . import native
+
+    lib = native.compile_library(_PEAK_SRC)
+    for f in (lib.stabjax_peak_fma, lib.stabjax_peak_chain):
+        f.argtypes, f.restype = [ctypes.c_int64], ctypes.c_double
+    return lib
+
+
 def measured_peak(threads: int | None = None, seconds: float = 0.3) -> dict:
     """float64 throughput this machine delivers, measured: multiply-adds on independent vector
     chains in one thread and in ``threads`` concurrent threads (the roofline's measured ceiling),
     and one latency-bound scalar chain (two threads on two real cores both keep one thread's speed;
     shared cores or a CPU quota show as a slowdown). x86-64 only; ``{"error": ...}`` elsewhere."""
-    import ctypes
     from concurrent.futures import ThreadPoolExecutor
-
-    from . import native
 
     if platform.machine() not in ("x86_64", "AMD64"):
         return {"error": "measured peak: x86-64 only"}
     try:
-        lib = native.compile_library(_PEAK_SRC)
+        lib = peak_library()
     except Exception as exc:
         return {"error": repr(exc)}
-    for f in (lib.stabjax_peak_fma, lib.stabjax_peak_chain):
-        f.argtypes, f.restype = [ctypes.c_int64], ctypes.c_double
     lanes, chains = lib.stabjax_peak_lanes(), lib.stabjax_peak_chains()
     threads = int(threads or os.cpu_count() or 1)
 
@@ -262,6 +269,29 @@ def paper_constants() -> dict:
     s = get_system(SYSTEM)
     p = s.check(s.params.resolve(None))
     return {k: np.asarray(v, float) for k, v in p.items()}
+
+
+def params(n: int) -> dict:
+    """The benchmark's parameters for ``n`` trajectories: the paper's constants, alpha swept."""
+    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in paper_constants().items()}
+    p["alpha"] = alphas(n)
+    return p
+
+
+def native_kernel(n: int, t1: float = 1e4, mod=None):
+    """The native engine's compiled kernel for the benchmark sweep (alpha per lane, everything else
+    folded in as constants) and its prepared inputs ``(kernel, ain, y0)``. ``mod``: a module with
+    ``native``'s interface (benchmarks/ab_kernels.py passes an older revision's)."""
+    from .engine import IntegrateConfig
+    from .registry import get_system
+
+    if mod is None:
+        from . import native as mod
+    s = get_system(SYSTEM)
+    p = params(n)
+    kern, dyn = mod.kernel_for(s, IntegrateConfig(t1=t1, rtol=RTOL, atol=ATOL), s.verdict, p,
+                               static=[k for k in p if k != "alpha"])
+    return (kern, *kern.model.host_inputs(dyn, n))
 
 
 def numpy_rhs(t, y, alpha, c):
@@ -445,8 +475,7 @@ def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, 
     s = get_system(SYSTEM)
     out = {}
     icfg = IntegrateConfig(t1=t1, rtol=RTOL, atol=ATOL)
-    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in paper_constants().items()}
-    p["alpha"] = alphas(n)
+    p = params(n)
     sub = _scipy_subset(n, k_verdict)
     psub = {k: v[sub] for k, v in p.items()}
     nat = native.solve(s, psub, icfg, s.verdict, with_state=True)
@@ -482,8 +511,7 @@ def native_flops(t1: float) -> dict:
 
     s = get_system(SYSTEM)
     n = 64
-    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in paper_constants().items()}
-    p["alpha"] = alphas(n)
+    p = params(n)
     icfg = IntegrateConfig(t1=t1, rtol=RTOL, atol=ATOL)
     kern, _ = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
     res = native.solve(s, p, icfg, s.verdict, static=[k for k in p if k != "alpha"])
@@ -506,8 +534,7 @@ def step_flops() -> dict:
 
     s = get_system(SYSTEM)
     n, L = 64, 64
-    p = {k: np.broadcast_to(v, (n, *np.shape(v))).copy() for k, v in paper_constants().items()}
-    p["alpha"] = alphas(n)
+    p = params(n)
     icfg = IntegrateConfig(t1=1e4, rtol=RTOL, atol=ATOL)
     exe, args, _, _ = fast.prepare_call(s, icfg, s.verdict, p, lanes=L, n_devices=1)
     ca = exe.cost_analysis()

@@ -1,6 +1,5 @@
 """Smoke test of the benchmark (stabjax bench --quick): it runs every contender, checks agreement,
 and writes results/bench.json + .md. Not a timing test."""
-import ctypes
 import json
 import platform
 
@@ -48,9 +47,7 @@ def test_measured_peak_kernel_does_the_work_it_counts():
     NumPy (chains x lanes multiply-adds per iteration, none optimised away)."""
     if platform.machine() not in ("x86_64", "AMD64") or not native.available():
         pytest.skip("x86-64 with a C compiler only")
-    lib = native.compile_library(bench._PEAK_SRC)
-    lib.stabjax_peak_fma.argtypes, lib.stabjax_peak_fma.restype = [ctypes.c_int64], ctypes.c_double
-    lib.stabjax_peak_chain.argtypes, lib.stabjax_peak_chain.restype = [ctypes.c_int64], ctypes.c_double
+    lib = bench.peak_library()
     lanes, chains, iters = lib.stabjax_peak_lanes(), lib.stabjax_peak_chains(), 1000
     acc = np.repeat(1.0 + 1e-3 * np.arange(chains), lanes)
     x = 1.0
