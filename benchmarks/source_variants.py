@@ -24,7 +24,9 @@ as what each region computes (N26).
 ``rhs``: the kernel's own ``f_rhs``, and its ``f_obs`` + ``f_upd`` (observe a checkpoint, update the
 classifier), 16 lanes, each evaluation feeding the next: alone, one after the other, and side by side
 in one loop body (whether independent work overlaps); next to it the cost of each libmvec call
-(latency and throughput) from ``benchmarks/probes/libmvec_calls.c``.
+(latency and throughput) from ``benchmarks/probes/libmvec_calls.c``. ``rhs --standins``: the rhs alone
+against versions with one part (square roots and division, cbrt, the t-only part) replaced by cheap
+arithmetic (N32).
 """
 from __future__ import annotations
 
@@ -376,8 +378,86 @@ def tonly_carry(src: str, poly=None) -> str:
     return src
 
 
+def _hermite_weights(th: float) -> tuple[float, ...]:
+    """Quintic Hermite basis on [0, 1] at ``th`` for (p1 - p0, h p0', h p1', h^2 p0'', h^2 p1'')
+    (the weight of p0 is 1 - that of p1, so p0 enters exactly)."""
+    return (10 * th**3 - 15 * th**4 + 6 * th**5, th - 6 * th**3 + 8 * th**4 - 3 * th**5,
+            -4 * th**3 + 7 * th**4 - 3 * th**5, 0.5 * th**2 - 1.5 * th**3 + 1.5 * th**4 - 0.5 * th**5,
+            0.5 * th**3 - th**4 + 0.5 * th**5)
+
+
+def tonly_herm(src: str, count: bool = False) -> str:
+    """Probe for NOTES N30 (results differ from the kernel at the rounding level): t**alpha at stages
+    2-5 by quintic Hermite interpolation between the step's ends, from t**alpha and its first two
+    derivatives (alpha p / t, (alpha - 1) p' / t: no libm) at t (carried from the previous attempt)
+    and at t + h (computed there anyway for the sixth stage); cos stays libmvec's. Truncation error
+    <= |alpha (alpha-1)...(alpha-5)| / 720 * max theta^3 (1-theta)^3 * (h/t)^6 relative: below 1.1e-16
+    for alpha in (0, 1] and h <= t/128, the bound every lane of a block must meet (otherwise the block
+    takes the kernel's jpow). Only for paper A's t-only part (asserted)."""
+    om = _forcing_and_series(src, "tonly_herm", "r_", _poly)[0]
+    arrays = ("RT_", "RTN_", "P0_", "PN_", "D0_", "DN_", "E0_", "EN_", "TVS_", "VAL_")
+    decl = ("    double " + ", ".join(f"{a}[W] ALIGN" for a in arrays) + ";\n    int INCR_ = 0;\n"
+            "    for (int l = 0; l < W; l++) VAL_[l] = 0.0;\n")
+    src = _one(src, "    int QH[W], QN[W];\n", "    int QH[W], QN[W];\n" + decl)
+    src = _one(src, "T[l] = t0; CK[l] = 0;", "T[l] = t0; CK[l] = 0; VAL_[l] = 0.0;")
+    # the forcing at t + h moves to the top of the iteration: the stages need t**alpha there
+    tn = "        #pragma omp simd\n        for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);\n"
+    src = _one(src, tn, "")
+    top = "        for (int l = 0; l < W; l++) H[l] = TN[l] - T[l];\n"
+    start = (top + "        #pragma omp simd\n"
+             f"        for (int l = 0; l < W; l++) {{ PN_[l] = jpow(TN[l], A[l]); TV[l] = cos(({om}) * PN_[l]); }}\n"
+             "        INCR_ = 1;\n"
+             "        for (int l = 0; l < W; l++)\n"
+             "            if (ACT[l] != 0.0 && !(VAL_[l] != 0.0 && T[l] > 0.0 && H[l] <= 0x1p-7 * T[l])) { INCR_ = 0; break; }\n"
+             + ("        HN_[INCR_]++;\n" if count else "") +
+             "        if (INCR_) {\n"
+             "            #pragma omp simd\n"
+             "            for (int l = 0; l < W; l++) {\n"
+             "                const double rt = 1.0 / T[l], rtn = 1.0 / TN[l], a = A[l], h = H[l];\n"
+             "                D0_[l] = h * a * P0_[l] * rt; E0_[l] = h * (a - 1.0) * rt * D0_[l];\n"
+             "                DN_[l] = h * a * PN_[l] * rtn; EN_[l] = h * (a - 1.0) * rtn * DN_[l];\n"
+             "            }\n"
+             "        }\n")
+    src = _one(src, top, start)
+    for c, line in _stage_rhs_calls(src):
+        k = re.search(r"KS\[(\d)\]", line).group(1)
+        w1, w2, w3, w4, w5 = (native._flit(x) for x in _hermite_weights(float.fromhex(c.strip("()"))))
+        repl = ("        if (INCR_) {\n"
+                "            #pragma omp simd\n"
+                "            for (int l = 0; l < W; l++) {\n"
+                f"                const double p_ = P0_[l] + {w1} * (PN_[l] - P0_[l]) + ({w2} * D0_[l] + {w3} * DN_[l])"
+                f" + ({w4} * E0_[l] + {w5} * EN_[l]);\n"
+                f"                TVS_[l] = cos(({om}) * p_);\n"
+                "            }\n"
+                "            #pragma omp simd\n"
+                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
+                "        } else {\n"
+                "        #pragma omp simd\n" + line + "        }\n")
+        src = _one(src, "        #pragma omp simd\n" + line, repl)
+    commit_end = "            T[l] = TP[l]; TN[l] = TNX[l];\n        }\n"
+    src = _one(src, commit_end, commit_end +
+               "        #pragma omp simd\n"
+               "        for (int l = 0; l < W; l++) {\n"
+               "            const double kp_ = KEEP[l];\n"
+               "            P0_[l] = kp_ != 0.0 ? PN_[l] : P0_[l]; VAL_[l] = kp_ != 0.0 ? 1.0 : VAL_[l];\n"
+               "        }\n")
+    if count:
+        src = _one(src, "int64_t stabjax_run(const job_t *jb) {",
+                   "#include <stdio.h>\nstatic __thread long HN_[2];\nint64_t stabjax_run(const job_t *jb) {")
+        src = _one(src, "    }\n    return finished;\n",
+                   "    }\n    fprintf(stderr, \"tonly_herm: incremental path in %ld of %ld iterations\\n\", HN_[1], HN_[0] + HN_[1]);\n"
+                   "    return finished;\n")
+    return src
+
+
+def tonly_herm_count(src: str) -> str:
+    """``tonly_herm`` counting the iterations that take the interpolated path (printed per thread)."""
+    return tonly_herm(src, count=True)
+
+
 VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step,
-                                    tonly_twice, tonly_incr, tonly_carry, tonly_carry_estrin)}
+                                    tonly_twice, tonly_incr, tonly_carry, tonly_carry_estrin, tonly_herm,
+                                    tonly_herm_count)}
 
 
 # ---- region timing ------------------------------------------------------------------------------
@@ -522,6 +602,34 @@ def cmd_regions(a) -> None:
     print(f"wall {w:.3f} s, {att} attempts, {w * a.threads / att * 1e9:.0f} ns of one thread per attempt")
 
 
+# Stand-ins for parts of f_rhs (wrong values on purpose; mode 1's chained evaluations only): what
+# each part costs the rhs alone (NOTES N30). Each maps the body of f_rhs to a cheaper one.
+_STANDINS = {
+    "no sqrt/div": lambda b: b.replace("sqrt(", "(0.25 + 0.5 * ").replace("1.0 / v27", "(v27 * 0.9 + 0.1)"),
+    "no cbrt": lambda b: b.replace("cbrt(", "(0.3 + 0.5 * "),
+    "no t-only (jpow, cos)": lambda b: b.replace("jpow(t, v6)", "(t * v6)").replace("cos(", "(0.1 + 0.2 * "),
+}
+
+
+def _rhs_standins(src: str, d: Path, a) -> None:
+    i = src.index("static inline __attribute__((always_inline)) void f_rhs(")
+    j = src.index("static inline __attribute__((always_inline)) void f_rhs_t(")
+    exes = {"kernel's rhs": d / "rhs1"}
+    for k, (name, f) in enumerate(_STANDINS.items()):
+        body = f(src[i:j])
+        if body == src[i:j]:
+            raise SystemExit(f"stand-in {name!r} changes nothing in this model's rhs")
+        c = d / f"standin{k}.c"
+        c.write_text(src[:i] + body + src[j:])
+        exes[name] = d / f"standin{k}"
+        subprocess.run([native.compiler(), *_flags(), "-DMODE=1", str(c), "-o", str(exes[name]), "-lmvec", "-lm"],
+                       check=True)
+    for _ in range(a.rounds):
+        for name, exe in exes.items():
+            out = subprocess.run([str(exe), str(a.reps)], check=True, capture_output=True, text=True).stdout
+            print(f"{name:24s} {out.split('lanes:')[1].split('(')[0].strip()}", flush=True)
+
+
 def cmd_rhs(a) -> None:
     kern, ain, y0 = bench.native_kernel(64)
     src = kern.source
@@ -538,6 +646,9 @@ def cmd_rhs(a) -> None:
         for mode in (1, 2, 3, 4):
             subprocess.run([native.compiler(), *_flags(), f"-DMODE={mode}", str(c), "-o", str(Path(d) / f"rhs{mode}"),
                             "-lmvec", "-lm"], check=True)
+        if a.standins:
+            _rhs_standins(pre + consts + _RHS_MAIN, Path(d), a)
+            return
         probe, pexe = HERE / "probes" / "libmvec_calls.c", Path(d) / "calls"
         subprocess.run([native.compiler(), "-O2", "-march=native", str(probe), "-o", str(pexe), "-lmvec", "-lm"], check=True)
         for _ in range(a.rounds):
@@ -559,6 +670,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     p = sub.add_parser("rhs", help="the rhs alone and the libmvec calls")
     p.add_argument("--reps", type=int, default=1000000)
+    p.add_argument("--standins", action="store_true", help="the rhs with stand-ins for its sqrt/div, cbrt, t-only part")
     p.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
     {"ab": cmd_ab, "regions": cmd_regions, "rhs": cmd_rhs}[a.cmd](a)
