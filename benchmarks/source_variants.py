@@ -144,6 +144,61 @@ def vpop(src: str) -> str:
     return _intrinsics(_one(src, _POP0, _VPOP + _POP0 + "#endif\n"))
 
 
+_DIRECT0 = """            /* one classifier pass per step that crosses a checkpoint, for every lane with something to
+               classify: a lane with an empty FIFO takes its round-0 checkpoint directly (no push, no
+               pop), a lane with a backlog pops its oldest item and queues the round-0 checkpoint behind
+               the rest, so each lane's sequence of updates is unchanged */
+            int anyq_ = 0;
+            for (int l = 0; l < W; l++) anyq_ |= QN[l] > 0;
+            #pragma omp simd
+            for (int l = 0; l < W; l++) {
+                HAS[l] = R0[l]; TC[l] = R0[l] != 0.0 ? TC0[l] : T[l];
+                for (int q = 0; q < NO; q++) OBS[q * W + l] = OB0[q * W + l];
+            }
+            if (anyq_) for (int l = 0; l < W; l++) {
+                if (QN[l] == 0) continue;
+                const int pos = QH[l];
+                const double tq = FT[l * QCAP + pos];
+                double oq[NO];
+                for (int q = 0; q < NO; q++) oq[q] = FO[(l * QCAP + pos) * NO + q];
+                QH[l] = (pos + 1) % QCAP; QN[l]--;
+                if (R0[l] != 0.0) PUSH(l, TC0[l], OB0 + l, W);  /* never full: one item was just popped */
+                HAS[l] = 1.0; TC[l] = tq;
+                for (int q = 0; q < NO; q++) OBS[q * W + l] = oq[q];
+            }
+            for (int l = 0; l < W; l++) {
+                if (R0[l] == 0.0) continue;
+                CK[l]++;
+                NEXTT[l] = CK[l] < K ? ts[CK[l]] : INFINITY;
+            }
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);
+            #pragma omp simd
+            for (int l = 0; l < W; l++) {
+                const double has = HAS[l];
+                for (int q = 0; q < NC; q++) C[q * W + l] = has != 0.0 ? CN[q * W + l] : C[q * W + l];
+            }
+"""
+
+
+def direct(src: str) -> str:
+    """Round 0's checkpoints folded into the classifier at once where the lane's FIFO is empty (one
+    combined pass per step; backlogged lanes pop their oldest item in the same pass): the FIFO only
+    holds a step's second and later checkpoints and what queues behind them. Bit-identical."""
+    return _one(src, _PUSH0, _DIRECT0)
+
+
+def direct_busy(src: str) -> str:
+    """``direct`` only in steps where the combined pass would find QBUSY lanes with something to
+    classify (the rule the FIFO passes use); other steps push round 0 as the kernel does."""
+    body = _DIRECT0.replace("            int anyq_ = 0;\n            for (int l = 0; l < W; l++) anyq_ |= QN[l] > 0;\n",
+                            "")
+    gate = ("            int anyq_ = 0, busy_ = 0;\n"
+            "            for (int l = 0; l < W; l++) { anyq_ |= QN[l] > 0; busy_ += (QN[l] > 0) | (R0[l] != 0.0); }\n"
+            "            if (busy_ >= QBUSY) {\n" + body + "            } else {\n" + _PUSH0 + "            }\n")
+    return _one(src, _PUSH0, gate)
+
+
 def vboth(src: str) -> str:
     return vpop(vpush(src))
 
@@ -455,7 +510,7 @@ def tonly_herm_count(src: str) -> str:
     return tonly_herm(src, count=True)
 
 
-VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step,
+VARIANTS = {f.__name__: f for f in (vpush, vpop, vboth, direct, direct_busy, stageloop, nockpt, noobs, noupd, lfence_ckpt, lfence_step,
                                     tonly_twice, tonly_incr, tonly_carry, tonly_carry_estrin, tonly_herm,
                                     tonly_herm_count)}
 
