@@ -307,18 +307,16 @@ def tonly_carry_estrin(src: str) -> str:
     return tonly_carry(src, poly=_estrin)
 
 
-def _incremental_stages(src: str, om: str, l1p: str, em1: str, phase_code: str) -> str:
-    """Stages 2-5: where ``INCR_`` holds, the forcing at t + c h from the phase step d_ (``phase_code``
-    turns d_ into TVS_[l]) and ``f_rhs_y``; elsewhere the kernel's own ``f_rhs``."""
+def _stages_with_forcing(src: str, forcing) -> str:
+    """Stages 2-5: where ``INCR_`` holds, the t-only value TVS_[l] from ``forcing(c)`` (C statements in
+    a loop over the lanes, c the stage's time coefficient) and ``f_rhs_y``; elsewhere the kernel's own
+    ``f_rhs``."""
     for c, line in _stage_rhs_calls(src):
         k = re.search(r"KS\[(\d)\]", line).group(1)
         repl = ("        if (INCR_) {\n"
                 "            #pragma omp simd\n"
                 "            for (int l = 0; l < W; l++) {\n"
-                f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
-                f"                const double z_ = A[l] * ({l1p});\n"
-                f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
-                + phase_code +
+                + forcing(c) +
                 "            }\n"
                 "            #pragma omp simd\n"
                 f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
@@ -326,6 +324,16 @@ def _incremental_stages(src: str, om: str, l1p: str, em1: str, phase_code: str) 
                 "        #pragma omp simd\n" + line + "        }\n")
         src = _one(src, "        #pragma omp simd\n" + line, repl)
     return src
+
+
+def _incremental_stages(src: str, om: str, l1p: str, em1: str, phase_code: str) -> str:
+    """Stages 2-5 with the forcing at t + c h from the phase step d_ (``phase_code`` turns d_ into
+    TVS_[l]) where ``INCR_`` holds."""
+    return _stages_with_forcing(src, lambda c: (
+        f"                const double x_ = ({c}) * H[l] * RT_[l];\n"
+        f"                const double z_ = A[l] * ({l1p});\n"
+        f"                const double d_ = ({om}) * P0_[l] * ({em1});\n"
+        + phase_code))
 
 
 def _forcing_and_series(src: str, name: str, angle: str, poly) -> tuple[str, str, str, str, str]:
@@ -474,21 +482,13 @@ def tonly_herm(src: str, count: bool = False) -> str:
              "            }\n"
              "        }\n")
     src = _one(src, top, start)
-    for c, line in _stage_rhs_calls(src):
-        k = re.search(r"KS\[(\d)\]", line).group(1)
+    def forcing(c: str) -> str:
         w1, w2, w3, w4, w5 = (native._flit(x) for x in _hermite_weights(float.fromhex(c.strip("()"))))
-        repl = ("        if (INCR_) {\n"
-                "            #pragma omp simd\n"
-                "            for (int l = 0; l < W; l++) {\n"
-                f"                const double p_ = P0_[l] + {w1} * (PN_[l] - P0_[l]) + ({w2} * D0_[l] + {w3} * DN_[l])"
+        return (f"                const double p_ = P0_[l] + {w1} * (PN_[l] - P0_[l]) + ({w2} * D0_[l] + {w3} * DN_[l])"
                 f" + ({w4} * E0_[l] + {w5} * EN_[l]);\n"
-                f"                TVS_[l] = cos(({om}) * p_);\n"
-                "            }\n"
-                "            #pragma omp simd\n"
-                f"            for (int l = 0; l < W; l++) f_rhs_y(T[l] + ({c}) * H[l], TVS_ + l, YT + l, A + l, KS[{k}] + l, W);\n"
-                "        } else {\n"
-                "        #pragma omp simd\n" + line + "        }\n")
-        src = _one(src, "        #pragma omp simd\n" + line, repl)
+                f"                TVS_[l] = cos(({om}) * p_);\n")
+
+    src = _stages_with_forcing(src, forcing)
     commit_end = "            T[l] = TP[l]; TN[l] = TNX[l];\n        }\n"
     src = _one(src, commit_end, commit_end +
                "        #pragma omp simd\n"
