@@ -513,7 +513,7 @@ def native_flops(t1: float) -> dict:
     n = 64
     p = params(n)
     icfg = IntegrateConfig(t1=t1, rtol=RTOL, atol=ATOL)
-    kern, _ = native.kernel_for(s, icfg, s.verdict, p, static=[k for k in p if k != "alpha"])
+    kern = native_kernel(n, t1)[0]
     res = native.solve(s, p, icfg, s.verdict, static=[k for k in p if k != "alpha"])
     ck_per_step = len(icfg.checkpoints()) / float(np.mean(res["n_steps"]))
     out = native.flops_per_step(kern, ck_per_step)
