@@ -3,11 +3,12 @@
 ``benchmarks/ab_kernels.py`` compares two git revisions of the emitter; this script compares
 *source transforms* of the kernel the working tree generates (the benchmark's monoaxial alpha sweep,
 T = 1e4, integration only through ``native.run_raw``), which is how ideas are tried before they are
-worth a change to the emitter. Three commands:
+worth a change to the emitter. Four commands:
 
     python benchmarks/source_variants.py ab --n 4096 --pairs 4 --threads 1 nockpt noobs noupd
     python benchmarks/source_variants.py regions --n 4096 --threads 1
     python benchmarks/source_variants.py rhs
+    python benchmarks/source_variants.py herm-check    (tonly_herm's truncation error, N30)
 
 ``ab``: the base kernel and each named variant run in turn, order reversed every other round; per run
 the wall time, accepted/rejected steps, whether the raw summaries equal the base's bit for bit, and at
@@ -449,6 +450,32 @@ def _hermite_weights(th: float) -> tuple[float, ...]:
             0.5 * th**3 - th**4 + 0.5 * th**5)
 
 
+def cmd_herm_check(a) -> None:
+    """The worst relative error of ``tonly_herm``'s interpolated t**alpha at the four stage times, in
+    40-digit decimal arithmetic (so only the truncation error shows), at h = t/128 (its bound) and
+    h = t/256, for alpha and t across the benchmark's range (NOTES N30)."""
+    import decimal
+
+    decimal.getcontext().prec = 40
+    D = decimal.Decimal
+    kern, _, _ = bench.native_kernel(64)
+    stages = [float.fromhex(c.strip("()")) for c, _ in _stage_rhs_calls(kern.source)]
+    for x in (2.0**-7, 2.0**-8):
+        worst = 0.0
+        for alpha in (0.25, 0.3, 0.5, 7 / 9, 1.0):
+            for t in (1.0, 10.0, 1000.0, 9999.0):
+                al, tt, h = D(alpha), D(t), D(t) * D(x)
+                p0, pn = tt**al, (tt + h) ** al
+                d0, dn = h * al * p0 / tt, h * al * pn / (tt + h)
+                e0, en = h * (al - 1) / tt * d0, h * (al - 1) / (tt + h) * dn
+                for th in stages:
+                    w1, w2, w3, w4, w5 = (D(w) for w in _hermite_weights(th))
+                    p = p0 + w1 * (pn - p0) + w2 * d0 + w3 * dn + w4 * e0 + w5 * en
+                    exact = (tt + D(th) * h) ** al
+                    worst = max(worst, float(abs(p - exact) / exact))
+        print(f"h = t * 2**{int(np.log2(x))}: worst relative error {worst:.2e} (stage times {stages})")
+
+
 def tonly_herm(src: str, count: bool = False) -> str:
     """Probe for NOTES N30 (results differ from the kernel at the rounding level): t**alpha at stages
     2-5 by quintic Hermite interpolation between the step's ends, from t**alpha and its first two
@@ -723,12 +750,13 @@ def main() -> None:
     p = sub.add_parser("regions", help="cycles per loop region (rdtsc)")
     p.add_argument("--n", type=int, default=4096)
     p.add_argument("--threads", type=int, default=1)
+    sub.add_parser("herm-check", help="truncation error of tonly_herm's interpolation (40 digits)")
     p = sub.add_parser("rhs", help="the rhs alone and the libmvec calls")
     p.add_argument("--reps", type=int, default=1000000)
     p.add_argument("--standins", action="store_true", help="the rhs with stand-ins for its sqrt/div, cbrt, t-only part")
     p.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
-    {"ab": cmd_ab, "regions": cmd_regions, "rhs": cmd_rhs}[a.cmd](a)
+    {"ab": cmd_ab, "regions": cmd_regions, "rhs": cmd_rhs, "herm-check": cmd_herm_check}[a.cmd](a)
     sys.stdout.flush()
 
 
