@@ -38,6 +38,10 @@ _host_devices()
 __version__ = "0.1.0"
 
 from .errors import StabjaxError, ValidationError  # noqa: E402
-from .registry import get_system, list_systems  # noqa: E402
+from .registry import get_system, list_systems, register  # noqa: E402
+from .params import Param, ParamSet  # noqa: E402
+from .system import System  # noqa: E402
+from .outcomes import Outcomes  # noqa: E402
 
-__all__ = ["StabjaxError", "ValidationError", "get_system", "list_systems", "__version__"]
+__all__ = ["StabjaxError", "ValidationError", "get_system", "list_systems", "register", "Param", "ParamSet", "System",
+           "Outcomes", "__version__"]

@@ -51,37 +51,66 @@ def _jsonable(x: Any):
     return x
 
 
+def _describe_system(sysm, source: str) -> dict:
+    return {"available": True, "source": source, "title": sysm.title, "paper": sysm.paper,
+            "state": [[n, list(sh)] for n, sh in sysm.state],
+            "observables": dict(zip(sysm.observables, sysm.observable_doc)),
+            "outcomes": dict(sysm.describe_outcomes()),
+            "params": sysm.describe()}
+
+
 @app.command()
-def systems(as_json: bool = typer.Option(False, "--json", help="machine-readable output")):
-    """List registered systems with their parameters, defaults and meaning."""
-    from .registry import SYSTEMS, get_system
+def systems(
+    name: Optional[str] = typer.Argument(None, help="describe one system: a name, 'file.py:Class' or 'module:Class'"),
+    as_json: bool = typer.Option(False, "--json", help="machine-readable output"),
+):
+    """List the systems (built in, registered, installed by packages), or describe one."""
+    from .errors import ValidationError
+    from .models import resolve
+    from .registry import all_names, get_system, lookup
 
     everything = {}
-    for name in SYSTEMS:
-        try:
-            sysm = get_system(name)
-        except ImportError as exc:
-            everything[name] = {"available": False, "reason": str(exc)}
-            continue
-        everything[name] = {"available": True, "title": sysm.title, "paper": sysm.paper,
-                            "state": [[n, list(s)] for n, s in sysm.state],
-                            "observables": dict(zip(sysm.observables, sysm.observable_doc)),
-                            "params": sysm.describe()}
+    if name is not None:
+        sysm = resolve(name, base_dir=Path.cwd())
+        everything[name] = _describe_system(sysm, lookup(name) or "file/module")
+    else:
+        for nm in all_names():
+            try:
+                sysm = get_system(nm)
+            except (ImportError, ValidationError) as exc:
+                everything[nm] = {"available": False, "source": lookup(nm), "reason": str(exc)}
+                continue
+            everything[nm] = _describe_system(sysm, lookup(nm))
     if as_json:
         console.print_json(json.dumps(_jsonable(everything)))
         return
-    for name, info in everything.items():
+    for nm, info in everything.items():
         if not info["available"]:
-            console.print(f"[bold]{name}[/bold]  [dim](not available: {info['reason']})[/dim]")
+            console.print(f"[bold]{nm}[/bold]  [dim]({info['source']}; not available: {info['reason']})[/dim]")
             continue
-        t = Table(title=f"[bold]{name}[/bold] — {info['title']}\n[dim]{info['paper']}[/dim]", title_justify="left")
+        src = "" if info["source"] == "builtin" else f"  [dim]({info['source']})[/dim]"
+        t = Table(title=f"[bold]{nm}[/bold] — {info['title']}{src}\n[dim]{info['paper']}[/dim]", title_justify="left")
         for col in ("name", "kind", "shape", "default", "unit", "meaning"):
             t.add_column(col, overflow="fold")
         for r in info["params"]:
             d = r["default"]
-            dtxt = ", ".join(f"{x:.6g}" for x in np.ravel(d)) if np.ndim(d) else f"{d:.6g}"
+            dtxt = ", ".join(f"{x:.6g}" for x in np.ravel(np.asarray(d, float))) if np.ndim(d) else f"{float(d):.6g}"
             t.add_row(r["name"], r["kind"], "x".join(map(str, r["shape"])) or "scalar", dtxt, r["unit"], r["doc"])
         console.print(t)
+        if name is not None:
+            console.print("[bold]state[/bold]: " + ", ".join(f"{n}{tuple(sh) if sh else ''}" for n, sh in info["state"]))
+            o = Table(title="observables", title_justify="left")
+            o.add_column("name")
+            o.add_column("meaning")
+            for k, v in info["observables"].items():
+                o.add_row(k, v)
+            console.print(o)
+            oc = Table(title="outcomes (code = row, first match wins)", title_justify="left")
+            oc.add_column("outcome")
+            oc.add_column("assigned by", overflow="fold")
+            for k, v in info["outcomes"].items():
+                oc.add_row(k, v)
+            console.print(oc)
 
 
 @app.command()
@@ -99,9 +128,9 @@ def simulate(
     """Integrate one trajectory; save the state and observables at the requested times."""
     from .engine import simulate as sim
     from .errors import ValidationError
-    from .registry import get_system
+    from .models import resolve
 
-    sysm = get_system(system)
+    sysm = resolve(system, base_dir=Path.cwd())
     times = None
     if ts:
         try:
@@ -143,9 +172,9 @@ def theory(
     as_json: bool = typer.Option(False, "--json"),
 ):
     """Evaluate every theorem/corollary of the system's paper at the given parameters."""
-    from .registry import get_system
+    from .models import resolve
 
-    sysm = get_system(system)
+    sysm = resolve(system, base_dir=Path.cwd())
     p = sysm.check(sysm.params.resolve(_parse_sets(sets)))
     th = sysm.theory(p)
     res = {
@@ -185,7 +214,6 @@ def sweep(
     progress: bool = typer.Option(True, "--progress/--no-progress"),
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
-    from .plotting import format_confusion, plot_sweep
     from .spec import load_spec
     from .sweep import run_spec
 
@@ -199,10 +227,28 @@ def sweep(
         raise typer.Exit(130)
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
                   f"{ds.attrs['wall_time_s']:.1f} s)")
-    console.print(format_confusion(ds), highlight=False)
-    if plot:
-        png = out.with_suffix(".png")
-        plot_sweep(ds, png)
+    _report(ds, out.with_suffix(".png") if plot else None)
+
+
+def _report(ds, png: Optional[Path]):
+    """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory."""
+    from .plotting import format_confusion, plot_sweep
+
+    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
+        from .basin_plot import format_summary, plot_basin
+
+        console.print(format_summary(ds), highlight=False)
+        if png is not None:
+            plot_basin(ds, png)
+    else:
+        console.print(format_confusion(ds), highlight=False)
+        if "basin_fraction" in ds:
+            from .basin_plot import format_summary
+
+            console.print(format_summary(ds), highlight=False)
+        if png is not None:
+            plot_sweep(ds, png)
+    if png is not None:
         console.print(f"wrote {png}")
 
 
@@ -212,7 +258,6 @@ def plot_cmd(
     out: Optional[Path] = typer.Option(None, help="PNG (default: FILE with .png)"),
 ):
     """Draw the verdict map with the theoretical boundary; print theory x simulation counts."""
-    from .plotting import format_confusion, plot_sweep
     from .sweep import open_result
 
     ds = open_result(file)
@@ -220,10 +265,20 @@ def plot_cmd(
         from .errors import ValidationError
 
         raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
-    out = out or file.with_suffix(".png")
-    plot_sweep(ds, out)
-    console.print(format_confusion(ds), highlight=False)
-    console.print(f"wrote {out}")
+    _warn_changed_model(ds)
+    _report(ds, out or file.with_suffix(".png"))
+
+
+def _warn_changed_model(ds):
+    """A result records its model file's hash; say so when the file on disk has changed since."""
+    import hashlib
+
+    f, sha = ds.attrs.get("model_file", ""), ds.attrs.get("model_sha256", "")
+    if f and sha and sha != "unknown" and Path(f).exists():
+        now = hashlib.sha256(Path(f).read_bytes()).hexdigest()
+        if now != sha:
+            err_console.print(f"[yellow]warning: the model file {f} has changed since this result was computed "
+                              f"(sha256 {sha[:12]} then, {now[:12]} now)[/yellow]")
 
 
 @app.command("horizon-check")

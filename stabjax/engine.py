@@ -124,8 +124,11 @@ def verdict_config(system: System, overrides: Mapping[str, Any] | None = None, s
     return cfg.replace(**overrides)
 
 
-def _as_system(system: System | str) -> System:
-    return get_system(system) if isinstance(system, str) else system
+def _as_system(system) -> System:
+    """A name, 'file.py:Class', 'module:Class', a System class or instance -> a checked System."""
+    from .models import resolve
+
+    return resolve(system)
 
 
 def _solve_one(system: System, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):

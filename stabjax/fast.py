@@ -651,8 +651,8 @@ class _Model:
         ex_args = jax.eval_shape(lambda pd: system.prepare(full(pd)), ex_pd)
         ex_t, ex_y = sds((), f64), sds((self.n_state,), f64)
         ex_obs = jax.eval_shape(system.observe, ex_t, ex_y, ex_args)
-        ex_c = jax.eval_shape(lambda: V.init(f64))
         self.n_obs = int(np.prod(ex_obs.shape))
+        ex_c = jax.eval_shape(lambda: V.init_for(vcfg, self.n_obs, f64))
         self.args_spec = _RowSpec(ex_args)
         self.c_spec = _RowSpec(ex_c)
         t_late = float(t_late)
@@ -796,14 +796,14 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             h = initial_step(y, f, model.args_objs(args))
             tn = jnp.minimum(t0 + h, t1)
             tn = jnp.where(tn > t1_floor, t1, tn)
-            c0 = V.init(f64)
+            c0 = V.init_for(vcfg, model.n_obs, f64)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
             return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi)
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
-            jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64)), jnp.ones((1,), bool)))
-        out = {k: jnp.zeros((M,), s.dtype) for k, s in summ_shape.items()}
+            jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init_for(vcfg, model.n_obs, f64)), jnp.ones((1,), bool)))
+        out = {k: jnp.zeros((M, *s.shape[1:]), s.dtype) for k, s in summ_shape.items()}
         for k in ("n_steps", "n_rejected", "solver_status"):
             out[k] = jnp.zeros((M,), jnp.int32)
         if with_state:

@@ -36,30 +36,91 @@ REPRODUCE: dict[str, str] = {
 }
 
 _cache: dict[str, object] = {}
+_registered: dict[str, type] = {}  # stabjax.register(name, cls), for the running process
+
+ENTRY_POINT_GROUP = "stabjax.systems"
+
+
+def _entry_points() -> dict[str, object]:
+    """Installed packages' systems: ``[project.entry-points."stabjax.systems"] name = "module:Class"``."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def register(name: str, cls, *, replace: bool = False) -> None:
+    """Make ``cls`` (a :class:`~stabjax.system.System` subclass) available as ``name`` in this process.
+
+    The class is checked at once (:func:`stabjax.models.validate_system`); a built-in name is
+    refused, and so is an already registered one unless ``replace``.
+    """
+    from .models import instantiate, validate_system
+
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValidationError("name", f"a system name must be an identifier, got {name!r}")
+    if name in SYSTEMS:
+        raise ValidationError("name", f"{name!r} is a built-in system")
+    if name in _registered and not replace:
+        raise ValidationError("name", f"{name!r} is already registered (pass replace=True)")
+    obj = validate_system(instantiate(cls))
+    obj.name = name
+    _registered[name] = cls
+    _cache[name] = obj
+
+
+def lookup(name: str):
+    """Where ``name`` comes from: 'builtin', 'registered', 'entry point', or None when unknown."""
+    if name in SYSTEMS:
+        return "builtin"
+    if name in _registered:
+        return "registered"
+    if name in _entry_points():
+        return "entry point"
+    return None
+
+
+def all_names() -> list[str]:
+    return list(SYSTEMS) + [n for n in _registered if n not in SYSTEMS] + \
+        [n for n in _entry_points() if n not in SYSTEMS and n not in _registered]
 
 
 def list_systems(available_only: bool = False) -> list[str]:
-    """Registered names; with ``available_only`` only those whose module imports."""
+    """Known names (built in, registered, installed); with ``available_only`` only those that load."""
     if not available_only:
-        return list(SYSTEMS)
+        return all_names()
     out = []
-    for name in SYSTEMS:
+    for name in all_names():
         try:
             get_system(name)
-        except ImportError:
+        except (ImportError, ValidationError):
             continue
         out.append(name)
     return out
 
 
 def get_system(name: str):
-    """Return the (singleton) system object registered as ``name``."""
-    if name not in SYSTEMS:
-        raise ValidationError("system", f"unknown system {name!r}; registered: {', '.join(SYSTEMS)}")
-    if name not in _cache:
+    """Return the (singleton) system object known as ``name``."""
+    if name in _cache:
+        return _cache[name]
+    if name in SYSTEMS:
         module, cls = SYSTEMS[name].split(":")
         _cache[name] = getattr(importlib.import_module(module), cls)()
-    return _cache[name]
+        return _cache[name]
+    eps = _entry_points()
+    if name in eps:
+        from .models import instantiate, validate_system
+
+        try:
+            cls = eps[name].load()
+        except Exception as exc:  # noqa: BLE001 - a broken installed package must not take the others down
+            raise ValidationError("system", f"entry point {name!r} ({eps[name].value}) failed to load: "
+                                            f"{type(exc).__name__}: {exc}") from None
+        obj = validate_system(instantiate(cls))
+        obj.name = name
+        _cache[name] = obj
+        return obj
+    raise ValidationError("system", f"unknown system {name!r}; known: {', '.join(all_names())} "
+                                    "(or give 'path/to/model.py:ClassName' / 'module:ClassName')")
 
 
 def get_reproducer(name: str):

@@ -28,10 +28,11 @@ import numpy as np
 from .engine import IntegrateConfig, verdict_config
 from .errors import ValidationError
 from .params import Param, parse_value
-from .registry import get_system
+from .models import model_fingerprint, resolve as resolve_system
+from .outcomes import OutcomeScheme, Outcomes, scheme
 from .system import System, VerdictConfig
 
-TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "run"}
+TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run"}
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
 
@@ -66,6 +67,17 @@ class Plan:
     n_sample: int = 0
     icfg: IntegrateConfig = field(default_factory=IntegrateConfig)
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
+    outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
+    model_sha256: str = ""  # hash of the file defining the system's class
+
+    @property
+    def escape_radius(self) -> float | None:
+        r = getattr(self.icfg, "escape_radius", None)
+        return r if r is not None else self.system.escape_radius
+
+    @property
+    def scheme(self) -> OutcomeScheme:
+        return self.outcomes if self.outcomes is not None else scheme(self.system, None, False)
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -119,6 +131,16 @@ def _jsonable(x):
     return x
 
 
+def system_ref(ref: Any) -> str:
+    """A spec's ``system`` as a string (a class or instance given through the Python API -> module:Class)."""
+    import inspect
+
+    if isinstance(ref, str):
+        return ref
+    cls = ref if inspect.isclass(ref) else type(ref)
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
 def load_spec(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
@@ -129,6 +151,8 @@ def load_spec(path: str | Path) -> dict:
     except tomllib.TOMLDecodeError as exc:
         raise ValidationError("spec", f"{path}: invalid TOML ({exc})") from None
     spec.setdefault("name", path.stem)
+    # a model file named in the spec is found relative to the spec's folder
+    spec["__base_dir__"] = str(path.resolve().parent)
     return spec
 
 
@@ -244,15 +268,26 @@ def _sample(key: str, raw: Any, prm: Param, n: int, rng: np.random.Generator, fi
     return z[:, None] * c + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
 
 
-def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
-    """Validate a spec dict and resolve it into a :class:`Plan` (nothing is integrated)."""
+def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str | Path | None = None) -> Plan:
+    """Validate a spec dict and resolve it into a :class:`Plan` (nothing is integrated).
+
+    ``spec["system"]`` may be a name, ``"file.py:Class"`` (relative to ``base_dir``: the spec
+    file's folder when loaded by :func:`load_spec`, else the working directory), ``"module:Class"``,
+    or a System class/instance (:mod:`stabjax.models`).
+    """
     spec = dict(spec)
+    base_dir = spec.pop("__base_dir__", None) if base_dir is None else base_dir
+    spec.pop("__base_dir__", None)
     unknown = set(spec) - TOP_KEYS
     if unknown:
         raise ValidationError(sorted(unknown)[0], f"unknown top-level key; known: {', '.join(sorted(TOP_KEYS))}")
     if "system" not in spec:
         raise ValidationError("system", "missing (e.g. system = \"monoaxial\")")
-    system = get_system(spec["system"])
+    system = resolve_system(spec["system"], base_dir)
+    spec["system"] = system_ref(spec["system"])
+    src = getattr(type(system), "_stabjax_source", None)
+    if src is not None:  # a model file: record where it was found, so the plan can be rebuilt anywhere
+        spec["system"] = f"{src}:{type(system).__name__}"
     for table in ("params", "grid", "sample", "integrate", "verdict"):
         if table in spec and not isinstance(spec[table], Mapping):
             raise ValidationError(table, "must be a table")
@@ -307,8 +342,19 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
         icfg = IntegrateConfig(**{**icfg.__dict__, "t1": float(t1)})
         icfg.validate()
     vcfg = verdict_config(system, spec.get("verdict"))
+    decl = system.outcomes
+    if "outcomes" in spec:
+        decl = Outcomes.from_spec(spec["outcomes"], base=decl)
+    outcomes = None
+    if decl is not None:
+        escape_radius = getattr(icfg, "escape_radius", None)
+        escape = (escape_radius if escape_radius is not None else system.escape_radius) is not None
+        decl.check(system, where="outcomes", escape=escape)
+        outcomes = scheme(system, decl, escape)
+        vcfg = vcfg.replace(features=True, feature_from=icfg.t0 + (1.0 - decl.window) * (icfg.t1 - icfg.t0))
     plan = Plan(system=system, name=str(spec.get("name", "sweep")), spec=spec, fixed=fixed, grid=grid,
-                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg)
+                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
+                model_sha256=model_fingerprint(system))
     return plan
 
 

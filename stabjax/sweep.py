@@ -22,6 +22,7 @@ import xarray as xr
 from . import verdict as V
 from .engine import last_engine, solve_batch
 from .errors import StabjaxError, ValidationError
+from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, load_spec, make_plan
 
 DEFAULT_MEMORY_FRACTION = 0.25
@@ -258,10 +259,28 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
             prm = plan.system.params[k]
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
             data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
+    results = dict(results)
+    if "verdict" in results and "solver_status" in results:
+        # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
+        esc = np.asarray(results["solver_status"]) == STATUS_ESCAPED
+        v = np.asarray(results["verdict"])
+        results["verdict"] = np.where(esc.reshape(esc.shape + (1,) * (v.ndim - 1)), V.DIVERGED, v).astype(v.dtype)
+    trailing = getattr(V, "TRAILING_DIMS", {})
     for k, v in results.items():
-        data[k] = (dims, v.reshape(shape), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        v = np.asarray(v)
+        extra = tuple(trailing.get(k, ("observable",) if k.startswith("feat_") else
+                                   tuple(f"{k}_dim{i}" for i in range(v.ndim - 1))))[: v.ndim - 1]
+        data[k] = ((*dims, *extra), v.reshape(*shape, *v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        if "observable" in extra and "observable" not in coords:
+            coords["observable"] = ("observable", np.array(plan.system.observables, dtype=object))
     if "verdict" in data:
         data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
+    if "solver_status" in results:
+        from .basin import dataset_vars
+
+        bdata, bcoords = dataset_vars(plan, results)
+        data.update(bdata)
+        coords.update(bcoords)
     th = _theory_vars(plan)
     main = str(th.pop("_main")[0])
     for k, (v, attrs) in th.items():
@@ -308,12 +327,23 @@ def provenance(plan: Plan) -> dict[str, Any]:
         "integrate_json": json.dumps(plan.icfg.__dict__),
         "verdict_json": json.dumps(plan.vcfg.__dict__),
         "fingerprint": plan.fingerprint(),
+        "system_ref": str(plan.spec.get("system", plan.system.name)),
+        "model_file": str(_model_file(plan)),
+        "model_sha256": plan.model_sha256,
+        "outcomes_from_verdicts": int(plan.scheme.from_verdicts),
         "versions_json": json.dumps(versions()),
         "git_commit": _git_commit(),
         "device": str(jax.devices()[0].device_kind) + f" x{jax.device_count()}",
         "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus".strip(),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
+
+
+def _model_file(plan) -> str:
+    from .models import source_file
+
+    f = source_file(plan.system)
+    return str(f) if f is not None else ""
 
 
 def _jsonable(x):

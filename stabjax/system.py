@@ -70,6 +70,8 @@ class VerdictConfig:
     diverge_size: float = 1e6
     growth_tol: float = 0.5
     floor_tol: float = 1e-6
+    features: bool = False  # also fold late-window statistics of every observable (named outcomes)
+    feature_from: float = 0.0  # ... over the checkpoints with t >= feature_from (set by the plan)
 
     def replace(self, **kw) -> "VerdictConfig":
         from dataclasses import replace
@@ -89,6 +91,9 @@ class System:
     observable_doc: tuple[str, ...] = ("error metric", "size")
     verdict: VerdictConfig = VerdictConfig()
     default_t1: float = 100.0
+    # optional hooks (override in a subclass):
+    outcomes: "Outcomes | None" = None  # named outcomes (stabjax.outcomes); None: the verdicts
+    escape_radius: float | None = None  # stop a trajectory once max_i |y_i| exceeds this (outcome "escaped")
 
     # -- host side ------------------------------------------------------------------------
     def check(self, p: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -117,8 +122,22 @@ class System:
         raise NotImplementedError
 
     def equilibrium(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
-        """The target motion's state at t = 0 (for equilibria: the equilibrium)."""
+        """The target motion's state at t = 0 (for equilibria: the equilibrium). Optional."""
         raise NotImplementedError
+
+    def describe_outcomes(self) -> list[tuple[str, str]]:
+        """(name, how it is assigned) for ``stabjax systems NAME``."""
+        if self.outcomes is None:
+            from . import verdict as V
+
+            return [(n, "verdict (see README: Verdicts)") for n in V.NAMES]
+        o = self.outcomes
+        rows = [(k, f"rule: {v}") for k, v in o.rules.items()]
+        rows += [(k, f"nearest template {dict(v)} in features {list(o.features)}") for k, v in o.templates.items()]
+        if self.escape_radius is not None:
+            rows.append((o.escape, f"stopped once max|y_i| > {self.escape_radius:g}"))
+        rows += [("unclassified", "no rule holds, no template near"), ("failed", "solver did not reach t1 / NaN")]
+        return rows
 
     # -- helpers -----------------------------------------------------------------------------
     @property

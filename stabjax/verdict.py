@@ -68,6 +68,36 @@ def late_start(cfg: VerdictConfig, t0, t1):
     return t0 + (1.0 - cfg.late_fraction) * (t1 - t0)
 
 
+def init_features(n_obs: int, dtype=jnp.float64):
+    """Running late-window statistics of every observable (named outcomes, :mod:`stabjax.outcomes`).
+
+    Mean and spread by Welford's update: a limit cycle's angular velocity has mean ~5 and a
+    fixed point's spread ~1e-9, so sum-of-squares would lose the spread to cancellation.
+    """
+    z = jnp.zeros(n_obs, dtype)
+    return dict(f_max=z - jnp.inf, f_min=z + jnp.inf, f_mean=z, f_m2=z, f_n=jnp.asarray(0.0, dtype), f_last=z + jnp.nan)
+
+
+def update_features(c, t, obs_k, cfg: VerdictConfig):
+    use = (t >= cfg.feature_from) & jnp.all(jnp.isfinite(obs_k))
+    n = c["f_n"] + jnp.where(use, 1.0, 0.0)
+    delta = obs_k - c["f_mean"]
+    mean = jnp.where(use, c["f_mean"] + delta / jnp.maximum(n, 1.0), c["f_mean"])
+    m2 = jnp.where(use, c["f_m2"] + delta * (obs_k - mean), c["f_m2"])
+    return dict(f_max=jnp.where(use, jnp.maximum(c["f_max"], obs_k), c["f_max"]),
+                f_min=jnp.where(use, jnp.minimum(c["f_min"], obs_k), c["f_min"]),
+                f_mean=mean, f_m2=m2, f_n=n, f_last=jnp.where(use, obs_k, c["f_last"]))
+
+
+def finalize_features(c):
+    n = c["f_n"]
+    nan = jnp.nan
+    return dict(feat_max=jnp.where(n > 0, c["f_max"], nan), feat_min=jnp.where(n > 0, c["f_min"], nan),
+                feat_mean=jnp.where(n > 0, c["f_mean"], nan),
+                feat_std=jnp.where(n > 0, jnp.sqrt(jnp.maximum(c["f_m2"], 0.0) / jnp.maximum(n, 1.0)), nan),
+                feat_final=c["f_last"])
+
+
 def init(dtype=jnp.float64):
     """Running state of the classifier before the first checkpoint (one trajectory).
 
@@ -85,6 +115,14 @@ def init(dtype=jnp.float64):
         fit=jnp.zeros(5, dtype), finite=jnp.asarray(True), e_last=jnp.asarray(jnp.inf, dtype),
         size_max=jnp.asarray(-jnp.inf, dtype),
     )
+
+
+def init_for(cfg: VerdictConfig, n_obs: int, dtype=jnp.float64):
+    """``init`` plus the feature statistics when ``cfg.features``."""
+    c = init(dtype)
+    if cfg.features:
+        c.update(init_features(n_obs, dtype))
+    return c
 
 
 def update(c, t, obs_k, cfg: VerdictConfig, t_late):
@@ -118,12 +156,15 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     lx, ly = jnp.log(jnp.maximum(t, 1e-300)), jnp.log(jnp.maximum(ek, 1e-300))
     w = use.astype(c["fit"].dtype)
     fit = c["fit"] + w * jnp.stack([jnp.ones_like(lx), lx, ly, lx * lx, lx * ly])
-    return dict(
+    out = dict(
         settled=settled, t_settle=t_settle, in_exc=above, peak=peak, peak_prev=peak_prev, peak_last=peak_last,
         n_exc=n_exc, exc_flipped=exc_flipped, n_flips=n_flips, t_first_flip=t_first_flip, late_exc=late_exc,
         late_flip=late_flip, max_settled=max_settled, max_late=max_late, fit=fit, finite=finite, e_last=ek,
         size_max=size_max,
     )
+    if cfg.features:
+        out.update(update_features(c, t, obs_k, cfg))
+    return out
 
 
 def resolve(verdict, failed, size_max, cfg: VerdictConfig):
@@ -159,7 +200,8 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     converged = c["settled"] & ~c["late_exc"] & (c["max_late"] < cfg.converged_tol) & not_growing
     rest = jnp.where(diverged, DIVERGED, jnp.where(flipped, FLIPPED, jnp.where(converged, CONVERGED, UNDECIDED)))
     verdict = resolve(rest, failed, size_max, cfg)
-    return dict(
+    feats = finalize_features(c) if cfg.features else {}
+    return dict(**feats,
         verdict=verdict,
         error_t1=e1,
         error_max_settled=jnp.where(c["settled"], c["max_settled"], nan),
@@ -183,7 +225,7 @@ def classify(ts: jnp.ndarray, obs: jnp.ndarray, solver_ok: jnp.ndarray, cfg: Ver
         t, ok = x
         return update(c, t, ok, cfg, t_late), None
 
-    c, _ = jax.lax.scan(step, init(obs.dtype), (ts, obs))
+    c, _ = jax.lax.scan(step, init_for(cfg, obs.shape[-1], obs.dtype), (ts, obs))
     return finalize(c, solver_ok, cfg)
 
 

@@ -1,0 +1,393 @@
+"""Named outcomes: which attractor (or fate) each trajectory reached, and basin stability.
+
+A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one
+integer code, stored as the dataset variable ``outcome`` with CF ``flag_values`` /
+``flag_meanings``. Codes are, in this order:
+
+1. the **rule** outcomes, in declaration order: the first rule that holds wins. A rule is an
+   expression over *late-window features* of the observables (``max(x)``, ``min(x)``,
+   ``mean(x)``, ``std(x)``, ``final(x)``: over the checkpoints with ``t >= t0 + (1 - window)(t1 - t0)``),
+   numbers and the system's scalar parameters, with ``+ - * / **``, ``abs``, comparisons,
+   ``and``/``or``/``not``; e.g. ``"std(omega) < 1e-3 and abs(mean(omega)) < 1e-3"``;
+2. the **template** outcomes: each template is an initial condition (parameter overrides) that
+   is integrated with the same settings at every grid point; a trajectory that no rule claimed is
+   given the template whose feature vector (``features``, a list of feature expressions) is
+   nearest, if that distance is below ``max_distance`` (default: half the smallest distance
+   between two templates' feature vectors, so the assignment is never a close call between two);
+3. ``escaped`` (renamed by ``escape = "unbounded"``) when the system or spec sets
+   ``escape_radius``: the integration stops once max_i |y_i| exceeds it;
+4. ``unclassified``: no rule holds and no template is near;
+5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
+
+Nothing is absorbed silently: 4 and 5 are always present. Systems that declare no outcomes
+(the attitude models) use their verdicts as outcomes (converged, flipped, diverged, undecided,
+failed), with the same codes as ``verdict``.
+
+Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
+sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
+"""
+from __future__ import annotations
+
+import ast
+import math
+import operator
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import ValidationError
+
+FEATURES = ("max", "min", "mean", "std", "final")
+UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
+STATUS_ESCAPED = 100  # solver_status of a trajectory stopped at escape_radius (all engines)
+Z95 = 1.959963984540054  # two-sided 95 % normal quantile
+MAX_RULE_CHARS = 500
+
+PALETTE = ("#2a9d8f", "#e76f51", "#264653", "#e9c46a", "#8ab17d", "#9b5de5", "#f15bb5", "#00bbf9", "#fee440",
+           "#5f0f40")
+GREY_UNCLASSIFIED, GREY_FAILED, COLOR_ESCAPED = "#adb5bd", "#6c757d", "#8d0801"
+
+
+# ---- rule expressions ---------------------------------------------------------------------------
+
+_BIN = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+        ast.Pow: operator.pow}
+_CMP = {ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge,
+        ast.Eq: operator.eq, ast.NotEq: operator.ne}
+_CONST = {"pi": math.pi, "e": math.e, "inf": math.inf}
+
+
+class Rule:
+    """A parsed rule or feature expression; evaluated vectorised on feature arrays.
+
+    ``features(stat, observable) -> array (N,)``; ``params(name) -> array (N,)``.
+    """
+
+    def __init__(self, text: str, observables: tuple[str, ...], params: tuple[str, ...], field: str,
+                 boolean: bool = True):
+        self.text, self.field = text, field
+        if not isinstance(text, str) or not text.strip():
+            raise ValidationError(field, f"must be a non-empty expression string, got {text!r}")
+        if len(text) > MAX_RULE_CHARS:
+            raise ValidationError(field, f"expression longer than {MAX_RULE_CHARS} characters")
+        try:
+            self.tree = ast.parse(text.strip(), mode="eval").body
+        except SyntaxError as exc:
+            raise ValidationError(field, f"cannot parse {text!r}: {exc.msg}") from None
+        self.observables, self.params = observables, params
+        self.used: set[tuple[str, str]] = set()
+        kind = self._check(self.tree)
+        if boolean and kind != "bool":
+            raise ValidationError(field, f"{text!r} is not a condition (use a comparison, e.g. 'std(x) < 1e-3')")
+        if not boolean and kind != "num":
+            raise ValidationError(field, f"{text!r} must be a number-valued feature expression, e.g. 'max(x)'")
+
+    def _err(self, msg: str):
+        return ValidationError(self.field, f"{self.text!r}: {msg}")
+
+    def _check(self, node) -> str:
+        """Type-check the tree ('num' or 'bool'); only whitelisted nodes pass."""
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+                raise self._err(f"only numbers are allowed as constants, got {node.value!r}")
+            if not math.isfinite(float(node.value)):
+                raise self._err("non-finite constant")
+            return "num"
+        if isinstance(node, ast.Name):
+            if node.id in _CONST or node.id in self.params:
+                return "num"
+            raise self._err(f"unknown name {node.id!r}; use a feature such as max({node.id}) for observables, "
+                            f"or one of the parameters {', '.join(self.params)}")
+        if isinstance(node, ast.Call):
+            if not isinstance(node.func, ast.Name) or node.keywords or len(node.args) != 1:
+                raise self._err("calls take one argument: max(x), min(x), mean(x), std(x), final(x), abs(expr)")
+            fn = node.func.id
+            if fn == "abs":
+                if self._check(node.args[0]) != "num":
+                    raise self._err("abs() takes a number")
+                return "num"
+            if fn not in FEATURES:
+                raise self._err(f"unknown function {fn!r}; features: {', '.join(FEATURES)}; and abs()")
+            arg = node.args[0]
+            if not isinstance(arg, ast.Name) or arg.id not in self.observables:
+                raise self._err(f"{fn}() takes an observable name: {', '.join(self.observables)}")
+            self.used.add((fn, arg.id))
+            return "num"
+        if isinstance(node, ast.UnaryOp):
+            k = self._check(node.operand)
+            if isinstance(node.op, ast.Not):
+                if k != "bool":
+                    raise self._err("'not' needs a condition")
+                return "bool"
+            if isinstance(node.op, (ast.USub, ast.UAdd)) and k == "num":
+                return "num"
+            raise self._err("unsupported unary operator")
+        if isinstance(node, ast.BinOp):
+            if type(node.op) not in _BIN:
+                raise self._err("only + - * / ** are allowed")
+            if self._check(node.left) != "num" or self._check(node.right) != "num":
+                raise self._err("arithmetic on a condition")
+            return "num"
+        if isinstance(node, ast.Compare):
+            for op in node.ops:
+                if type(op) not in _CMP:
+                    raise self._err("only < <= > >= == != comparisons are allowed")
+            for x in [node.left, *node.comparators]:
+                if self._check(x) != "num":
+                    raise self._err("comparisons take numbers")
+            return "bool"
+        if isinstance(node, ast.BoolOp):
+            for v in node.values:
+                if self._check(v) != "bool":
+                    raise self._err("'and'/'or' combine conditions")
+            return "bool"
+        raise self._err(f"unsupported syntax ({type(node).__name__})")
+
+    def __call__(self, feat, params) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            return np.asarray(self._eval(self.tree, feat, params))
+
+    def _eval(self, node, feat, params):
+        if isinstance(node, ast.Constant):
+            return float(node.value)
+        if isinstance(node, ast.Name):
+            return _CONST[node.id] if node.id in _CONST else params(node.id)
+        if isinstance(node, ast.Call):
+            if node.func.id == "abs":
+                return np.abs(self._eval(node.args[0], feat, params))
+            return feat(node.func.id, node.args[0].id)
+        if isinstance(node, ast.UnaryOp):
+            v = self._eval(node.operand, feat, params)
+            return np.logical_not(v) if isinstance(node.op, ast.Not) else (-v if isinstance(node.op, ast.USub) else v)
+        if isinstance(node, ast.BinOp):
+            left, right = self._eval(node.left, feat, params), self._eval(node.right, feat, params)
+            if isinstance(node.op, ast.Pow):
+                # bounded: a rule is evaluated on feature arrays, never on huge integers
+                return np.power(np.asarray(left, float), np.asarray(right, float))
+            return _BIN[type(node.op)](left, right)
+        if isinstance(node, ast.Compare):
+            vals = [self._eval(x, feat, params) for x in [node.left, *node.comparators]]
+            out = True
+            for op, a, b in zip(node.ops, vals[:-1], vals[1:]):
+                out = np.logical_and(out, _CMP[type(op)](a, b))
+            return out
+        if isinstance(node, ast.BoolOp):
+            vals = [self._eval(v, feat, params) for v in node.values]
+            f = np.logical_and if isinstance(node.op, ast.And) else np.logical_or
+            out = vals[0]
+            for v in vals[1:]:
+                out = f(out, v)
+            return out
+        raise AssertionError(type(node))
+
+
+# ---- declarations ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Outcomes:
+    """A system's outcome declaration (see the module docstring).
+
+    rules         name -> condition over late-window features (first match wins)
+    templates     name -> parameter overrides (an initial condition on the attractor's basin)
+    features      feature expressions compared between trajectories and templates
+    max_distance  largest feature distance to a template (None: half the smallest template spacing)
+    window        the features use the last ``window`` fraction of [t0, t1] (0 < window <= 1)
+    escape        name of the outcome of trajectories stopped at ``escape_radius``
+    """
+
+    rules: Mapping[str, str] = field(default_factory=dict)
+    templates: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    features: tuple[str, ...] = ()
+    max_distance: float | None = None
+    window: float = 0.5
+    escape: str = ESCAPED_NAME
+
+    KEYS = ("rules", "templates", "features", "max_distance", "window", "escape")
+
+    @classmethod
+    def from_spec(cls, table: Any, base: "Outcomes | None" = None, section: str = "outcomes") -> "Outcomes":
+        """The spec's ``[outcomes]`` table; keys not given keep the system's declaration."""
+        if not isinstance(table, Mapping):
+            raise ValidationError(section, "must be a table")
+        unknown = set(table) - set(cls.KEYS)
+        if unknown:
+            raise ValidationError(f"{section}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(cls.KEYS)}")
+        base = base or cls()
+        kw = {k: getattr(base, k) for k in cls.KEYS}
+        for k in ("rules", "templates"):
+            if k in table:
+                if not isinstance(table[k], Mapping):
+                    raise ValidationError(f"{section}.{k}", "must be a table of name = ...")
+                kw[k] = dict(table[k])
+        if "features" in table:
+            if not isinstance(table["features"], list):
+                raise ValidationError(f"{section}.features", "must be a list of feature expressions")
+            kw["features"] = tuple(table["features"])
+        for k in ("max_distance", "window"):
+            if k in table:
+                v = table[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
+                kw[k] = float(v)
+        if "escape" in table:
+            kw["escape"] = table["escape"]
+        return cls(**kw)
+
+    def names(self, escape: bool) -> tuple[str, ...]:
+        return (tuple(self.rules) + tuple(self.templates) + ((self.escape,) if escape else ())
+                + (UNCLASSIFIED, FAILED_NAME))
+
+    def check(self, system, where: str = "outcomes", escape: bool = False) -> None:
+        """Validate names, rules, templates and features against the system."""
+        obs = tuple(system.observables)
+        scalars = tuple(p.name for p in system.params if not p.shape)
+        if not (self.rules or self.templates):
+            raise ValidationError(where, "declares no outcome (give rules and/or templates)")
+        names = self.names(escape=True)
+        for n in names:
+            if not isinstance(n, str) or not n.isidentifier():
+                raise ValidationError(where, f"outcome name {n!r} is not an identifier")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValidationError(where, f"outcome name(s) used twice or reserved: {', '.join(dup)}")
+        if not (isinstance(self.window, (int, float)) and 0 < self.window <= 1):
+            raise ValidationError(f"{where}.window", f"must be in (0, 1], got {self.window!r}")
+        for name, text in self.rules.items():
+            Rule(text, obs, scalars, f"{where}.rules.{name}")
+        if self.templates:
+            if not self.features:
+                raise ValidationError(f"{where}.features", "templates need features, e.g. [\"max(x)\", \"std(x)\"]")
+            for i, text in enumerate(self.features):
+                Rule(text, obs, scalars, f"{where}.features[{i}]", boolean=False)
+            for name, over in self.templates.items():
+                if not isinstance(over, Mapping) or not over:
+                    raise ValidationError(f"{where}.templates.{name}", "must be a table of parameter overrides")
+                try:
+                    system.params.resolve(over)
+                except ValidationError as exc:
+                    raise ValidationError(f"{where}.templates.{name}.{exc.field}", exc.message) from None
+        if self.max_distance is not None and not self.max_distance > 0:
+            raise ValidationError(f"{where}.max_distance", f"must be > 0, got {self.max_distance}")
+
+
+@dataclass(frozen=True)
+class OutcomeScheme:
+    """The resolved outcomes of a plan: names (code = index), colours and how to assign them."""
+
+    names: tuple[str, ...]
+    colors: tuple[str, ...]
+    decl: Outcomes | None  # None: the verdicts are the outcomes
+
+    @property
+    def from_verdicts(self) -> bool:
+        return self.decl is None
+
+
+def scheme(system, decl: Outcomes | None, escape: bool) -> OutcomeScheme:
+    from . import verdict as V
+
+    if decl is None:
+        return OutcomeScheme(tuple(V.NAMES), tuple(V.COLORS), None)
+    names = decl.names(escape)
+    user = len(decl.rules) + len(decl.templates)
+    colors = [PALETTE[i % len(PALETTE)] for i in range(user)]
+    if escape:
+        colors.append(COLOR_ESCAPED)
+    colors += [GREY_UNCLASSIFIED, GREY_FAILED]
+    return OutcomeScheme(names, tuple(colors), decl)
+
+
+def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...], sel=slice(None)):
+    """``feat(stat, observable)`` over the engine's ``feat_<stat>`` arrays (N, n_obs)."""
+    index = {o: i for i, o in enumerate(observables)}
+
+    def feat(stat, obs):
+        return np.asarray(results[f"feat_{stat}"])[sel, index[obs]]
+
+    return feat
+
+
+def _feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
+    obs = tuple(system.observables)
+    scalars = tuple(p.name for p in system.params if not p.shape)
+    cols = [Rule(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
+    return np.stack([np.asarray(c, float) for c in cols], axis=-1)
+
+
+def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params: Mapping[str, np.ndarray],
+           template_features: np.ndarray | None = None) -> np.ndarray:
+    """Outcome codes (int8, shape (N,)) of N trajectories.
+
+    ``results``: the engine's per-trajectory arrays (``verdict``, ``solver_status``, ``feat_*``);
+    ``params``: their parameters (N, ...); ``template_features``: (N, n_templates, n_features), the
+    feature vectors of the templates integrated at each trajectory's grid point.
+    """
+    if sch.from_verdicts:
+        v = np.asarray(results["verdict"])
+        return (v[..., -1] if v.ndim > 1 else v).astype(np.int8)
+    decl = sch.decl
+    status = np.asarray(results["solver_status"])
+    n = status.shape[0]
+    code = np.full(n, -1, np.int16)
+    names = sch.names
+    feat = feature_getter(results, tuple(system.observables))
+
+    def par(name):
+        return np.asarray(params[name], float).reshape(n)
+
+    obs = tuple(system.observables)
+    scalars = tuple(p.name for p in system.params if not p.shape)
+    for i, (name, text) in enumerate(decl.rules.items()):
+        hit = np.broadcast_to(Rule(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
+        code = np.where((code < 0) & hit, i, code)
+    if decl.templates and template_features is not None:
+        x = _feature_matrix(decl, system, feat, par)  # (N, F)
+        d = np.linalg.norm(x[:, None, :] - template_features, axis=-1)  # (N, T)
+        d = np.where(np.isfinite(d), d, np.inf)
+        j = np.argmin(d, axis=1)
+        dmin = d[np.arange(n), j]
+        limit = decl.max_distance if decl.max_distance is not None else 0.5 * min_template_spacing(template_features)
+        ok = dmin <= limit
+        code = np.where((code < 0) & ok, len(decl.rules) + j, code)
+    unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
+    code = np.where(code < 0, unclassified, code)
+    ok = status == 0
+    if decl.escape in names:
+        code = np.where(status == STATUS_ESCAPED, names.index(decl.escape), code)
+        ok = ok | (status == STATUS_ESCAPED)
+    code = np.where(ok, code, failed)
+    return code.astype(np.int8)
+
+
+def min_template_spacing(tf: np.ndarray) -> np.ndarray:
+    """Per trajectory (grid point): the smallest distance between two templates' feature vectors."""
+    t = tf.shape[-2]
+    if t < 2:
+        return np.full(tf.shape[:-2], np.inf)
+    d = np.linalg.norm(tf[..., :, None, :] - tf[..., None, :, :], axis=-1)
+    d = np.where(np.eye(t, dtype=bool), np.inf, d)
+    return d.min(axis=(-1, -2))
+
+
+# ---- basin stability ---------------------------------------------------------------------------------
+
+
+def basin_stats(codes: np.ndarray, n_outcomes: int, z: float = Z95) -> dict[str, np.ndarray]:
+    """Per outcome over the last axis (the samples): count, fraction S, SE sqrt(S(1-S)/N), Wilson interval.
+
+    Returns arrays of shape (*codes.shape[:-1], n_outcomes). The Wilson score interval keeps its
+    coverage near S = 0 or 1, where S +- z SE collapses to a point.
+    """
+    codes = np.asarray(codes)
+    n = codes.shape[-1]
+    counts = np.stack([(codes == k).sum(axis=-1) for k in range(n_outcomes)], axis=-1).astype(np.int64)
+    s = counts / n
+    se = np.sqrt(s * (1 - s) / n)
+    z2n = z * z / n
+    centre = (s + z2n / 2) / (1 + z2n)
+    half = z / (1 + z2n) * np.sqrt(s * (1 - s) / n + z2n / (4 * n))
+    # the interval contains S exactly; min/max only absorb rounding at S = 0 or 1
+    return dict(count=counts, fraction=s, se=se, ci_low=np.minimum(np.clip(centre - half, 0, 1), s),
+                ci_high=np.maximum(np.clip(centre + half, 0, 1), s))
