@@ -114,7 +114,11 @@ def _load_module(mod: str, cls_name: str, ref: str):
 
 
 def _last_line(exc: BaseException) -> str:
-    tb = traceback.extract_tb(exc.__traceback__)
+    """``Type: message (line N of file)``, pointing at the innermost frame outside stabjax and importlib."""
+    if isinstance(exc, SyntaxError):
+        return f"SyntaxError: {exc.msg} (line {exc.lineno} of {Path(exc.filename or '?').name})"
+    tb = [f for f in traceback.extract_tb(exc.__traceback__)
+          if "importlib" not in f.filename and f"{Path(__file__).parent}" not in f.filename]
     where = f" (line {tb[-1].lineno} of {Path(tb[-1].filename).name})" if tb else ""
     return f"{type(exc).__name__}: {exc}{where}"
 

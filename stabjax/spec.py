@@ -95,8 +95,9 @@ class Plan:
         """Identity of the computation (spec + system + version): resume refuses on mismatch."""
         from . import __version__
 
-        blob = json.dumps({"spec": _jsonable(self.spec), "system": self.system.name, "version": __version__},
-                          sort_keys=True)
+        # the model file's hash: a resumed sweep or re-plot notices an edited model; t1: a --t1 override
+        blob = json.dumps({"spec": _jsonable(self.spec), "system": self.system.name, "version": __version__,
+                           "model": self.model_sha256, "t1": self.icfg.t1}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def params_for(self, start: int, stop: int) -> dict[str, np.ndarray]:
