@@ -1,0 +1,44 @@
+"""Basin stability runs in chunks: the same fractions whatever the chunk size; N = 10^6 at one point."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stabjax.spec import make_plan
+from stabjax.sweep import run_plan
+
+MODEL = Path(__file__).parent / "models" / "oscillator.py"
+
+
+def _spec(n, k=(0.4, 0.6)):
+    # c = 0.5: the amplitude goes as exp((k - c) t / 2), slowly at k = 0.4 and 0.6, so by t1 = 40 some
+    # starts have grown past 10 ("grows") and the others are neither below 1e-2 nor above 10
+    # ("unclassified"): every kind of record occurs
+    return {"system": f"{MODEL}:Oscillator", "grid": {"k": list(k)},
+            "sample": {"n": n, "seed": 5, "x0": {"dist": "uniform", "low": -1.0, "high": 1.0},
+                       "v0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
+            "integrate": {"t1": 40.0, "n_checkpoints": 64}}
+
+
+def test_chunk_size_does_not_change_outcomes(tmp_path):
+    plan = make_plan(_spec(1500))
+    whole = run_plan(plan, batch_size=3000)
+    chunked = run_plan(plan, tmp_path / "c.nc", batch_size=256)
+    np.testing.assert_array_equal(whole["outcome"].values, chunked["outcome"].values)
+    for v in ("basin_count", "basin_fraction", "basin_se", "basin_ci_low", "basin_ci_high"):
+        np.testing.assert_array_equal(whole[v].values, chunked[v].values)
+    assert whole["basin_fraction"].dims == ("k", "outcome_name")
+    assert int(whole["basin_count"].sum()) == 3000
+    names = whole["outcome"].attrs["flag_meanings"].split()
+    fr = whole["basin_fraction"].sel(k=0.6).values
+    # e^{0.05 t} growth at k = 0.6 from |start| in (0, sqrt 2]: final amplitude ~7.4 |start|, so the
+    # starts with |start| > 10 / 7.4 are "grows" and the rest are neither (unclassified)
+    assert fr[names.index("grows")] > 0 and fr[names.index("unclassified")] > 0
+
+
+@pytest.mark.slow
+def test_a_million_samples_at_one_point(tmp_path):
+    plan = make_plan({**_spec(1_000_000, k=(0.4,)), "integrate": {"t1": 40.0, "n_checkpoints": 16}})
+    ds = run_plan(plan, tmp_path / "m.nc", batch_size=65536)
+    assert int(ds["basin_count"].sum()) == 1_000_000
+    assert ds["basin_se"].shape == (1, 4)
