@@ -89,7 +89,10 @@ def _load_file(path: Path, cls_name: str, ref: str):
         spec.loader.exec_module(module)
     except Exception as exc:  # noqa: BLE001 - the user's code: any failure is reported, not raised
         sys.modules.pop(mod_name, None)
-        raise ValidationError("system", f"{path}: importing the model failed: {_last_line(exc)}") from None
+        hint = ""
+        if isinstance(exc, ImportError) and "relative import" in str(exc):
+            hint = "; a model file is loaded on its own: use absolute imports, or 'package.module:Class'"
+        raise ValidationError("system", f"{path}: importing the model failed: {_last_line(exc)}{hint}") from None
     cls = getattr(module, cls_name, None)
     if cls is None:
         found = sorted(k for k, v in vars(module).items() if inspect.isclass(v) and v.__module__ == mod_name)
@@ -145,10 +148,19 @@ def resolve(ref: Any, base_dir: str | Path | None = None):
         path = Path(mod)
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
-        cls = _load_file(path, cls_name, ref)
-    else:
-        cls = _load_module(mod, cls_name, ref)
-    return validate_system(instantiate(cls))
+        # one object per unchanged file: the engines' compiled kernels are cached per system object
+        key = (str(path.resolve()), cls_name, hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "")
+        if key not in _loaded:
+            _loaded[key] = validate_system(instantiate(_load_file(path, cls_name, ref)))
+        return _loaded[key]
+    cls = _load_module(mod, cls_name, ref)
+    if cls not in _instances:
+        _instances[cls] = validate_system(instantiate(cls))
+    return _instances[cls]
+
+
+_loaded: dict[tuple[str, str, str], object] = {}
+_instances: dict[type, object] = {}
 
 
 def instantiate(cls):

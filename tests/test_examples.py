@@ -42,7 +42,7 @@ def lorenz(t, u, p):
 # window: long enough for the slowest transient (pendulum: e^{-0.05 t}) to die out.
 CASES = {
     "pendulum": (pendulum, pendulum_obs, ("theta0", "omega0"), 8, 300.0, 1200),
-    "duffing": (duffing, lambda y, p: np.asarray(y), ("x0", "v0"), 8, 400.0, 8000),
+    "duffing": (duffing, lambda y, p: np.asarray(y), ("x0", "v0"), 8, 400.0, 1600),
     "lorenz": (lorenz, lambda y, p: np.asarray(y), ("x0", "y0", "z0"), 6, 400.0, 1600),
 }
 
