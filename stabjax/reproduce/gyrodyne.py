@@ -117,10 +117,10 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
         from ..plotting import plot_sweep
         from ..sweep import run_spec
 
-        spec = Path(__file__).resolve().parents[2] / "sweeps" / "gyrodyne_eps_A2.toml"
-        if spec.exists():
-            ds = run_spec(spec)
-            png = out_dir / "gyrodyne_eps_A2.png"
-            plot_sweep(ds, png)
-            paths.append(png)
+        from . import load_shipped
+
+        ds = run_spec(load_shipped("gyrodyne_eps_A2"))
+        png = out_dir / "gyrodyne_eps_A2.png"
+        plot_sweep(ds, png)
+        paths.append(png)
     return paths

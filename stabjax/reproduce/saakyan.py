@@ -28,11 +28,10 @@ import numpy as np  # noqa: E402
 
 from ..engine import simulate  # noqa: E402
 from ..plotting import converged_fraction, plot_sweep  # noqa: E402
-from ..spec import load_spec  # noqa: E402
 from ..sweep import run_spec  # noqa: E402
 from ..systems import saakyan_theory as T  # noqa: E402
+from . import load_shipped, shipped_specs  # noqa: E402
 
-SWEEPS_DIR = Path(__file__).resolve().parents[2] / "sweeps"
 
 _H = tuple(np.round(np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]), 12))
 _S = tuple(np.round(np.array([0.2, 0.9, -0.3]) / np.linalg.norm([0.2, 0.9, -0.3]), 12))
@@ -175,18 +174,17 @@ def _plot_ratio(ds, png: Path, dim: str, xvals, xlabel: str):
 
 def _sweeps(out_dir: Path, quick: bool) -> list[Path]:
     files: list[Path] = []
-    specs = sorted(SWEEPS_DIR.glob("saakyan_*.toml"))
+    specs = shipped_specs("saakyan_")
     if quick:
-        specs = [s for s in specs if s.stem in QUICK_SWEEPS]
-    for path in specs:
-        spec = load_spec(path)
+        specs = [s for s in specs if s in QUICK_SWEEPS]
+    for stem in specs:
+        spec = load_shipped(stem)
         if quick:
             spec = _shrink(spec)
         ds = run_spec(spec)
-        png = out_dir / f"{path.stem}.png"
+        png = out_dir / f"{stem}.png"
         plot_sweep(ds, png)
         files.append(png)
-        stem = path.stem
         extra = out_dir / f"{stem}_fraction.png"
         if stem.startswith("saakyan_region"):
             _plot_region(ds, extra)
