@@ -1,6 +1,6 @@
-"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (MODELS.md part C).
+"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
 
-The paper has no numerical example. We use the test case of MODELS.md C.5, a small
+The paper has no numerical example. We use the test case of docs/models/twobody.md ("Test case"), a small
 spacecraft-like carrier I1 = diag(10, 8, 6) kg m^2 and an *unbalanced* rotor with products of
 inertia, I2 = [[2, .3, .2], [.3, 1.5, -.1], [.2, -.1, 1]] kg m^2 (I2xx != I2yy), spinning at
 delta' = 3 rad/s; alpha = 2 N m (alpha_i = 2, 1.5, 1 for the triaxial task), r0 = e_z; the
@@ -63,7 +63,7 @@ def _examples(out_dir: Path, quick: bool) -> Path:
         ax.set_xlabel("t [s]")
         ax.set_ylim(1e-13, 10)
         ax.legend(fontsize=6.5, loc="lower left")
-    fig.suptitle("Bezglasnyi & Mysina controls on the MODELS.md C.5 carrier + unbalanced rotor", fontsize=10)
+    fig.suptitle("Bezglasnyi & Mysina controls on the test-case carrier + unbalanced rotor", fontsize=10)
     p = out_dir / "examples.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
@@ -195,7 +195,7 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = []
-    summary = ["Bezglasnyi & Mysina (2011), carrier + rotor: MODELS.md C.5 parameters", ""]
+    summary = ["Bezglasnyi & Mysina (2011), carrier + rotor: test-case parameters (docs/models/twobody.md)", ""]
     for name in ("twobody_uniaxial", "twobody_uniaxial_rotating"):
         s = get_system(name)
         d = s.theory(batch_params(s, {}, n=1)).derived
