@@ -47,6 +47,78 @@ def grid_dims(ds: xr.Dataset) -> list[str]:
     return [d for d in ds["verdict"].dims if d != "sample"]
 
 
+# ---- categorical axes, titles, cell notes (a reader should not have to guess what 2.0 on a "model" axis means)
+
+
+def _param(ds: xr.Dataset, dim: str):
+    """The system's Param behind grid axis ``dim`` (None when unknown, e.g. a dataset of another version)."""
+    from .registry import get_system
+
+    key = ds[dim].attrs.get("spec_key", dim) if dim in ds.coords else dim
+    try:
+        return get_system(ds.attrs.get("system", "")).params[str(key).split("[")[0]]
+    except Exception:  # noqa: BLE001 -- any lookup failure just means "plot as numbers"
+        return None
+
+
+def _choice_labels(doc: str, values) -> list[str] | None:
+    """Short labels from a help string of the form "0: text; 1: text" (text cut at "(", ",", " = ")."""
+    import re
+
+    found = {}
+    for num, text in re.findall(r"(?<![\w.])(\d+): ([^;()]+)", doc):
+        for cut in (",", " = ", " ("):
+            text = text.split(cut)[0]
+        text = text.strip()
+        if len(text) > 28:
+            text = text[:28].rsplit(" ", 1)[0] + "…"
+        found.setdefault(float(num), text)
+    labels = [found.get(float(v)) for v in values]
+    if any(lab is None or not lab for lab in labels) or len(set(labels)) < len(labels):
+        return None
+    return labels
+
+
+def categories(ds: xr.Dataset, dim: str) -> list[str] | None:
+    """Tick labels when grid axis ``dim`` is a discrete choice (model variant, active set, failed gyro),
+    else None. Labels come from the parameter's help text ("k: meaning"), else "name = k"."""
+    prm = _param(ds, dim)
+    if prm is None or prm.choices is None:
+        return None
+    vals = ds[dim].values
+    return _choice_labels(prm.doc, vals) or [f"{dim} = {float(v):g}" for v in vals]
+
+
+def _category_axis(ax, which: str, labels: list[str], name: str):
+    set_ticks = ax.set_xticks if which == "x" else ax.set_yticks
+    set_ticks(np.arange(len(labels)), labels, fontsize=8, rotation=15 if which == "x" and len(labels) > 3 else 0)
+    (ax.set_xlabel if which == "x" else ax.set_ylabel)(name)
+
+
+def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
+    """The fixed scalar parameters the theorems mention (e.g. mu on the default map), as "mu = 1.5"."""
+    import json
+    import re
+
+    try:
+        fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))
+    except ValueError:
+        return ""
+    words = set()
+    for k, v in ds.data_vars.items():
+        if k.startswith("theory_"):
+            words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", str(v.attrs.get("long_name", ""))))
+    out = [f"{symbol(k)} = {float(np.ravel(v)[0]):.4g}" for k, v in fixed.items()
+           if k in words and np.size(v) == 1 and k not in ds.dims]
+    return ", ".join(out[:limit])
+
+
+def cell_note(ds: xr.Dataset) -> str:
+    if "sample" in ds["verdict"].dims:
+        return f"one cell: fraction of n = {ds.sizes['sample']} random starts"
+    return "one cell: one trajectory"
+
+
 def main_predicate(ds: xr.Dataset) -> str | None:
     main = ds.attrs.get("theory_main") or ""
     return main if f"margin_{main}" in ds else None
@@ -108,7 +180,9 @@ def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
 
 
 def _title(ds: xr.Dataset) -> str:
-    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})"
+    fixed = fixed_note(ds)
+    second = "; ".join(x for x in (fixed, cell_note(ds)) if x)
+    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})\n{second}"
 
 
 def _t1(ds):
@@ -148,9 +222,12 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         margin = margin.isel(sample=0)
     log = {d: bool(ds[d].attrs.get("log_axis", 0)) for d in dims if d in ds.coords}
 
+    cats = {d: categories(ds, d) for d in dims}
     if len(dims) == 2:
         xd, yd = dims[1], dims[0]
         x, y = ds[xd].values, ds[yd].values
+        # a categorical axis is drawn at positions 0..n-1, one equal-width cell per category
+        x, y = (np.arange(len(x), dtype=float) if cats[xd] else x), (np.arange(len(y), dtype=float) if cats[yd] else y)
         if sampled:
             p, se = converged_fraction(ds)
             mesh = ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), p.transpose(yd, xd).values, cmap="viridis",
@@ -172,7 +249,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                     handles.append(Line2D([], [], color="k", marker="x", ls="", label="theory says stable, simulation not"))
         if margin is not None and len(x) > 1 and len(y) > 1:
             m = margin.transpose(yd, xd).values
-            if np.nanmin(m) < 0 < np.nanmax(m):
+            if np.nanmin(m) < 0 < np.nanmax(m) and not (cats[xd] or cats[yd]):  # no contour across categories
                 ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
             ok = ds[f"theory_{main}"]
             ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
@@ -181,15 +258,19 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///", label="theory guarantees stability"))
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
-        if log[xd]:
+        if cats[xd]:
+            _category_axis(ax, "x", cats[xd], symbol(xd))
+        elif log[xd]:
             ax.set_xscale("log")
-        if log[yd]:
+        if cats[yd]:
+            _category_axis(ax, "y", cats[yd], symbol(yd))
+        elif log[yd]:
             ax.set_yscale("log")
         if handles:
             ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
     elif len(dims) == 1:
         xd = dims[0]
-        x = ds[xd].values
+        x = np.arange(ds.sizes[xd], dtype=float) if cats[xd] else ds[xd].values
         if sampled:
             p, se = converged_fraction(ds)
             ax.errorbar(x, p.values, yerr=se.values, fmt="o-", color=V.COLORS[0], capsize=3,
@@ -209,15 +290,20 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ax.set_yscale("log")
             ax.set_ylabel(ds[metric].attrs.get("long_name", metric))
         if margin is not None:
-            for i, xc in enumerate(_zero_crossings(x, margin.values)):
+            for i, xc in enumerate([] if cats[xd] else _zero_crossings(x, margin.values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
             okx = ds[f"theory_{main}"].values.astype(bool)
             if sampled:
                 okx = okx.reshape(len(x), -1)[:, 0]
-            if okx.any():
+            if okx.any() and cats[xd]:  # shade each guaranteed category, not the span between them
+                for i, xi in enumerate(x[okx]):
+                    ax.axvspan(xi - 0.5, xi + 0.5, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
+            elif okx.any():
                 ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
         ax.set_xlabel(axis_label(ds, xd))
-        if log.get(xd):
+        if cats[xd]:
+            _category_axis(ax, "x", cats[xd], symbol(xd))
+        elif log.get(xd):
             ax.set_xscale("log")
         ax.legend(fontsize=8)
     else:
@@ -250,7 +336,9 @@ def _facets(ds: xr.Dataset, dims: list[str], out):
             continue
         sub = ds.isel({d0: i})
         plot_sweep(sub, ax=ax)
-        ax.set_title(f"{_title(ds)}\n{symbol(d0)} = {sub[d0].values.item():g}", fontsize=9)
+        labels = categories(ds, d0)
+        value = labels[i] if labels else f"{symbol(d0)} = {sub[d0].values.item():g}"
+        ax.set_title(f"{_title(ds)}\n{value}", fontsize=9)
         leg = ax.get_legend()
         if leg is not None:  # one legend per panel crowds the grid: keep them short
             handles = leg.legend_handles

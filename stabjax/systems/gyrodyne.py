@@ -85,7 +85,8 @@ class Gyrodyne(System):
         (
             Param("model", 1.0, "0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); 2: full nonlinear 3-axis",
                   choices=(0.0, 1.0, 2.0)),
-            Param("mapping", 1.0, "model 0 and theory, physical source: 0 paper mapping, 1 consistent projection (docs/models/gyrodyne.md, misprint 8)",
+            Param("mapping", 1.0, "model 0 and theory, physical source: 0: paper mapping; 1: consistent projection "
+                  "(docs/models/gyrodyne.md, misprint 8)",
                   choices=(0.0, 1.0)),
             Param("source", 0.0, "model 0 and theory: 0 coefficients from physical parameters, 1 given directly (nc_*)",
                   choices=(0.0, 1.0)),
@@ -102,9 +103,11 @@ class Gyrodyne(System):
             Param("Omega", (1.0, 2.0, 0.7), "scanning frequencies Omega_1..3 (Omega_2 replaced when tune = 1)", (3,), "rad/s"),
             Param("tune", 1.0, "1: Omega_2 = 2 (omega_01 - eps) of the nominal set; 0: Omega_2 = Omega[1]", choices=(0.0, 1.0)),
             Param("eps", 0.0, "detuning eps = omega_01 - Omega_2/2 used when tune = 1", (), "rad/s"),
-            Param("spare", 4.0, "the cold spare gyro (1..4); the other three are active, in slots by index",
+            Param("spare", 4.0, "the cold spare gyro; the other three are active, in slots by index "
+                  "(1: active set 2-3-4; 2: active set 1-3-4; 3: active set 1-2-4; 4: active set 1-2-3)",
                   choices=(1.0, 2.0, 3.0, 4.0)),
-            Param("fail", 0.0, "gyro that fails at t_fail (0: none); must be active; the spare takes its slot",
+            Param("fail", 0.0, "gyro that fails at t_fail, must be active; the spare takes its slot "
+                  "(0: no failure; 1: gyro 1 fails; 2: gyro 2 fails; 3: gyro 3 fails; 4: gyro 4 fails)",
                   choices=(0.0, 1.0, 2.0, 3.0, 4.0)),
             Param("t_fail", 0.0, "failure time", (), "s"),
             Param("nc_w", (1.0, 1.6), "source = 1: (omega_1, omega_2) of (1.3)", (2,), "rad/s"),

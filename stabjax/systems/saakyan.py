@@ -95,7 +95,7 @@ _INITIAL = (
           "with init = 1 only its direction away from H0 is used", (3,), kind="initial"),
     Param("dw0", DW0_DEFAULT, "initial w1(0) = omega(0) - omega0(0) - lam H0 (init = 0), or its direction (init = 1)",
           (3,), "rad/s", kind="initial"),
-    Param("init", 0.0, "0: S0, dw0 as given; 1: shell of size rho (|delta0| = rho, |w1(0)| = w_ratio lam rho)",
+    Param("init", 0.0, "0: as given, S0 and dw0; 1: shell of size rho (|delta0| = rho, |w1(0)| = w_ratio lam rho)",
           choices=(0.0, 1.0), kind="initial"),
     Param("rho", 0.5, "init = 1: |delta(0)| = |S0(0) - H0| in [0, 2]", kind="initial"),
     Param("w_ratio", 1.0, "init = 1: |w1(0)| = w_ratio lam rho (1 matches the proportions of (1.18))", kind="initial"),
@@ -395,8 +395,8 @@ class SaakyanGravity(SaakyanBase):
 _GYRO = (
     Param("Jw", (0.3, 0.2, 0.4), "axial moments J_i of the three flywheels (gyrostat moments C_i = I_i + J_i)",
           (3,), "kg m^2"),
-    Param("torque", 0.0, "0: Theorem-3/4 torque M = mu(3.21) + grad U/2 [R]; 1: (3.9) combined with (3.21) as printed "
-          "(-lam z x H0 counted twice); 2: (3.9) with mu' = mu + lam eta x H0 (equivalent to 0)",
+    Param("torque", 0.0, "0: Theorem-3/4 torque, M = mu(3.21) + grad U/2 [R]; 1: as printed, (3.9) combined with (3.21) "
+          "(-lam z x H0 counted twice); 2: equivalent form, (3.9) with mu' = mu + lam eta x H0 (same as 0)",
           choices=(0.0, 1.0, 2.0)),
 )
 _GYRO_INITIAL = (
@@ -536,8 +536,8 @@ class SaakyanGyrostatGravity(SaakyanGyrostat):
     title = "Saakyan B-4: gyrostat in a central Newtonian field (Theorem 4, condition (4.4))"
     params = ParamSet(_common_params("h") + _GYRO + (
         Param("nu", 0.3, "nu = 3 g0/R", (), "1/s^2"),
-        Param("gz", 1.0, "1: physical z' = z x w + G (gravity torque on the total momentum); 0: the paper's (4.2), "
-              "which omits G in the eta equations (docs/models/saakyan.md, misprint 14)", choices=(0.0, 1.0)),
+        Param("gz", 1.0, "1: physical, z' = z x w + G (gravity torque on the total momentum); 0: as printed, (4.2) "
+              "omits G in the eta equations (docs/models/saakyan.md, misprint 14)", choices=(0.0, 1.0)),
     ) + _INITIAL + _GYRO_INITIAL)
     has_gravity = True
 

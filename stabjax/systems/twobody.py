@@ -81,7 +81,7 @@ def _common_params(b_default=3.0):
         Param("b", b_default, "scalar part of the damping gain: B_total = b I + B", (), "N m s"),
         Param("B", (0.0, 0.0, 0.0), "extra symmetric gain matrix added to b I (3 diagonal entries or 9)", (3, 3),
               "N m s", parse=diag_or_matrix),
-        Param("variant", 0.0, "0: physically correct gyroscopic terms G = delta^ I2 delta^T (default); "
+        Param("variant", 0.0, "0: physical, gyroscopic terms G = delta^ I2 delta^T (default); "
               "1: as printed, G = I2 delta^T (docs/models/twobody.md, misprint 1)", choices=(0.0, 1.0)),
         Param("delta_prog", 0.0, "rotor program: 0 delta' = Omega_r + dA sin(dnu t); 1 spin-up delta' = Omega_r "
               "tanh(t/tau)", choices=(0.0, 1.0)),
@@ -103,7 +103,7 @@ def _rotating_params():
         Param("om0_f", (0.5, 0.0, 0.3), "w0 frequencies f", (3,), "rad/s"),
         Param("om0_p", (0.0, 0.0, float(np.pi / 2)), "w0 phases (default: the test case's "
               "(0.3 sin 0.5t, 0.2, 0.4 cos 0.3t))", (3,), "rad"),
-        Param("kinematics", 0.0, "0: s' = -x x s (vector fixed in the rotating frame, correct); "
+        Param("kinematics", 0.0, "0: corrected, s' = -x x s (vector fixed in the rotating frame); "
               "1: as printed, s' = -(w0 + x) x s (docs/models/twobody.md, misprint 4)", choices=(0.0, 1.0)),
     )
 
