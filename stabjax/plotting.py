@@ -31,8 +31,7 @@ def symbol(name: str) -> str:
     while base and base[-1].isdigit():
         digits = base[-1] + digits
         base = base[:-1]
-    if base == "lam":
-        base = "lambda"
+    base = {"lam": "lambda", "eps": "epsilon"}.get(base, base)
     b = "\\" + base if base in GREEK else base
     subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
     return f"${b}_{{{subs}}}$" if subs else f"${b}$"
@@ -96,20 +95,29 @@ def _category_axis(ax, which: str, labels: list[str], name: str):
 
 
 def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
-    """The fixed scalar parameters the theorems mention (e.g. mu on the default map), as "mu = 1.5"."""
+    """The fixed scalar parameters that matter: those the theorems mention (e.g. mu on the default map),
+    then those the spec sets in [params]; discrete choices by their label ("paper mapping")."""
     import json
     import re
 
     try:
         fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))
-    except ValueError:
+        chosen = list(json.loads(ds.attrs.get("spec_json", "{}")).get("params", {}))
+    except (ValueError, AttributeError):
         return ""
     words = set()
     for k, v in ds.data_vars.items():
         if k.startswith("theory_"):
             words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", str(v.attrs.get("long_name", ""))))
-    out = [f"{symbol(k)} = {float(np.ravel(v)[0]):.4g}" for k, v in fixed.items()
-           if k in words and np.size(v) == 1 and k not in ds.dims]
+    names = [k for k in fixed if k in words] + [k for k in chosen if k in fixed and k not in words]
+    out = []
+    for k in names:
+        if np.size(fixed[k]) != 1 or k in ds.dims:
+            continue
+        value = float(np.ravel(fixed[k])[0])
+        prm = _param(ds, k)
+        label = _choice_labels(prm.doc, [value]) if prm is not None and prm.choices is not None else None
+        out.append(label[0] if label else f"{symbol(k)} = {value:.4g}")
     return ", ".join(out[:limit])
 
 
@@ -254,8 +262,10 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ok = ds[f"theory_{main}"]
             ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
             _hatch_cells(ax, _edges(x, log[xd]), _edges(y, log[yd]), ok)
-            handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
-            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///", label="theory guarantees stability"))
+            if not (cats[xd] or cats[yd]):
+                handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
+            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
+                                 label=f"theory guarantees stability ({main})"))
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
         if cats[xd]:

@@ -12,7 +12,7 @@ import xarray as xr  # noqa: E402
 from stabjax import plotting as P  # noqa: E402
 
 
-def _dataset(system, axes, fixed, main, doc, sample=None):
+def _dataset(system, axes, fixed, main, doc, sample=None, spec_params=None):
     dims = [d for d, _, _ in axes] + (["sample"] if sample else [])
     shape = [len(v) for _, v, _ in axes] + ([sample] if sample else [])
     coords = {d: (d, np.asarray(v, float), {"spec_key": key, "units": "", "log_axis": 0}) for d, v, key in axes}
@@ -25,7 +25,8 @@ def _dataset(system, axes, fixed, main, doc, sample=None):
                      f"theory_{main}": (dims, (margin > 0).astype(np.int8), {"long_name": doc}),
                      f"margin_{main}": (dims, margin)}, coords=coords)
     ds.attrs.update(system=system, sweep_name="test", theory_main=main, fixed_params_json=json.dumps(fixed),
-                    integrate_json=json.dumps({"t1": 100.0}))
+                    integrate_json=json.dumps({"t1": 100.0}),
+                    spec_json=json.dumps({"system": system, "params": spec_params or {}}))
     return ds
 
 
@@ -39,7 +40,8 @@ def test_choice_labels_from_help_text():
 
 def test_active_set_and_model_axes_are_categories():
     ds = _dataset("gyrodyne", [("spare", [1, 2, 3, 4], "spare"), ("eps", np.linspace(-1e-3, 1e-3, 5), "eps")],
-                  {"model": 1.0, "mapping": 1.0}, "mode1_exact", "p1 < 0 and Delta_1 > 0 (eps)")
+                  {"model": 1.0, "mapping": 0.0, "gain": 1.0}, "mode1_exact", "p1 < 0 and Delta_1 > 0 (eps)",
+                  spec_params={"model": 1, "mapping": 0})
     assert P.categories(ds, "spare") == ["active set 2-3-4", "active set 1-3-4", "active set 1-2-4", "active set 1-2-3"]
     assert P.categories(ds, "eps") is None
     fig = P.plot_sweep(ds)
@@ -49,6 +51,8 @@ def test_active_set_and_model_axes_are_categories():
     np.testing.assert_array_equal(ax.get_yticks(), np.arange(4))
     assert not ax.collections or all(type(c).__name__ != "QuadContourSet" for c in ax.collections)
     assert "one cell: one trajectory" in ax.get_title()
+    # the spec's fixed choices are named by their meaning, not their code; untouched defaults are not listed
+    assert "two-channel quasi-linear, paper mapping" in ax.get_title() and "gain" not in ax.get_title()
 
     one = _dataset("gyrodyne", [("model", [0, 1, 2], "model")], {}, "mode1_exact", "p1 < 0")
     ax = P.plot_sweep(one).axes[0]
