@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 from .. import verdict as V  # noqa: E402
 from ..engine import IntegrateConfig, batch_params, simulate, solve_batch  # noqa: E402
-from ..plotting import converged_fraction, plot_sweep  # noqa: E402
+from ..plotting import cell_note, converged_fraction, plot_sweep  # noqa: E402
 from ..registry import get_system  # noqa: E402
 from ..sweep import run_spec  # noqa: E402
 from ..systems import twobody_theory as tt  # noqa: E402
@@ -104,7 +104,8 @@ def _map(out_dir: Path, quick: bool, fname, key, ylabel, lo, hi, base, title) ->
         ax.plot(bpaper, yy, color="m", lw=1.8, ls="--", label="b* paper's equations")
         ax.set_xlim(0, 8.2)
         ax.set_ylabel(ylabel)
-        ax.set_title(f"{title}, variant {variant} ({'physical' if variant == 0 else 'paper'})", fontsize=9)
+        ax.set_title(f"{title}, variant {variant} ({'physical' if variant == 0 else 'paper'} equations)\n"
+                     f"{cell_note(ds)}", fontsize=9)
         ax.legend(fontsize=7, loc="upper right")
     p = out_dir / f"{fname}.png"
     fig.savefig(p, dpi=100)
