@@ -283,7 +283,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         x = np.arange(ds.sizes[xd], dtype=float) if cats[xd] else ds[xd].values
         if sampled:
             p, se = converged_fraction(ds)
-            ax.errorbar(x, p.values, yerr=se.values, fmt="o-", color=V.COLORS[0], capsize=3,
+            ax.errorbar(x, p.values, yerr=se.values, fmt="o" if cats[xd] else "o-", color=V.COLORS[0], capsize=3,
                         label=f"fraction converged ± SE (n = {ds.sizes['sample']})")
             ax.set_ylabel("fraction converged")
             ax.set_ylim(-0.05, 1.05)
