@@ -19,6 +19,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from . import verdict as V  # noqa: E402
+from .plotlabels import categories, category_axis, cell_note, fixed_note  # noqa: E402,F401
 
 GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
          "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
@@ -44,87 +45,6 @@ def axis_label(ds: xr.Dataset, dim: str) -> str:
 
 def grid_dims(ds: xr.Dataset) -> list[str]:
     return [d for d in ds["verdict"].dims if d != "sample"]
-
-
-# ---- categorical axes, titles, cell notes (a reader should not have to guess what 2.0 on a "model" axis means)
-
-
-def _param(ds: xr.Dataset, dim: str):
-    """The system's Param behind grid axis ``dim`` (None when unknown, e.g. a dataset of another version)."""
-    from .registry import get_system
-
-    key = ds[dim].attrs.get("spec_key", dim) if dim in ds.coords else dim
-    try:
-        return get_system(ds.attrs.get("system", "")).params[str(key).split("[")[0]]
-    except Exception:  # noqa: BLE001 -- any lookup failure just means "plot as numbers"
-        return None
-
-
-def _choice_labels(doc: str, values) -> list[str] | None:
-    """Short labels from a help string of the form "0: text; 1: text" (text cut at "(", ",", " = ")."""
-    import re
-
-    found = {}
-    for num, text in re.findall(r"(?<![\w.])(\d+): ([^;()]+)", doc):
-        for cut in (",", " = ", " ("):
-            text = text.split(cut)[0]
-        text = text.strip()
-        if len(text) > 28:
-            text = text[:28].rsplit(" ", 1)[0] + "…"
-        found.setdefault(float(num), text)
-    labels = [found.get(float(v)) for v in values]
-    if any(lab is None or not lab for lab in labels) or len(set(labels)) < len(labels):
-        return None
-    return labels
-
-
-def categories(ds: xr.Dataset, dim: str) -> list[str] | None:
-    """Tick labels when grid axis ``dim`` is a discrete choice (model variant, active set, failed gyro),
-    else None. Labels come from the parameter's help text ("k: meaning"), else "name = k"."""
-    prm = _param(ds, dim)
-    if prm is None or prm.choices is None:
-        return None
-    vals = ds[dim].values
-    return _choice_labels(prm.doc, vals) or [f"{dim} = {float(v):g}" for v in vals]
-
-
-def _category_axis(ax, which: str, labels: list[str], name: str):
-    set_ticks = ax.set_xticks if which == "x" else ax.set_yticks
-    set_ticks(np.arange(len(labels)), labels, fontsize=8, rotation=15 if which == "x" and len(labels) > 3 else 0)
-    (ax.set_xlabel if which == "x" else ax.set_ylabel)(name)
-
-
-def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
-    """The fixed scalar parameters that matter: those the theorems mention (e.g. mu on the default map),
-    then those the spec sets in [params]; discrete choices by their label ("paper mapping")."""
-    import json
-    import re
-
-    try:
-        fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))
-        chosen = list(json.loads(ds.attrs.get("spec_json", "{}")).get("params", {}))
-    except (ValueError, AttributeError):
-        return ""
-    words = set()
-    for k, v in ds.data_vars.items():
-        if k.startswith("theory_"):
-            words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", str(v.attrs.get("long_name", ""))))
-    names = [k for k in fixed if k in words] + [k for k in chosen if k in fixed and k not in words]
-    out = []
-    for k in names:
-        if np.size(fixed[k]) != 1 or k in ds.dims:
-            continue
-        value = float(np.ravel(fixed[k])[0])
-        prm = _param(ds, k)
-        label = _choice_labels(prm.doc, [value]) if prm is not None and prm.choices is not None else None
-        out.append(label[0] if label else f"{symbol(k)} = {value:.4g}")
-    return ", ".join(out[:limit])
-
-
-def cell_note(ds: xr.Dataset) -> str:
-    if "sample" in ds["verdict"].dims:
-        return f"one cell: fraction of n = {ds.sizes['sample']} random starts"
-    return "one cell: one trajectory"
 
 
 def main_predicate(ds: xr.Dataset) -> str | None:
@@ -269,11 +189,11 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
         if cats[xd]:
-            _category_axis(ax, "x", cats[xd], symbol(xd))
+            category_axis(ax, "x", cats[xd], symbol(xd))
         elif log[xd]:
             ax.set_xscale("log")
         if cats[yd]:
-            _category_axis(ax, "y", cats[yd], symbol(yd))
+            category_axis(ax, "y", cats[yd], symbol(yd))
         elif log[yd]:
             ax.set_yscale("log")
         if handles:
@@ -312,7 +232,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
         ax.set_xlabel(axis_label(ds, xd))
         if cats[xd]:
-            _category_axis(ax, "x", cats[xd], symbol(xd))
+            category_axis(ax, "x", cats[xd], symbol(xd))
         elif log.get(xd):
             ax.set_xscale("log")
         ax.legend(fontsize=8)

@@ -9,6 +9,7 @@ matplotlib.use("Agg")
 import numpy as np  # noqa: E402
 import xarray as xr  # noqa: E402
 
+from stabjax import plotlabels as L  # noqa: E402
 from stabjax import plotting as P  # noqa: E402
 
 
@@ -31,11 +32,11 @@ def _dataset(system, axes, fixed, main, doc, sample=None, spec_params=None):
 
 
 def test_choice_labels_from_help_text():
-    assert P._choice_labels("0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); 2: full nonlinear",
+    assert L._choice_labels("0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); 2: full nonlinear",
                             [0, 1, 2]) == ["normal coordinates", "two-channel quasi-linear", "full nonlinear"]
     # a value the help does not name, or labels that collide, fall back (None)
-    assert P._choice_labels("0: a; 1: b", [0, 2]) is None
-    assert P._choice_labels("0: same, x; 1: same, y", [0, 1]) is None
+    assert L._choice_labels("0: a; 1: b", [0, 2]) is None
+    assert L._choice_labels("0: same, x; 1: same, y", [0, 1]) is None
 
 
 def test_active_set_and_model_axes_are_categories():
