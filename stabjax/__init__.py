@@ -1,7 +1,7 @@
 """stabjax: batch stability explorer for rigid-body attitude control.
 
 Float64 is switched on at import: the monoaxial instability (paper A) is algebraic
-and invisible in float32 (MODELS.md 0.4.1).
+and invisible in float32 (docs/models/monoaxial.md, "Numerical notes").
 """
 import os
 

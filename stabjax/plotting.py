@@ -19,6 +19,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from . import verdict as V  # noqa: E402
+from .plotlabels import categories, category_axis, cell_note, fixed_note  # noqa: E402,F401
 
 GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
          "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
@@ -31,8 +32,7 @@ def symbol(name: str) -> str:
     while base and base[-1].isdigit():
         digits = base[-1] + digits
         base = base[:-1]
-    if base == "lam":
-        base = "lambda"
+    base = {"lam": "lambda", "eps": "epsilon"}.get(base, base)
     b = "\\" + base if base in GREEK else base
     subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
     return f"${b}_{{{subs}}}$" if subs else f"${b}$"
@@ -108,7 +108,9 @@ def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
 
 
 def _title(ds: xr.Dataset) -> str:
-    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})"
+    fixed = fixed_note(ds)
+    second = "; ".join(x for x in (fixed, cell_note(ds)) if x)
+    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})\n{second}"
 
 
 def _t1(ds):
@@ -148,9 +150,12 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         margin = margin.isel(sample=0)
     log = {d: bool(ds[d].attrs.get("log_axis", 0)) for d in dims if d in ds.coords}
 
+    cats = {d: categories(ds, d) for d in dims}
     if len(dims) == 2:
         xd, yd = dims[1], dims[0]
         x, y = ds[xd].values, ds[yd].values
+        # a categorical axis is drawn at positions 0..n-1, one equal-width cell per category
+        x, y = (np.arange(len(x), dtype=float) if cats[xd] else x), (np.arange(len(y), dtype=float) if cats[yd] else y)
         if sampled:
             p, se = converged_fraction(ds)
             mesh = ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), p.transpose(yd, xd).values, cmap="viridis",
@@ -172,27 +177,33 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                     handles.append(Line2D([], [], color="k", marker="x", ls="", label="theory says stable, simulation not"))
         if margin is not None and len(x) > 1 and len(y) > 1:
             m = margin.transpose(yd, xd).values
-            if np.nanmin(m) < 0 < np.nanmax(m):
+            if np.nanmin(m) < 0 < np.nanmax(m) and not (cats[xd] or cats[yd]):  # no contour across categories
                 ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
             ok = ds[f"theory_{main}"]
             ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
             _hatch_cells(ax, _edges(x, log[xd]), _edges(y, log[yd]), ok)
-            handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
-            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///", label="theory guarantees stability"))
+            if not (cats[xd] or cats[yd]):
+                handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
+            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
+                                 label=f"theory guarantees stability ({main})"))
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
-        if log[xd]:
+        if cats[xd]:
+            category_axis(ax, "x", cats[xd], symbol(xd))
+        elif log[xd]:
             ax.set_xscale("log")
-        if log[yd]:
+        if cats[yd]:
+            category_axis(ax, "y", cats[yd], symbol(yd))
+        elif log[yd]:
             ax.set_yscale("log")
         if handles:
             ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
     elif len(dims) == 1:
         xd = dims[0]
-        x = ds[xd].values
+        x = np.arange(ds.sizes[xd], dtype=float) if cats[xd] else ds[xd].values
         if sampled:
             p, se = converged_fraction(ds)
-            ax.errorbar(x, p.values, yerr=se.values, fmt="o-", color=V.COLORS[0], capsize=3,
+            ax.errorbar(x, p.values, yerr=se.values, fmt="o" if cats[xd] else "o-", color=V.COLORS[0], capsize=3,
                         label=f"fraction converged ± SE (n = {ds.sizes['sample']})")
             ax.set_ylabel("fraction converged")
             ax.set_ylim(-0.05, 1.05)
@@ -209,15 +220,20 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ax.set_yscale("log")
             ax.set_ylabel(ds[metric].attrs.get("long_name", metric))
         if margin is not None:
-            for i, xc in enumerate(_zero_crossings(x, margin.values)):
+            for i, xc in enumerate([] if cats[xd] else _zero_crossings(x, margin.values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
             okx = ds[f"theory_{main}"].values.astype(bool)
             if sampled:
                 okx = okx.reshape(len(x), -1)[:, 0]
-            if okx.any():
+            if okx.any() and cats[xd]:  # shade each guaranteed category, not the span between them
+                for i, xi in enumerate(x[okx]):
+                    ax.axvspan(xi - 0.5, xi + 0.5, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
+            elif okx.any():
                 ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
         ax.set_xlabel(axis_label(ds, xd))
-        if log.get(xd):
+        if cats[xd]:
+            category_axis(ax, "x", cats[xd], symbol(xd))
+        elif log.get(xd):
             ax.set_xscale("log")
         ax.legend(fontsize=8)
     else:
@@ -250,7 +266,9 @@ def _facets(ds: xr.Dataset, dims: list[str], out):
             continue
         sub = ds.isel({d0: i})
         plot_sweep(sub, ax=ax)
-        ax.set_title(f"{_title(ds)}\n{symbol(d0)} = {sub[d0].values.item():g}", fontsize=9)
+        labels = categories(ds, d0)
+        value = labels[i] if labels else f"{symbol(d0)} = {sub[d0].values.item():g}"
+        ax.set_title(f"{_title(ds)}\n{value}", fontsize=9)
         leg = ax.get_legend()
         if leg is not None:  # one legend per panel crowds the grid: keep them short
             handles = leg.legend_handles

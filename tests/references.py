@@ -5,7 +5,7 @@ import numpy as np
 
 
 def monoaxial_rhs(t, y, J, D, a, mu, b, sigma, alpha, omega0, r):
-    """MODELS.md A, (2), (4), (14) with the torques evaluated on s/|s| (MODELS.md 0.4.2)."""
+    """Monoaxial (2), (4), (14) with the torques evaluated on s/|s| (docs/models/monoaxial.md, numerical notes)."""
     w, s = y[:3], y[3:]
     sh = s / np.linalg.norm(s)
     u = np.cross(sh - r, r)

@@ -144,7 +144,7 @@ def test_simulate_writes_trajectory(tmp_path, capsys):
     ds = xr.load_dataset(out)
     np.testing.assert_array_equal(ds.t.values, [1, 5, 10, 50, 100, 1000])
     assert ds.w.dims == ("t", "axis") and ds.s.dims == ("t", "axis") and ds.angle.dims == ("t",)
-    np.testing.assert_allclose(ds.angle.values[[0, 4]], [0.172, 1.6e-2], rtol=0.04)  # MODELS.md A.5
+    np.testing.assert_allclose(ds.angle.values[[0, 4]], [0.172, 1.6e-2], rtol=0.04)  # docs/models/monoaxial.md
     np.testing.assert_allclose(final["s"], ds.s.values[-1])
     assert run_cli("simulate", "monoaxial", "--set", "mu=0.9") == 2
     assert run_cli("simulate", "monoaxial", "--set", "w0=1,2") == 2

@@ -1,4 +1,4 @@
-"""Gyrodyne (Khoroshilov, MODELS.md part D): geometry, models vs SciPy references, theory, averaging."""
+"""Gyrodyne (Khoroshilov, docs/models/gyrodyne.md): geometry, models vs SciPy references, theory, averaging."""
 from __future__ import annotations
 
 import itertools

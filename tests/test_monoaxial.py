@@ -28,7 +28,7 @@ def reference(alpha, t_eval, **kw):
 
 
 def test_paper_initial_direction_cosines():
-    # MODELS.md A.5: the paper prints gamma(0) = (0.717356, 0.334019, 0.611418)
+    # docs/models/monoaxial.md: the paper prints gamma(0) = (0.717356, 0.334019, 0.611418)
     p = SYS.params.defaults()
     np.testing.assert_allclose(p["s0"], [0.717356, 0.334019, 0.611418], atol=5e-7)
 
@@ -43,7 +43,7 @@ def test_matches_scipy_dop853(alpha):
 
 
 def test_paper_example_regression_targets():
-    """MODELS.md A.5 'our reproduction' table (an independent SciPy run): alpha = 7/9."""
+    """docs/models/monoaxial.md findings (an independent SciPy run): alpha = 7/9."""
     ds = simulate("monoaxial", {"alpha": 7 / 9}, t1=1000, ts=[1, 10, 50, 100, 200, 1000])
     expected_angle = [0.172, 0.357, 0.192, 1.6e-2, 2.4e-4, 8.1e-6]
     expected_w = [1.15, 9.2e-2, 3.4e-2, 1.7e-3, 8.2e-6, 1.5e-8]
@@ -52,7 +52,7 @@ def test_paper_example_regression_targets():
 
 
 def test_alpha_one_third_excursions_match_spec():
-    """MODELS.md A.5: intervals with s.r < 0.9 and their minima for alpha = 1/3."""
+    """docs/models/monoaxial.md: intervals with s.r < 0.9 and their minima for alpha = 1/3."""
     ts = np.linspace(0, 20000, 20001)
     ds = simulate("monoaxial", {"alpha": 1 / 3}, t1=20000, ts=ts, rtol=1e-10, atol=1e-12)
     c = np.cos(ds.angle.values)
@@ -81,7 +81,7 @@ def test_equilibrium_stays_put():
 
 
 def test_inverted_position_is_an_unstable_equilibrium():
-    """(0, -r) is an equilibrium of (14) (MODELS.md A.3): the field vanishes there exactly; the
+    """(0, -r) is an equilibrium of (14) (docs/models/monoaxial.md): the field vanishes there exactly; the
     restoring torque makes it unstable, so a start 1e-9 rad away leaves it. (The perturbation is
     explicit: on CPU rounding alone (~1e-17) happens to push the exact start off, on an H100 it
     does not, and an equilibrium that is kept exactly is correct.)"""
@@ -131,7 +131,7 @@ def test_vmapped_batch_equals_one_by_one():
 
 
 def test_drift_artefact_without_normalisation():
-    """MODELS.md 0.4.2: torques on raw s change the late dynamics; the fix is on by default."""
+    """docs/models/monoaxial.md (numerical notes): torques on raw s change the late dynamics; the fix is on by default."""
     ts = np.linspace(0, 8000, 8001)
     on = simulate("monoaxial", {"alpha": 1 / 3}, t1=8000, ts=ts, rtol=1e-8, atol=1e-10)
     off = simulate("monoaxial", {"alpha": 1 / 3, "normalize": 0}, t1=8000, ts=ts, rtol=1e-8, atol=1e-10)

@@ -15,7 +15,7 @@ def th(**kw):
 
 
 def test_paper_examples():
-    # alpha = 1/3 violates (7); alpha = 7/9 satisfies it (MODELS.md A.5)
+    # alpha = 1/3 violates (7); alpha = 7/9 satisfies it (docs/models/monoaxial.md)
     assert not th(alpha=1 / 3).predicates["theorem1"].ok
     assert th(alpha=7 / 9).predicates["theorem1"].ok
     assert np.isclose(th(alpha=1 / 3).predicates["theorem1"].margin, 8 / 3 - (2.5 + (2 / 3) * 0.5))

@@ -1,8 +1,7 @@
-"""The optional compiled CPU baseline of the benchmark (benchmarks/numba_dopri5.py): final states
+"""The optional compiled CPU baseline of the benchmark (stabjax/numba_baseline.py): final states
 against SciPy DOP853 at tight tolerance, step counts against diffrax's Dopri5 (same method and
 controller), and the interface stabjax.bench.run_numba relies on."""
-import importlib.util
-from pathlib import Path
+import importlib
 
 import numpy as np
 import pytest
@@ -11,17 +10,13 @@ pytest.importorskip("numba")
 
 from stabjax import bench  # noqa: E402
 
-PATH = Path(__file__).resolve().parent.parent / "benchmarks" / "numba_dopri5.py"
 ALPHAS = np.array([1.0 / 3.0, 7.0 / 9.0, 1.0])
 T1 = 50.0
 
 
 @pytest.fixture(scope="module")
 def nb():
-    spec = importlib.util.spec_from_file_location("numba_dopri5_test", PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return importlib.import_module("stabjax.numba_baseline")
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Where Saakyan's paper is wrong or conservative (MODELS.md B.6), each shown by simulation.
+"""Where Saakyan's paper is wrong or conservative (docs/models/saakyan.md), each shown by simulation.
 
 1. (3.9) combined with (3.21) counts -lam z x H0 twice: no convergence, dV/dt of (3.18) changes sign.
 2. The global ("in the large") claims of Theorems 3-4 fail: with h > lam m1 the inverted spin is
@@ -7,7 +7,7 @@
 3. (4.4) as printed (+nu J_i) is conservative: with h between the exact and the printed bound the
    target is still reached.
 4. Spurious steady spins when (1.21) fails: an exact off-target steady spin lies inside (1.22).
-5. Without mu the target of Corollary 2 is unstable (positive real root of phi, MODELS.md B-1).
+5. Without mu the target of Corollary 2 is unstable (positive real root of phi, docs/models/saakyan.md).
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def _prep(name, over):
 
 
 def test_double_counted_term_prevents_convergence():
-    """MODELS.md B.5 case B-3: Theorem-3 torque converges, (3.9)+(3.21) does not (0.33 at t = 80)."""
+    """docs/models/saakyan.md case B-3: Theorem-3 torque converges, (3.9)+(3.21) does not (0.33 at t = 80)."""
     base = dict(I=I432, Jw=J_, lam=0.5, h=6.0, H=tuple(H_), S0=tuple(S_), eta0=tuple(np.array([0.8, -0.6, 2.0]) - 6 * H_))
     out = {}
     for tv in (0.0, 1.0, 2.0):
@@ -163,7 +163,7 @@ def test_printed_44_is_conservative():
 
 
 def test_spurious_steady_spin_inside_region_122_when_121_fails():
-    """MODELS.md counter-example: (4,3,2), H0 = e_x, lam = 1, K = 5 -- (1.10) yes, (1.21) no;
+    """docs/models/saakyan.md example (spurious spin): (4,3,2), H0 = e_x, lam = 1, K = 5 -- (1.10) yes, (1.21) no;
     S0 = (-0.5, 0, 0.866), omega = lam S0 is an exact steady spin with |delta| = 1.732 < 2."""
     S = np.array([-0.5, 0.0, np.sqrt(3) / 2])
     H = np.array([1.0, 0.0, 0.0])

@@ -1,4 +1,4 @@
-"""Lyapunov identities along the vector field, and deviation form vs original form (MODELS.md B).
+"""Lyapunov identities along the vector field, and deviation form vs original form (docs/models/saakyan.md).
 
 dV/dt is computed by forward-mode automatic differentiation of the Lyapunov function
 (1.9)/(2.6)/(3.18)/(4.3) (as written in original variables) along the right-hand side,

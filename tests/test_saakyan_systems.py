@@ -1,4 +1,4 @@
-"""Saakyan's five closed loops (MODELS.md B) against independent SciPy references.
+"""Saakyan's five closed loops (docs/models/saakyan.md) against independent SciPy references.
 
 The references below are written from the paper's *component* formulas (M_1..M_3 of B-1,
 (2.2)+(2.8), (3.5)-(3.8)+(3.21), (4.1)+(4.5)) in plain NumPy, in original variables, and
@@ -45,7 +45,7 @@ def mu_111(w1, beta, I, lam, K, w0):
 
 
 def ref_b1(P):
-    """B-1 closed loop, torque components M_1..M_3 of MODELS.md B-1 (omega0 harmonic program)."""
+    """B-1 closed loop, torque components M_1..M_3 of docs/models/saakyan.md (omega0 harmonic program)."""
     A, B, C = P["I"]
     beta, lam, K = _unit(P["H"]), P["lam"], P["K"]
     alpha = lam * K

@@ -1,4 +1,4 @@
-"""Saakyan theorem predicates at hand-checked points (MODELS.md B-1..B-4)."""
+"""Saakyan theorem predicates at hand-checked points (docs/models/saakyan.md, Sections 1-4)."""
 from __future__ import annotations
 
 import numpy as np
@@ -49,7 +49,7 @@ def test_exact_principal_axis_bounds_and_circles():
     # min axis z: no circle; only (1.10)
     assert T.exact_axis_bound(I432, EZ, 1.0) == pytest.approx(4.0)
     assert np.isnan(T.exact_axis_bound(I432, HG, 1.0))
-    # MODELS.md counter-example: K = 5, lam = 1, H0 = e_x: circle j = z with delta_x = (5-2)/(2-4) = -1.5,
+    # docs/models/saakyan.md example (spurious spin): K = 5, lam = 1, H0 = e_x: circle j = z with delta_x = (5-2)/(2-4) = -1.5,
     # |delta| = sqrt(3); j = y gives delta_x = -2 (the inverted spin itself, not a circle)
     c = T.principal_circles(I432, EX, 1.0, 5.0)
     assert np.isnan(c[0]) and np.isnan(c[1]) and c[2] == pytest.approx(np.sqrt(3))
@@ -129,7 +129,7 @@ def test_lam2_nu_and_c27():
 def test_c_h_and_c44_values_of_models_md():
     assert T.c_h(I432, 0.5, 2.01).ok and not T.c_h(I432, 0.5, 1.99).ok
     J = np.array([0.3, 0.2, 0.4])
-    # MODELS.md B.5: printed bound 0.04, exact -0.42
+    # docs/models/saakyan.md: printed bound 0.04, exact -0.42
     assert T.bound_44(I432, J, 0.5, 0.3, exact=False) == pytest.approx(0.04)
     assert T.bound_44(I432, J, 0.5, 0.3, exact=True) == pytest.approx(-0.42)
     assert not T.c44(I432, J, 0.5, 0.3, 0.03, exact=False).ok

@@ -1,5 +1,5 @@
 """Bezglasnyi-Mysina closed loops in simulation: invariants (unit vectors, orthonormal frame),
-equilibria, escape from the unstable ones, and the spec's findings (MODELS.md C.2.3, C.5)."""
+equilibria, escape from the unstable ones, and the spec's findings (docs/models/twobody.md)."""
 from __future__ import annotations
 
 import jax.numpy as jnp
@@ -93,7 +93,7 @@ def test_printed_rotating_kinematics_do_not_keep_or_reach_the_target():
 
 
 def test_condition_is_sufficient_not_necessary():
-    # MODELS.md C.5: B = I (below b* = 2.3458): V is not monotone, yet the motion converges
+    # docs/models/twobody.md: B = I (below b* = 2.3458): V is not monotone, yet the motion converges
     th = theory("twobody_uniaxial", b=1.0)
     assert not th.predicates["physical"].ok[0]
     ds = simulate("twobody_uniaxial", {"b": 1.0}, t1=400.0)

@@ -1,4 +1,4 @@
-"""Bezglasnyi-Mysina closed loops against an independent NumPy/SciPy reference (MODELS.md C.2).
+"""Bezglasnyi-Mysina closed loops against an independent NumPy/SciPy reference (docs/models/twobody.md).
 
 The reference integrates *plant and controller separately*, written from the paper's
 equations in a different form than the package's closed loop:

@@ -12,7 +12,7 @@ def test_reproduce_quick(tmp_path):
     assert files and all(f.exists() and f.stat().st_size > 0 for f in files)
     text = (tmp_path / "summary.txt").read_text()
     bstar = [float(x) for x in re.findall(r"b\* physical ([0-9.]+)", text)]
-    assert len(bstar) == 2 and abs(bstar[0] - 2.3458) < 2e-4 and abs(bstar[1] - 3.1005) < 2e-3  # MODELS.md C.5
+    assert len(bstar) == 2 and abs(bstar[0] - 2.3458) < 2e-4 and abs(bstar[1] - 3.1005) < 2e-3  # docs/models/twobody.md
     # Theorem 1 starts over the sphere and near s0 = -r0 all converge
     lines = [ln for ln in text.splitlines() if ln.startswith("Thm 1")]
     assert len(lines) == 2 and all("converged 1.000" in ln for ln in lines)

@@ -49,7 +49,7 @@ def test_near_unstable_and_b_rate_end_to_end():
     m = ds["margin_physical"].values
     want = ds["b"].values[None, :, None] - ds["derived_b_star_physical"].values
     np.testing.assert_allclose(m, want, atol=1e-9)
-    # b* = 6 rho at |Omega_r| = 6 with rho = 2.3458 / 3 (MODELS.md C.5), both signs (rho differs by sign)
+    # b* = 6 rho at |Omega_r| = 6 with rho = 2.3458 / 3 (docs/models/twobody.md), both signs (rho differs by sign)
     assert abs(ds["derived_b_star_physical"].values[-1, 0, 0] - 6 * 2.3458 / 3) < 1e-3
 
 

@@ -1,5 +1,5 @@
 """Bezglasnyi-Mysina: theory predicates at hand-checked points, Lyapunov identities, invariants,
-equilibria and the spec's findings (MODELS.md C.2-C.6)."""
+equilibria and the spec's findings (docs/models/twobody.md)."""
 from __future__ import annotations
 
 import jax
@@ -31,7 +31,7 @@ def rand_rot(rng):
 # ---- theory: hand-checked points --------------------------------------------------------------------
 
 def test_physical_koenig_bstar_spec_value_and_explicit_formula():
-    # MODELS.md C.5: lambda_min(J') = -2.3458 for the spec's I2 and delta' = 3, constant in time
+    # docs/models/twobody.md: lambda_min(J') = -2.3458 for the spec's I2 and delta' = 3, constant in time
     th = theory("twobody_uniaxial")
     assert abs(th.derived["b_star_physical"][0] - 2.3458) < 1e-4
     # explicit form b* = -delta' lambda_min(M0) (delta' > 0) / -delta' lambda_max(M0) (delta' < 0), M0 by hand
@@ -48,7 +48,7 @@ def test_physical_koenig_bstar_spec_value_and_explicit_formula():
 
 
 def test_rotating_bstar_spec_value():
-    # MODELS.md C.5: min_{t <= 200} lambda_min(J' + sym([w0]x J)) = -3.1005 for w0 = (0.3 sin .5t, .2, .4 cos .3t)
+    # docs/models/twobody.md: min_{t <= 200} lambda_min(J' + sym([w0]x J)) = -3.1005 for w0 = (0.3 sin .5t, .2, .4 cos .3t)
     th = theory("twobody_uniaxial_rotating")
     assert abs(th.derived["b_star_physical"][0] - 3.1005) < 2e-3
     assert th.predicates["guaranteed"].ok[0]  # default b = 4.1

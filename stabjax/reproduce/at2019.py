@@ -2,7 +2,7 @@
 
 * Fig. 1 (alpha = 1/3, (7) violated): direction cosines of s on the paper-like horizon
   (t <= 1e4, where the excursions to the inverted position look like jumps), and beside it
-  t <= 1e5, where the excursions are seen to *shrink* window after window (MODELS.md A.5):
+  t <= 1e5, where the excursions are seen to *shrink* window after window (docs/models/monoaxial.md, "Findings"):
   the paper's "unstable" is a finite-horizon statement.
 * Fig. 2 (alpha = 7/9, (7) holds): the cosines converge to 1/sqrt(3); beside it the angle on
   log-log axes, showing the algebraic (not exponential) decay.

@@ -1,6 +1,6 @@
 """``stabjax reproduce gyrodyne``: Khoroshilov's CMG cluster near the resonance 2 omega_01 ~ Omega_2.
 
-The paper gives no numbers (MODELS.md D.9). The documented example (the defaults of
+The paper gives no numbers (docs/models/gyrodyne.md, "Regression case"). The documented example (the defaults of
 :class:`stabjax.systems.gyrodyne.Gyrodyne`) is a small agile spacecraft with four mini-CMGs:
 
 * I = (60, 50, 40) kg m^2, rotor momenta H = 8 N m s (H/I ~ 0.15: the parametric term
@@ -35,7 +35,7 @@ from ..systems import gyrodyne_theory as T  # noqa: E402
 
 
 def theory_table(S) -> str:
-    lines = ["Khoroshilov CMG cluster, default example (MODELS.md D); mu = 1, physical units", ""]
+    lines = ["Khoroshilov CMG cluster, default example (docs/models/gyrodyne.md); mu = 1, physical units", ""]
     hdr = f"{'spare':>5} {'map':>4} {'omega01':>9} {'omega02':>9} {'p0':>10} {'p1':>10} {'p2':>10} {'p3':>10} " \
           f"{'g1':>10} {'g2':>10} {'p2 print':>10} {'p3 print':>10} {'|avg-num|':>9} {'A2*/A2':>7}"
     lines.append(hdr)
@@ -51,7 +51,7 @@ def theory_table(S) -> str:
                 f"{spare:5.0f} {'cons' if mapping else 'pap':>4} {co['w01']:9.5f} {co['w02']:9.5f} {co['p0']:10.3e} "
                 f"{co['p1']:10.3e} {co['p2']:10.3e} {co['p3']:10.3e} {co['g1']:10.3e} {co['g2']:10.3e} "
                 f"{p2l:10.3e} {p3l:10.3e} {dev:9.1e} {ratio:7.3f}")
-    lines += ["", "p2, p3: corrected chain D(Omega_2) -> U, W (D.6 [R]); 'print': the paper's alpha-version;",
+    lines += ["", "p2, p3: corrected chain D(Omega_2) -> U, W (gyrodyne.md misprint 13); 'print': the paper's alpha-version;",
               "|avg-num|: largest difference to the numerical average of (3.1) over the fast phase;",
               "A2*/A2: the tongue opens where this is < 1 (A2* = |p1| / sqrt(p2^2+p3^2) per unit A2)."]
     return "\n".join(lines)
@@ -117,10 +117,10 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
         from ..plotting import plot_sweep
         from ..sweep import run_spec
 
-        spec = Path(__file__).resolve().parents[2] / "sweeps" / "gyrodyne_eps_A2.toml"
-        if spec.exists():
-            ds = run_spec(spec)
-            png = out_dir / "gyrodyne_eps_A2.png"
-            plot_sweep(ds, png)
-            paths.append(png)
+        from . import load_shipped
+
+        ds = run_spec(load_shipped("gyrodyne_eps_A2"))
+        png = out_dir / "gyrodyne_eps_A2.png"
+        plot_sweep(ds, png)
+        paths.append(png)
     return paths

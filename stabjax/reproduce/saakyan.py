@@ -1,9 +1,9 @@
 """`stabjax reproduce saakyan`: a documented example set for Saakyan's five closed loops.
 
-The paper has no numerical example (MODELS.md B.5); the examples are ours:
+The paper has no numerical example; the examples are ours (docs/models/saakyan.md, "Examples"):
 
 * ``examples.png``: error metric angle(S0, H0) + |w1|/lam against time for
-  B-1 moving target (the B.5 case, A,B,C = 4,3,2, omega0 = (0.2 sin 0.3t, 0.1, 0.15 cos 0.2t)),
+  B-1 moving target (the documented case, A,B,C = 4,3,2, omega0 = (0.2 sin 0.3t, 0.1, 0.15 cos 0.2t)),
   B-1 with a precession program and the body A,B,C = 5,6,4 (issue's choice),
   Corollary 2 with and without mu (the unstable case), B-2 with lam^2 = nu and off it,
   B-3 with the Theorem-3 torque and with (3.9)+(3.21) (double-counted term), B-4 with h
@@ -28,18 +28,17 @@ import numpy as np  # noqa: E402
 
 from ..engine import simulate  # noqa: E402
 from ..plotting import converged_fraction, plot_sweep  # noqa: E402
-from ..spec import load_spec  # noqa: E402
 from ..sweep import run_spec  # noqa: E402
 from ..systems import saakyan_theory as T  # noqa: E402
+from . import load_shipped, shipped_specs  # noqa: E402
 
-SWEEPS_DIR = Path(__file__).resolve().parents[2] / "sweeps"
 
 _H = tuple(np.round(np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]), 12))
 _S = tuple(np.round(np.array([0.2, 0.9, -0.3]) / np.linalg.norm([0.2, 0.9, -0.3]), 12))
 
 # (label, system, params, t1)
 EXAMPLES = [
-    ("B-1 moving S (B.5 case), K = 7.2", "saakyan_moving",
+    ("B-1 moving S (documented case), K = 7.2", "saakyan_moving",
      dict(I=(4.0, 3.0, 2.0), lam=0.5, K=7.2, H=_H, S0=_S), 100.0),
     ("B-1 precession program, A,B,C = 5,6,4", "saakyan_moving",
      dict(I=(5.0, 6.0, 4.0), lam=0.5, K=6.0, H=_H, S0=_S, w0c=(0.0, 0.0, 0.2), w0a=(0.1, 0.1, 0.0),
@@ -85,7 +84,7 @@ def _examples(out_dir: Path, quick: bool) -> list[Path]:
         summary.append(dict(label=label, system=name, t1=t1, error_t0=float(e[0]), error_t1=float(e[-1]),
                             angle_t1=float(ds["angle"].values[-1])))
     axs[0, 0].legend(fontsize=8)
-    fig.suptitle("Saakyan (MODELS.md B): the five closed loops, error = angle(S0,H0) + |w1|/lam", fontsize=11)
+    fig.suptitle("Saakyan (1974): the five closed loops, error = angle(S0,H0) + |w1|/lam", fontsize=11)
     png = out_dir / "saakyan_examples.png"
     fig.savefig(png, dpi=90)
     plt.close(fig)
@@ -175,18 +174,17 @@ def _plot_ratio(ds, png: Path, dim: str, xvals, xlabel: str):
 
 def _sweeps(out_dir: Path, quick: bool) -> list[Path]:
     files: list[Path] = []
-    specs = sorted(SWEEPS_DIR.glob("saakyan_*.toml"))
+    specs = shipped_specs("saakyan_")
     if quick:
-        specs = [s for s in specs if s.stem in QUICK_SWEEPS]
-    for path in specs:
-        spec = load_spec(path)
+        specs = [s for s in specs if s in QUICK_SWEEPS]
+    for stem in specs:
+        spec = load_shipped(stem)
         if quick:
             spec = _shrink(spec)
         ds = run_spec(spec)
-        png = out_dir / f"{path.stem}.png"
+        png = out_dir / f"{stem}.png"
         plot_sweep(ds, png)
         files.append(png)
-        stem = path.stem
         extra = out_dir / f"{stem}_fraction.png"
         if stem.startswith("saakyan_region"):
             _plot_region(ds, extra)

@@ -1,6 +1,6 @@
-"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (MODELS.md part C).
+"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
 
-The paper has no numerical example. We use the test case of MODELS.md C.5, a small
+The paper has no numerical example. We use the test case of docs/models/twobody.md ("Test case"), a small
 spacecraft-like carrier I1 = diag(10, 8, 6) kg m^2 and an *unbalanced* rotor with products of
 inertia, I2 = [[2, .3, .2], [.3, 1.5, -.1], [.2, -.1, 1]] kg m^2 (I2xx != I2yy), spinning at
 delta' = 3 rad/s; alpha = 2 N m (alpha_i = 2, 1.5, 1 for the triaxial task), r0 = e_z; the
@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 from .. import verdict as V  # noqa: E402
 from ..engine import IntegrateConfig, batch_params, simulate, solve_batch  # noqa: E402
-from ..plotting import converged_fraction, plot_sweep  # noqa: E402
+from ..plotting import cell_note, converged_fraction, plot_sweep  # noqa: E402
 from ..registry import get_system  # noqa: E402
 from ..sweep import run_spec  # noqa: E402
 from ..systems import twobody_theory as tt  # noqa: E402
@@ -63,7 +63,7 @@ def _examples(out_dir: Path, quick: bool) -> Path:
         ax.set_xlabel("t [s]")
         ax.set_ylim(1e-13, 10)
         ax.legend(fontsize=6.5, loc="lower left")
-    fig.suptitle("Bezglasnyi & Mysina controls on the MODELS.md C.5 carrier + unbalanced rotor", fontsize=10)
+    fig.suptitle("Bezglasnyi & Mysina controls on the test-case carrier + unbalanced rotor", fontsize=10)
     p = out_dir / "examples.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
@@ -104,7 +104,8 @@ def _map(out_dir: Path, quick: bool, fname, key, ylabel, lo, hi, base, title) ->
         ax.plot(bpaper, yy, color="m", lw=1.8, ls="--", label="b* paper's equations")
         ax.set_xlim(0, 8.2)
         ax.set_ylabel(ylabel)
-        ax.set_title(f"{title}, variant {variant} ({'physical' if variant == 0 else 'paper'})", fontsize=9)
+        ax.set_title(f"{title}, variant {variant} ({'physical' if variant == 0 else 'paper'} equations)\n"
+                     f"{cell_note(ds)}", fontsize=9)
         ax.legend(fontsize=7, loc="upper right")
     p = out_dir / f"{fname}.png"
     fig.savefig(p, dpi=100)
@@ -195,7 +196,7 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = []
-    summary = ["Bezglasnyi & Mysina (2011), carrier + rotor: MODELS.md C.5 parameters", ""]
+    summary = ["Bezglasnyi & Mysina (2011), carrier + rotor: test-case parameters (docs/models/twobody.md)", ""]
     for name in ("twobody_uniaxial", "twobody_uniaxial_rotating"):
         s = get_system(name)
         d = s.theory(batch_params(s, {}, n=1)).derived

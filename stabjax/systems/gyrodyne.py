@@ -1,7 +1,7 @@
 """Rigid body with a tetrahedral cluster of single-gimbal control moment gyroscopes (gyrodynes).
 
-Khoroshilov (1983), MODELS.md part D (seed ``004_58e3b6b3696c21c7.txt``): forced oscillations
-under the gimbal law (D.1)
+Khoroshilov (1983), documented in ``docs/models/gyrodyne.md``: forced oscillations
+under the gimbal law
 
     H_i nu_i' = k_i phi + K_i phi' + k_i' theta + K_i' theta' + k_i'' psi + K_i'' psi' + A_i sin Omega_i t
 
@@ -9,11 +9,11 @@ and the stability of the forced oscillation (2.2) near the resonance 2 omega_01 
 
 Models (numeric option ``model``):
 
-* 0 -- normal coordinates (1.3) in the generic form of D.4 [S]: coefficients from the physical
+* 0 -- normal coordinates (1.3) in a generic form: coefficients from the physical
   parameters by the paper mapping or the consistent projection (``mapping``), or given
-  directly (``source = 1``; defaults = the regression case of D.9).
-* 1 -- the two-channel quasi-linear model of D.4 (theta, phi; psi = 0): (1.2)'s second and third
-  lines with the only second-order term that survives psi = 0, -d theta' phi (D.3 [D]).
+  directly (``source = 1``; defaults = the regression case).
+* 1 -- the two-channel quasi-linear model (theta, phi; psi = 0): (1.2)'s second and third
+  lines with the only second-order term that survives psi = 0, -d theta' phi.
   It equals model 0 with the consistent mapping exactly (tested).
 * 2 -- full three-axis nonlinear dynamics: the exact single-gimbal CMG equations of which
   (1.1) is the truncation (gimbal inertia and rotor transverse inertia neglected, as in the paper)
@@ -23,10 +23,10 @@ Models (numeric option ``model``):
 
   with (psi, theta, phi) body 1-2-3 Euler angles (psi about x, theta about y, phi about z),
   exact kinematics. (1.1) keeps only the cos nu_i parts of s_i and g_i x s_i; the signs
-  follow the geometric reading of D.2 [R] (the printed +r sin lambda_i of the y equation and
-  the missing q sin lambda_i term of the z equation are misprints). The linearisation is
-  (1.2) (tested). The 1-2-3 kinematics give r ~ phi' + psi' theta where D.3 [D] writes
-  r ~ phi' - psi' theta; the difference only enters through psi, which the two-channel
+  follow the geometric reading (gyrodyne.md, misprint 3: the printed +r sin lambda_i of the
+  y equation and the missing q sin lambda_i term of the z equation are misprints). The
+  linearisation is (1.2) (tested). The 1-2-3 kinematics give r ~ phi' + psi' theta where the
+  second-order terms of (1.2) use r ~ phi' - psi' theta; the difference only enters through psi, which the two-channel
   analysis sets to zero.
 
 Geometry: gimbal axes point to the vertices of a regular tetrahedron (TET0, turned by
@@ -44,7 +44,7 @@ externally (no attitude kick): only the cluster geometry (d, d', forcing directi
 changes. The scanning harmonic of the failed slot passes to the spare. Its frequency is not
 re-tuned: with ``tune = 1``, Omega_2 = 2 (omega_01 - eps) of the nominal set.
 
-Stability of (2.2) is measured the way D.9 does: two copies of the system are integrated,
+Stability of (2.2) is measured as in the documented regression case: two copies of the system are integrated,
 a reference started on (2.2) (plus optional free amplitudes ``E0``) and a copy started
 ``delta`` off in both free modes; the observables are the free-mode amplitudes E1, E2 of their
 difference (normal coordinates of the current set), and :meth:`Gyrodyne.classify` fits their
@@ -83,9 +83,10 @@ class Gyrodyne(System):
     paper = "Khoroshilov (1983); eqs. (1.1)-(1.3), (2.1), (2.2), (3.1), (3.3)"
     params = ParamSet(
         (
-            Param("model", 1.0, "0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2)/D.4; 2: full nonlinear 3-axis",
+            Param("model", 1.0, "0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); 2: full nonlinear 3-axis",
                   choices=(0.0, 1.0, 2.0)),
-            Param("mapping", 1.0, "model 0 and theory, physical source: 0 paper mapping, 1 consistent projection [D] (D.4)",
+            Param("mapping", 1.0, "model 0 and theory, physical source: 0: paper mapping; 1: consistent projection "
+                  "(docs/models/gyrodyne.md, misprint 8)",
                   choices=(0.0, 1.0)),
             Param("source", 0.0, "model 0 and theory: 0 coefficients from physical parameters, 1 given directly (nc_*)",
                   choices=(0.0, 1.0)),
@@ -97,14 +98,16 @@ class Gyrodyne(System):
                   parse=_mat),
             Param("Kd", KD_DEFAULT, "desired rate-gain matrix (the K gains; N_2 = -Kd[1,1], N_1 = -Kd[1,2], N^0 = -Kd[2,1], "
                   "N_0 = -Kd[2,2])", (3, 3), "N m s/rad", parse=_mat),
-            Param("gain", 1.0, "multiplier on Kd (and nc_q): the 'damping gain' axis of D.11"),
+            Param("gain", 1.0, "multiplier on Kd (and nc_q): the 'damping gain' axis of the tongue maps"),
             Param("A", (0.0, 1.0, 0.0), "scanning amplitudes A_j of slots 1..3 (slot 2 drives the resonance)", (3,), "N m"),
             Param("Omega", (1.0, 2.0, 0.7), "scanning frequencies Omega_1..3 (Omega_2 replaced when tune = 1)", (3,), "rad/s"),
             Param("tune", 1.0, "1: Omega_2 = 2 (omega_01 - eps) of the nominal set; 0: Omega_2 = Omega[1]", choices=(0.0, 1.0)),
             Param("eps", 0.0, "detuning eps = omega_01 - Omega_2/2 used when tune = 1", (), "rad/s"),
-            Param("spare", 4.0, "the cold spare gyro (1..4); the other three are active, in slots by index",
+            Param("spare", 4.0, "the cold spare gyro; the other three are active, in slots by index "
+                  "(1: active set 2-3-4; 2: active set 1-3-4; 3: active set 1-2-4; 4: active set 1-2-3)",
                   choices=(1.0, 2.0, 3.0, 4.0)),
-            Param("fail", 0.0, "gyro that fails at t_fail (0: none); must be active; the spare takes its slot",
+            Param("fail", 0.0, "gyro that fails at t_fail, must be active; the spare takes its slot "
+                  "(0: no failure; 1: gyro 1 fails; 2: gyro 2 fails; 3: gyro 3 fails; 4: gyro 4 fails)",
                   choices=(0.0, 1.0, 2.0, 3.0, 4.0)),
             Param("t_fail", 0.0, "failure time", (), "s"),
             Param("nc_w", (1.0, 1.6), "source = 1: (omega_1, omega_2) of (1.3)", (2,), "rad/s"),
@@ -151,7 +154,7 @@ class Gyrodyne(System):
             Kp = np.asarray(p["Kp"])
             scale = np.maximum(np.abs(Kp).max(axis=(-1, -2)), 1e-300)
             require(~phys | (np.abs(Kp[..., 2, 1] - Kp[..., 1, 2]) <= 1e-9 * scale), "Kp",
-                    "needs Kp[2,1] = Kp[1,2] (b'' = a', symmetric theta-phi stiffness, D.4) for the normal coordinates", Kp)
+                    "needs Kp[2,1] = Kp[1,2] (b'' = a', symmetric theta-phi stiffness, docs/models/gyrodyne.md misprint 5) for the normal coordinates", Kp)
             require(~phys | (np.abs(Kp[..., 1, 2]) > 1e-12 * scale), "Kp",
                     "needs a' = Kp[1,2] != 0 (the beta equation divides by it, D.4)", Kp)
             H = np.asarray(p["H"])

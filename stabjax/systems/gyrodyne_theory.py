@@ -1,32 +1,32 @@
 """Khoroshilov's tetrahedral CMG cluster: normal coordinates, forced solution, averaging.
 
-MODELS.md part D (seed ``004_58e3b6b3696c21c7.txt``). Everything here is written once for
+Khoroshilov (1983), documented in ``docs/models/gyrodyne.md``. Everything here is written once for
 NumPy (batched theory maps) and JAX (traced, inside :class:`~stabjax.systems.gyrodyne.Gyrodyne`):
 functions take the array module ``xp`` and use ``...`` indexing, so the same code serves both.
 
-Chain of quantities (all with mu = 1, physical units, MODELS.md D.10 item 6):
+Chain of quantities (all with mu = 1, physical units, docs/models/gyrodyne.md, misprint 6):
 
-* geometry (D.1, D.2 [R]): gimbal axes g_i = tetrahedron vertex directions; with
+* geometry ("Setup and state" there; misprint 3): gimbal axes g_i = tetrahedron vertex directions; with
   g = (cos l cos d, sin l cos d, -sin d) the mounting angles lambda_i = l, delta_i = d follow;
   rotor direction at nu = 0 is u_i = (-sin l, cos l, 0), output-torque axis w_i = g_i x u_i
   = (cos l sin d, sin l sin d, cos d). Signed H_i orients the spin.
-* (1.2) coefficients a', b', a'', b'', d, d', N_0, N^0, N_1, N_2 and forcing a_i', a_i'' (D.3).
+* (1.2) coefficients a', b', a'', b'', d, d', N_0, N^0, N_1, N_2 and forcing a_i', a_i'' ("Equations of motion", model 1).
   Gains are *allocated*: the user gives the desired stiffness/damping matrices Kp, Kd and
   every active set gets per-gyro gains k = W^-1 Kp, K = W^-1 Kd (W = [w_i] of the active
   gyros), so (1.2)'s a..c'' equal Kp's entries for every set; a set change alters d, d'
   (the nominal momentum h = sum H_i u_i = (-d', d, 0)) and the forcing directions.
-* generic (1.3) constants (D.4 [S]): omega_1^2, omega_2^2, xi_1, xi_2, beta_1, beta_2, q21, q22,
+* generic (1.3) constants ("Equations of motion", model 0): omega_1^2, omega_2^2, xi_1, xi_2, beta_1, beta_2, q21, q22,
   q11, q12, c1, c2 and three harmonics (Omega_j, a_j into the y2 equation, b_j into y1), via
-  the *paper* mapping or the *consistent-projection* mapping [D] (D.10 item 8), or given
-  directly ("direct" source, e.g. the regression case of D.9).
-* normal modes (D.5), forced solution (2.2) with D_1..D_4, h_1..h_4 -- evaluated at the forcing
+  the *paper* mapping or the *consistent-projection* mapping (misprint 8), or given
+  directly ("direct" source, e.g. the "Regression case").
+* normal modes, forced solution (2.2) with D_1..D_4, h_1..h_4 -- evaluated at the forcing
   frequencies Omega_2, Omega_3; the paper prints omega_01, omega_02 there, which makes the
-  denominators vanish identically (resolution D.5 / D.10 item 7 [R]).
-* averaged coefficients p0..p3, g1, g2 of (3.3) (D.6). p2, p3 use the corrected chain
-  D(Omega_2) -> U, W (alpha -> beta correction of D.6 [R]); the printed alpha-version is kept
+  denominators vanish identically (misprint 7).
+* averaged coefficients p0..p3, g1, g2 of (3.3). p2, p3 use the corrected chain
+  D(Omega_2) -> U, W (the alpha -> beta correction, misprint 13); the printed alpha-version is kept
   as :func:`p23_printed` for comparison only. g1 uses the compact form (the sign printed in
-  the explicit g1 of D.8 is wrong [R]).
-* predicates (D.7): the paper's p1 + p3 < 0 and Delta_1 > 0, the exact Routh-Hurwitz p1 < 0 and
+  the paper's explicit g1 is wrong, misprint 15).
+* predicates ("Theorems as implemented"): the paper's p1 + p3 < 0 and Delta_1 > 0, the exact Routh-Hurwitz p1 < 0 and
   Delta_1 > 0; mode 2: the paper's g1 < 0 and g1 g2 > 0 (g1 g2 > 0 is probably a misprint of
   g1^2 + g2^2 > 0), exact g1 < 0.
 * :func:`numerical_average` averages the right-hand side of the standard form (3.1) over the
@@ -135,7 +135,7 @@ def allocation(p, stage: str, xp=np):
 
 
 def quasi_linear(p, stage: str, xp=np):
-    """Coefficients of the two-channel model (D.4) for one stage; angles ordered (psi, theta, phi).
+    """Coefficients of the two-channel model (model 1) for one stage; angles ordered (psi, theta, phi).
 
     a' = Kp[1,2], b' = Kp[1,1] (theta equation), b'' = Kp[2,1], a'' = Kp[2,2] (phi equation);
     N_2 = -Kd[1,1], N_1 = -Kd[1,2], N^0 = -Kd[2,1], N_0 = -Kd[2,2] (Kd scaled by ``gain``);
@@ -182,7 +182,7 @@ def normal_from_physical(p, stage: str, mapping, Omega2, xp=np):
         extra = max(c_.ndim, pa.ndim) - cons.ndim
         return xp.where(cons.reshape(cons.shape + (1,) * max(extra, 0)) if extra > 0 else cons, c_, pa)
     fy, fz = ql["fy"], ql["fz"]
-    # (1.3) keeps only the Omega_2, Omega_3 harmonics: the paper mapping drops slot 1 (D.10 item 9)
+    # (1.3) keeps only the Omega_2, Omega_3 harmonics: the paper mapping drops slot 1 (docs/models/gyrodyne.md, misprint 9)
     keep1 = xp.asarray([0.0, 1.0, 1.0])
     fa = sel((fy + b2[..., None] * fz) / e2[..., None], keep1 * fz / e2[..., None])
     fb = sel((fy + b1[..., None] * fz) / e1[..., None], keep1 * fy / e1[..., None])
@@ -250,7 +250,7 @@ def normal_coefficients(p, xp=np):
 
 
 def modes(nc, xp=np):
-    """omega_01 > omega_02 (D.5), mode shapes alpha_1, alpha_2 and the delta_ij of (3.1)."""
+    """omega_01 > omega_02, mode shapes alpha_1, alpha_2 and the delta_ij of (3.1)."""
     s = nc["w1sq"] + nc["w2sq"] + nc["xi1"] * nc["xi2"]
     disc = xp.sqrt(xp.maximum(0.25 * s * s - nc["w1sq"] * nc["w2sq"], 0.0))
     w01 = xp.sqrt(0.5 * s + disc)
@@ -265,7 +265,7 @@ def modes(nc, xp=np):
 
 
 def forced_constants(Om, a, b, nc):
-    """D_1, D_2, h_1, h_2 at forcing frequency Om with amplitudes (a into y2, b into y1) (D.5 [R]).
+    """D_1, D_2, h_1, h_2 at forcing frequency Om with amplitudes (a into y2, b into y1) (docs/models/gyrodyne.md, misprint 7).
 
     Evaluated at the forcing frequency; the paper's printed omega_01/omega_02 in their place make
     the denominators vanish identically.
@@ -340,7 +340,7 @@ def normal_accel(t, y2, v2, y1, v1, nc, xp=np):
 
 
 def averaged(nc, xp=np):
-    """p0..p3, g1, g2 of (3.3) for the resonance 2 omega_01 ~ Omega_2 (D.6, corrected p2, p3)."""
+    """p0..p3, g1, g2 of (3.3) for the resonance 2 omega_01 ~ Omega_2 (corrected p2, p3)."""
     md = modes(nc, xp)
     w01, w02, a1, a2 = md["w01"], md["w02"], md["a1"], md["a2"]
     d11, d12, d21, d22 = md["d11"], md["d12"], md["d21"], md["d22"]
@@ -360,7 +360,7 @@ def averaged(nc, xp=np):
 
 
 def p23_printed(nc, xp=np):
-    """The paper's literal p2, p3 (D.6 'printed'): alpha in place of beta inside the braces.
+    """The paper's literal p2, p3 (docs/models/gyrodyne.md, misprint 13): alpha in place of beta inside the braces.
 
     D_1, D_2, h_1, h_2 are still taken at Omega_2 (the printed omega_01 there is singular);
     c2 is ignored as in the paper mapping. For comparison only -- it over-predicts growth.
@@ -420,7 +420,7 @@ def standard_form_rates(t, E1, th1, E2, th2, nc, md=None):
 
 
 def standard_form_printed(t, E1, th1, E2, th2, nc, md=None):
-    """(3.1) as printed (with the OCR fixes of D.10 item 10), f_1 = -P2, f_2 = -P1 on (2.1)."""
+    """(3.1) as printed (with the OCR fixes of docs/models/gyrodyne.md, misprint 10), f_1 = -P2, f_2 = -P1 on (2.1)."""
     md = md or modes(nc)
     fy2, fv2, fy1, fv1 = forced_solution(t, nc)
     y2, v2, y1, v1 = free_solution(E1, th1, E2, th2, md)
@@ -473,7 +473,7 @@ def numerical_average(nc, n_t: int = 256, n_g: int = 8):
 
 
 def predicates(co, eps, xp=np):
-    """Margins of D.7: returns dict name -> (ok, margin)."""
+    """Margins of the averaged stability conditions: returns dict name -> (ok, margin)."""
     p0, p1, p2, p3, g1, g2 = co["p0"], co["p1"], co["p2"], co["p3"], co["g1"], co["g2"]
     delta1 = p1 * p1 - p3 * p3 - (p0 + p2 + eps) * (p2 - p0 - eps)
     out = {}
@@ -493,10 +493,10 @@ def evaluate(p: Mapping[str, np.ndarray]) -> Theory:
     growth = growth_rate(co["p0"], co["p1"], co["p2"], co["p3"], eps, np)
     P = {}
     docs = {
-        "mode1_exact": "p1 < 0 and Delta_1 = p1^2 + (p0+eps)^2 - p2^2 - p3^2 > 0 (Routh-Hurwitz of (3.3), D.7 [D])",
-        "mode1_paper": "paper: p1 + p3 < 0 and p1^2 - p3^2 - (p0+p2+eps)(p2-p0-eps) > 0 (D.7)",
-        "mode2_exact": "g1 < 0 (mode 2, exact; g1^2 + g2^2 > 0 always) (D.7 [D])",
-        "mode2_paper": "paper: g1 < 0 and g1 g2 > 0 (D.7; g1 g2 > 0 probably a misprint)",
+        "mode1_exact": "p1 < 0 and Delta_1 = p1^2 + (p0+eps)^2 - p2^2 - p3^2 > 0 (Routh-Hurwitz of (3.3))",
+        "mode1_paper": "paper: p1 + p3 < 0 and p1^2 - p3^2 - (p0+p2+eps)(p2-p0-eps) > 0",
+        "mode2_exact": "g1 < 0 (mode 2, exact; g1^2 + g2^2 > 0 always)",
+        "mode2_paper": "paper: g1 < 0 and g1 g2 > 0 (g1 g2 > 0 probably a misprint)",
     }
     for k, (ok, m) in preds.items():
         P[k] = Predicate(ok=np.asarray(ok), margin=np.asarray(m, float), doc=docs[k])
@@ -519,10 +519,10 @@ def evaluate(p: Mapping[str, np.ndarray]) -> Theory:
         omega01_pre=modes(pre, np)["w01"],
     )
     derived_doc = dict(
-        omega01="fast natural frequency (D.5), post-failover set", omega02="slow natural frequency",
+        omega01="fast natural frequency, post-failover set", omega02="slow natural frequency",
         alpha1="mode-1 shape", alpha2="mode-2 shape", Omega2="scanning frequency of slot 2 (tuned if tune=1)",
         eps="detuning omega_01 - Omega_2/2", p0="(3.3)", p1="(3.3)", p2="(3.3), corrected", p3="(3.3), corrected",
-        g1="(3.3) mode 2 damping", g2="(3.3) mode 2 frequency shift", Delta1="Delta_1 of D.7",
+        g1="(3.3) mode 2 damping", g2="(3.3) mode 2 frequency shift", Delta1="Delta_1 = p1^2 + (p0+eps)^2 - p2^2 - p3^2",
         growth_pred="averaged growth rate of a mode-1 disturbance [1/s]",
         growth_pred_printed="the same with the paper's literal (alpha-version) p2, p3",
         D1="forced amplitude D_1 at Omega_2", D2="forced amplitude D_2 at Omega_2",

@@ -1,7 +1,7 @@
 """Monoaxial stabilisation under zero-mean nonstationary perturbations.
 
 Aleksandrov & Tikhonov, Vestnik SPbU Math. Mech. Astron. 6(64):2 (2019) 270-280
-(MODELS.md part A; seed ``000_f43a1a4299969d4f.txt``).
+(documented in ``docs/models/monoaxial.md``).
 
 Closed loop (2), (4) with the example perturbation (14) generalised to order sigma:
 
@@ -10,9 +10,9 @@ Closed loop (2), (4) with the example perturbation (14) generalised to order sig
 
 State ``y = (w, s)``: body angular velocity and the body components of the inertial unit
 vector s. Target: the equilibrium (3) ``(w, s) = (0, r)``; the inverted position
-``(0, -r)`` is also an equilibrium of (14) (MODELS.md A.3).
+``(0, -r)`` is also an equilibrium of (14) (docs/models/monoaxial.md, "Equilibria").
 
-Numerical note (MODELS.md 0.4.2): every torque is evaluated with ``s/|s|``. Without it a
+Numerical note (docs/models/monoaxial.md, "Numerical notes"): every torque is evaluated with ``s/|s|``. Without it a
 1e-7 drift of |s| adds a linear restoring torque that hides the instability; the parameter
 ``normalize = 0`` switches the fix off so the artefact can be shown.
 """
@@ -49,7 +49,7 @@ class Monoaxial(System):
             Param("alpha", 7.0 / 9.0, "exponent alpha in cos(omega0 t^alpha) (0 < alpha; the paper's family has alpha <= 1)"),
             Param("omega0", 1.0, "frequency omega0 in cos(omega0 t^alpha)", (), "rad/s^alpha"),
             Param("r", R_DEFAULT, "body-fixed target axis r (unit)", (3,)),
-            Param("normalize", 1.0, "1: evaluate torques with s/|s| (MODELS.md 0.4.2); 0: raw s, shows the drift artefact",
+            Param("normalize", 1.0, "1: evaluate torques with s/|s| (docs/models/monoaxial.md, numerical notes); 0: raw s, shows the drift artefact",
                   choices=(0.0, 1.0)),
             Param("s0", S0_DEFAULT, "initial body components of s (unit); default = paper's (0.717356, 0.334019, 0.611418)",
                   (3,), kind="initial"),
@@ -68,8 +68,8 @@ class Monoaxial(System):
         check_positive(p, "J", value_ndim=1)
         check_spd(p, "D")
         check_positive(p, "a")
-        require(p["mu"] >= 1, "mu", "must be >= 1 (restoring order; MODELS.md A.1)", p["mu"])
-        require(p["sigma"] >= 1, "sigma", "must be >= 1 (Q must be C^1; MODELS.md A.1)", p["sigma"])
+        require(p["mu"] >= 1, "mu", "must be >= 1 (restoring order; docs/models/monoaxial.md)", p["mu"])
+        require(p["sigma"] >= 1, "sigma", "must be >= 1 (Q must be C^1; docs/models/monoaxial.md)", p["sigma"])
         require(p["alpha"] > 0, "alpha", "must be > 0", p["alpha"])
         p["r"] = check_unit(p, "r")
         p["s0"] = check_unit(p, "s0")
@@ -113,13 +113,13 @@ class Monoaxial(System):
 
     # -- diagnostics -------------------------------------------------------------------------
     def energy(self, y, a):
-        """E = 1/2 w'Jw + a/(mu+1) |s-r|^(mu+1); dE/dt = -w'Dw + w' Phi Q (MODELS.md A.2)."""
+        """E = 1/2 w'Jw + a/(mu+1) |s-r|^(mu+1); dE/dt = -w'Dw + w' Phi Q (docs/models/monoaxial.md, "Equations of motion")."""
         w, s = y[:3], y[3:]
         sh = s / la.norm(s)
         return 0.5 * la.dot(w, a["J"] * w) + a["a"] / (a["mu"] + 1.0) * la.norm(sh - a["r"]) ** (a["mu"] + 1.0)
 
     def window_starts(self, p, t1: float) -> np.ndarray:
-        """Starts t_k = ((2k - 1/2) pi / omega0)^(1/alpha) of the windows where cos(omega0 t^alpha) > 0 (A.7)."""
+        """Starts t_k = ((2k - 1/2) pi / omega0)^(1/alpha) of the windows where cos(omega0 t^alpha) > 0 (docs/models/monoaxial.md, "Findings")."""
         alpha, w0 = float(p["alpha"]), float(p["omega0"])
         k = np.arange(1, 10_000)
         tk = ((2 * k - 0.5) * np.pi / abs(w0)) ** (1 / alpha)

@@ -1,6 +1,6 @@
 """Theorem predicates of Aleksandrov & Tikhonov (2019), vectorised over parameter grids.
 
-For the perturbation family Phi(t) = b cos(omega0 t^alpha) I (MODELS.md A.4):
+For the perturbation family Phi(t) = b cos(omega0 t^alpha) I (docs/models/monoaxial.md, "Theorems as implemented"):
 Assumption 1 holds for every beta in (1 - alpha, 1] (for alpha > 1 the integral of
 cos(t^alpha) stays bounded, so every beta > 0 works). Theorem 1's inequality (7),
 2 sigma >= mu + 1 + beta (mu - 1), is then satisfiable iff it holds strictly at the
@@ -47,7 +47,7 @@ def sigma_critical(mu, alpha):
 
 
 def evaluate(p: Mapping[str, np.ndarray]) -> Theory:
-    """Every result of the paper (MODELS.md A.4) for parameters ``p`` (batched NumPy arrays)."""
+    """Every result of the paper (docs/models/monoaxial.md, "Theorems as implemented") for parameters ``p`` (batched NumPy arrays)."""
     mu = np.asarray(p["mu"], float)
     sigma = np.asarray(p["sigma"], float)
     alpha = np.asarray(p["alpha"], float)

@@ -1,6 +1,6 @@
 """Saakyan: active stabilisation of the rotational motion of a rigid body (five closed loops).
 
-MODELS.md part B (seed ``001_ff95e4c6bc6ddc23.txt``). A body axis H0 (unit, constant body
+Saakyan (1974), documented in ``docs/models/saakyan.md``. A body axis H0 (unit, constant body
 components beta) is brought onto a target direction S0 (body components alpha_i) while the
 body spins about it at rate lam:
 
@@ -19,10 +19,10 @@ with the maps :meth:`to_deviation` / :meth:`from_deviation`, and the Lyapunov fu
 :meth:`lyapunov` / :meth:`lyapunov_rate`.
 
 Symbols (ASCII): ``I = (A, B, C)`` moments (B-3/B-4: the reduced moments A = C1 - J1, ...,
-MODELS.md B.6 item 16), ``H`` = H0 = beta (normalised on input: only its direction
+docs/models/saakyan.md, misprint 16), ``H`` = H0 = beta (normalised on input: only its direction
 matters), ``lam`` = lambda, ``K = alpha/lam`` (B-1/B-2) or ``h`` (B-3/B-4, alpha = lam h)
 -- the potential gain alpha is never a parameter of its own, to keep it apart from the
-direction cosines alpha_i (B.6 item 2). ``N0`` of the paper is H0 (B.6 item 1).
+direction cosines alpha_i (misprint 2). ``N0`` of the paper is H0 (misprint 1).
 
 Initial conditions: ``init = 0`` takes ``S0`` (normalised) and the angular-velocity
 deviation ``dw0 = w1(0) = omega(0) - omega0(0) - lam H0`` as given. ``init = 1`` ("shell")
@@ -39,7 +39,7 @@ verdict threshold ``diverge_size`` is 10 (not the generic 1e6 on |omega|); conse
 start with |w1(0)| > 10 lam is diverged from the first checkpoint on. The generic classifier
 (:mod:`stabjax.verdict`, noise floor ``floor_tol`` = 1e-6) does the rest, so these systems
 run on the fused engine.
-Numerical note: torques use S0/|S0| (cf. MODELS.md 0.4.2), so solver drift of |S0| cannot
+Numerical note: torques use S0/|S0| (cf. docs/models/monoaxial.md, "Numerical notes"), so solver drift of |S0| cannot
 add a spurious restoring term.
 """
 from __future__ import annotations
@@ -82,7 +82,7 @@ def _common_params(gain: str):
                   (), "N m s")
     return (
         Param("I", I_DEFAULT, "principal moments (A, B, C)" + (" of the body" if gain == "K" else
-              ": reduced moments A = C1 - J1, B = C2 - J2, C = C3 - J3 (MODELS.md B-3)"), (3,), "kg m^2"),
+              ": reduced moments A = C1 - J1, B = C2 - J2, C = C3 - J3 (docs/models/saakyan.md, misprint 16)"), (3,), "kg m^2"),
         Param("H", H_DEFAULT, "body axis H0 (beta); normalised on input", (3,)),
         Param("lam", 0.5, "commanded spin rate lambda about the target axis (> 0)", (), "rad/s"),
         g,
@@ -95,7 +95,7 @@ _INITIAL = (
           "with init = 1 only its direction away from H0 is used", (3,), kind="initial"),
     Param("dw0", DW0_DEFAULT, "initial w1(0) = omega(0) - omega0(0) - lam H0 (init = 0), or its direction (init = 1)",
           (3,), "rad/s", kind="initial"),
-    Param("init", 0.0, "0: S0, dw0 as given; 1: shell of size rho (|delta0| = rho, |w1(0)| = w_ratio lam rho)",
+    Param("init", 0.0, "0: as given, S0 and dw0; 1: shell of size rho (|delta0| = rho, |w1(0)| = w_ratio lam rho)",
           choices=(0.0, 1.0), kind="initial"),
     Param("rho", 0.5, "init = 1: |delta(0)| = |S0(0) - H0| in [0, 2]", kind="initial"),
     Param("w_ratio", 1.0, "init = 1: |w1(0)| = w_ratio lam rho (1 matches the proportions of (1.18))", kind="initial"),
@@ -118,7 +118,7 @@ _PROGRAM = (
 class SaakyanBase(System):
     """Common machinery: parameters, checks, initial state, observables, verdict thresholds."""
 
-    paper = "L. S. Saakyan, Active stabilisation of the rotational motion of a rigid body, PMM (seed 001)"
+    paper = "L. S. Saakyan, Active stabilisation of the rotational motion of a rigid body, 1974"
     state = (("w", (3,)), ("S", (3,)))
     observables = ("error", "spin_dev", "omega_norm", "angle", "w1_norm", "dist_E")
     observable_doc = (
@@ -395,8 +395,8 @@ class SaakyanGravity(SaakyanBase):
 _GYRO = (
     Param("Jw", (0.3, 0.2, 0.4), "axial moments J_i of the three flywheels (gyrostat moments C_i = I_i + J_i)",
           (3,), "kg m^2"),
-    Param("torque", 0.0, "0: Theorem-3/4 torque M = mu(3.21) + grad U/2 [R]; 1: (3.9) combined with (3.21) as printed "
-          "(-lam z x H0 counted twice); 2: (3.9) with mu' = mu + lam eta x H0 (equivalent to 0)",
+    Param("torque", 0.0, "0: Theorem-3/4 torque, M = mu(3.21) + grad U/2 [R]; 1: as printed, (3.9) combined with (3.21) "
+          "(-lam z x H0 counted twice); 2: equivalent form, (3.9) with mu' = mu + lam eta x H0 (same as 0)",
           choices=(0.0, 1.0, 2.0)),
 )
 _GYRO_INITIAL = (
@@ -536,8 +536,8 @@ class SaakyanGyrostatGravity(SaakyanGyrostat):
     title = "Saakyan B-4: gyrostat in a central Newtonian field (Theorem 4, condition (4.4))"
     params = ParamSet(_common_params("h") + _GYRO + (
         Param("nu", 0.3, "nu = 3 g0/R", (), "1/s^2"),
-        Param("gz", 1.0, "1: physical z' = z x w + G (gravity torque on the total momentum); 0: the paper's (4.2), "
-              "which omits G in the eta equations (MODELS.md B.6 item 14)", choices=(0.0, 1.0)),
+        Param("gz", 1.0, "1: physical, z' = z x w + G (gravity torque on the total momentum); 0: as printed, (4.2) "
+              "omits G in the eta equations (docs/models/saakyan.md, misprint 14)", choices=(0.0, 1.0)),
     ) + _INITIAL + _GYRO_INITIAL)
     has_gravity = True
 

@@ -1,6 +1,6 @@
 """Theorem predicates of Saakyan's active stabilisation of rotation, vectorised over batches.
 
-MODELS.md part B (seed ``001_ff95e4c6bc6ddc23.txt``). Every function takes NumPy arrays
+Saakyan (1974), documented in ``docs/models/saakyan.md``. Every function takes NumPy arrays
 whose leading dimensions are batch dimensions (vectors carry a trailing axis of 3) and
 returns arrays; predicates come back as :class:`stabjax.system.Predicate` with a signed
 margin (> 0: the hypothesis holds).
@@ -17,12 +17,12 @@ with delta = S - H constant, to one tangent vector field on the unit sphere [D]:
     F(S) = lam K H x delta - lam^2 S x (I delta) + nu S x (Ig delta) = 0,
 
 (Ig = I in B-2, the gyrostat moments C_i in B-4, nu = 0 in B-1/B-3); for nu = 0 this is
-lam times MODELS.md's F of (1.14). F is tangent to the sphere, so by Poincare-Hopf a
+lam times the F of (1.14) in its vector form. F is tangent to the sphere, so by Poincare-Hopf a
 nondegenerate target zero at S = H always comes with at least one other zero: there is
 always an off-target steady spin ``omega = omega0 + lam S0``, which is why the radius l of
 (1.18) is finite and why the global ("in the large") claims of Theorems 3-4 cannot hold.
 :func:`steady_spins` finds all zeros (Levenberg-Marquardt on the sphere from a Fibonacci
-grid of starts, MODELS.md B-1 "Algorithm for l"); :func:`l_spurious` takes the smallest
+grid of starts, docs/models/saakyan.md, "The l of (1.18)"); :func:`l_spurious` takes the smallest
 |delta| over the nonzero ones; :func:`l_116` solves the paper's scalar equation (1.16).
 """
 from __future__ import annotations
@@ -252,7 +252,7 @@ def spurious_summary(I, H, lam, K, nu=0.0, Ig=None, **kw):
 
     l: smallest |delta| = |S - H| over off-target steady spins (the l of (1.18)), inf if none;
     delta_l: that spin's delta (NaN if none); c*: min over off-target spins of the (w1, delta)
-    part of V, 1/2 sum (lam K + nu Ig_i - lam^2 I_i) delta_i^2 (MODELS.md B-1, last paragraph).
+    part of V, 1/2 sum (lam K + nu Ig_i - lam^2 I_i) delta_i^2 (docs/models/saakyan.md, "Theorems as implemented").
     """
     H = _unit(H)
     I = _f(I)
@@ -323,7 +323,7 @@ def l_116(I, H, lam, K, n_grid: int = 4001, tol: float = 1e-7):
     Sign changes of f on a grid are bisected; a root counts only if the delta it gives
     solves (1.14) and lies on the sphere (poles of f also change sign). Returns the
     smallest |delta| over accepted roots, NaN where none (e.g. b3 = 0, principal axes:
-    (1.16) is degenerate there, MODELS.md B.6 item 6).
+    (1.16) is degenerate there, docs/models/saakyan.md, misprint 6).
     """
     I, H = _f(I), _unit(H)
     lam, K = _f(lam), _f(K)
@@ -372,7 +372,7 @@ def lam2_nu(lam, nu, tol: float = LAM2NU_TOL) -> Predicate:
 
 
 def c27(I, lam, nu, K) -> Predicate:
-    """(2.7) generalised [R, B.6 item 9]: alpha > max_i (lam^2 - nu) I_i and alpha > 0 (V of (2.6) positive definite)."""
+    """(2.7) generalised [docs/models/saakyan.md, misprint 9]: alpha > max_i (lam^2 - nu) I_i and alpha > 0 (V of (2.6) positive definite)."""
     lam, nu, K = _f(lam), _f(nu), _f(K)
     alpha = lam * K
     bound = np.maximum(np.max((lam**2 - nu)[..., None] * _f(I), axis=-1), 0.0)

@@ -1,7 +1,7 @@
 """Uniaxial and triaxial orientation of a carrier-rotor system.
 
 Bezglasnyi & Mysina (2011), "On the realization of uniaxial and triaxial orientation of a
-system of two bodies" (MODELS.md part C; seed ``002_b4234f5738d08069.txt``).
+system of two bodies" (2011); the model is documented in ``docs/models/twobody.md``.
 
 A carrier T1 (inertia I1 in its axes Oxyz) carries a rotor T2 (inertia I2 in rotor axes, a
 general SPD tensor: products of inertia and I2xx != I2yy allowed) turning about Oz through
@@ -15,7 +15,7 @@ with x = w - w0(t) (x = w in the König frame), J' = [w02]x I2~ - I2~ [w02]x, an
 
 * ``variant = 0`` (physical, default): G = I2~. The printed "I2 delta^-1 (.)" inside the
   gyroscopic cross products of (4)-(6), (11), (12), (16), (18) is corrected to
-  delta^ I2 delta^-1 (.) (MODELS.md C.2, [R]); this is then the exact rigid-body motion under
+  delta^ I2 delta^-1 (.) (docs/models/twobody.md, misprint 1); this is then the exact rigid-body motion under
   controls (6)/(12) resp. (16)+(19)/(24).
 * ``variant = 1`` (paper): G = I2 delta^T, the equations exactly as printed.
 
@@ -24,11 +24,11 @@ J w0' cancel in the closed loop, which is why neither delta'' nor w0' appears ab
 tests integrate plant and controller separately (with them) as the independent reference.
 
 Potential torques: M_pot = alpha r0 x s0 (uniaxial, (6), (19)) or sum_i alpha_i r0i x s~0i
-(triaxial, (12) corrected as in MODELS.md C.2.2, (24)).
+(triaxial, (12) corrected as in docs/models/twobody.md, misprint 3; (24)).
 
 Kinematics: a vector fixed in the reference frame has carrier components obeying
 s' = -(w - w0) x s = -x x s. In the rotating frame the paper prints s' = -(w0 + x) x s, which
-makes s0 = r0 an equilibrium only if w0 || r0 (MODELS.md C.2.3 [R]); ``kinematics = 1``
+makes s0 = r0 an equilibrium only if w0 || r0 (docs/models/twobody.md, misprint 4); ``kinematics = 1``
 reproduces the printed version.
 
 Attitude state (triaxial). The state holds the 3x3 matrix S whose *columns* are the carrier
@@ -41,7 +41,7 @@ S <- S (3 I - S^T S) / 2 (error O(eps^4) for a drift eps; exact on SO(3)). A mat
 than a quaternion keeps the paper's s~0i visible and the triad's Poisson equations literal.
 The target is S = R := [r01 r02 r03].
 
-Rotating-frame rate w0(t) is given directly in carrier components (MODELS.md C.2.3 option (a),
+Rotating-frame rate w0(t) is given directly in carrier components (docs/models/twobody.md, "Setup and state",
 paper-consistent); the closed loop in x is exact for any such program.
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ from . import twobody_theory
 from .twobody_programs import delta_program, omega0_program
 
 I1_DEFAULT = (10.0, 8.0, 6.0)
-I2_DEFAULT = (2.0, 0.3, 0.2, 0.3, 1.5, -0.1, 0.2, -0.1, 1.0)  # MODELS.md C.5 test case: unbalanced, products of inertia
+I2_DEFAULT = (2.0, 0.3, 0.2, 0.3, 1.5, -0.1, 0.2, -0.1, 1.0)  # docs/models/twobody.md test case: unbalanced, products of inertia
 _S0_RAW = np.array([0.6, -0.7, -0.2])
 S0_DEFAULT = tuple(_S0_RAW / np.linalg.norm(_S0_RAW))
 
@@ -81,8 +81,8 @@ def _common_params(b_default=3.0):
         Param("b", b_default, "scalar part of the damping gain: B_total = b I + B", (), "N m s"),
         Param("B", (0.0, 0.0, 0.0), "extra symmetric gain matrix added to b I (3 diagonal entries or 9)", (3, 3),
               "N m s", parse=diag_or_matrix),
-        Param("variant", 0.0, "0: physically correct gyroscopic terms G = delta^ I2 delta^T (default); "
-              "1: as printed, G = I2 delta^T (MODELS.md C.2)", choices=(0.0, 1.0)),
+        Param("variant", 0.0, "0: physical, gyroscopic terms G = delta^ I2 delta^T (default); "
+              "1: as printed, G = I2 delta^T (docs/models/twobody.md, misprint 1)", choices=(0.0, 1.0)),
         Param("delta_prog", 0.0, "rotor program: 0 delta' = Omega_r + dA sin(dnu t); 1 spin-up delta' = Omega_r "
               "tanh(t/tau)", choices=(0.0, 1.0)),
         Param("delta0", 0.0, "rotor angle at t = 0", (), "rad"),
@@ -101,10 +101,10 @@ def _rotating_params():
               "constant part c", (3,), "rad/s"),
         Param("om0_a", (0.3, 0.0, 0.4), "w0 amplitudes a", (3,), "rad/s"),
         Param("om0_f", (0.5, 0.0, 0.3), "w0 frequencies f", (3,), "rad/s"),
-        Param("om0_p", (0.0, 0.0, float(np.pi / 2)), "w0 phases (default: MODELS.md C.5's "
+        Param("om0_p", (0.0, 0.0, float(np.pi / 2)), "w0 phases (default: the test case's "
               "(0.3 sin 0.5t, 0.2, 0.4 cos 0.3t))", (3,), "rad"),
-        Param("kinematics", 0.0, "0: s' = -x x s (vector fixed in the rotating frame, correct); "
-              "1: as printed, s' = -(w0 + x) x s (MODELS.md C.2.3 [R])", choices=(0.0, 1.0)),
+        Param("kinematics", 0.0, "0: corrected, s' = -x x s (vector fixed in the rotating frame); "
+              "1: as printed, s' = -(w0 + x) x s (docs/models/twobody.md, misprint 4)", choices=(0.0, 1.0)),
     )
 
 
@@ -313,7 +313,7 @@ class TwoBodyUniaxial(_TwoBody):
 
 
 class TwoBodyTriaxial(_TwoBody):
-    """Theorem 2: triaxial orientation in a König frame, control (12) as corrected in MODELS.md C.2.2."""
+    """Theorem 2: triaxial orientation in a König frame, control (12) as corrected in docs/models/twobody.md (misprint 3)."""
 
     name = "twobody_triaxial"
     title = "Carrier-rotor system, triaxial orientation in a König frame (Theorem 2)"

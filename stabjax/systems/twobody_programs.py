@@ -1,11 +1,11 @@
-"""Prescribed time functions of the Bezglasnyi-Mysina carrier-rotor models (MODELS.md C.1, C.2.3).
+"""Prescribed time functions of the Bezglasnyi-Mysina carrier-rotor models (docs/models/twobody.md, "Setup and state").
 
 Written once for both array libraries (``xp`` is ``numpy`` or ``jax.numpy``), so the traced
 right-hand sides and the host-side theory predicates evaluate *the same* programs. Every
 function broadcasts elementwise: the caller gives arrays of a common batch/time shape.
 
 Rotor angle program ``delta(t)`` (parameter ``delta_prog``), always with its first two
-derivatives, analytic (MODELS.md 0.4.4):
+derivatives, analytic (docs/models/twobody.md, "Numerical notes"):
 
 * ``0`` constant rate plus a sinusoidal modulation:
   ``delta' = Omega_r + dA sin(dnu t)``,
@@ -15,7 +15,7 @@ derivatives, analytic (MODELS.md 0.4.4):
   ``delta = delta0 + Omega_r tau log cosh(t / tau)``, ``delta'' = Omega_r / tau (1 - tanh^2)``.
 
 Angular velocity of the rotating reference frame, given directly as carrier-frame
-components (MODELS.md C.2.3, option (a), "paper-consistent"):
+components (docs/models/twobody.md, "Setup and state"; paper-consistent):
 ``omega0_i(t) = om0_c_i + om0_a_i sin(om0_f_i t + om0_p_i)``, ``omega0_i' = om0_a_i om0_f_i cos(...)``.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Theorem predicates of Bezglasnyi & Mysina (2011), vectorised over parameter grids (MODELS.md C.4).
+"""Theorem predicates of Bezglasnyi & Mysina (2011), vectorised over parameter grids (docs/models/twobody.md, "Theorems as implemented").
 
 Every theorem (1-4) rests on one hypothesis, (10) / (15) and their rotating-frame analogues:
 the symmetric matrix
@@ -21,7 +21,7 @@ and scatter b* along a sweep). The window is finite: a condition that fails only
 ``T_theory`` is not seen.
 
 Three versions of C are evaluated, because the paper's printed C differs from the exact one
-(MODELS.md C.4, C.6 items 1, 2, 5):
+(docs/models/twobody.md, misprints 1, 2, 5):
 
 ``physical``  C = sym([w02]x I2~) (+ sym([w0]x J) in the rotating frame); then P = B + J' (+ sym([w0]x J)).
               This is the exact V' of the physically correct closed loop (variant 0). [D]
@@ -36,7 +36,7 @@ With B = b I, lambda_min(b I + Q) = b + lambda_min(Q), so the smallest admissibl
 constant rate, J' = delta' delta^ M0 delta^T with the constant M0 = [e_z]x I2 - I2 [e_z]x, whence
 the explicit ``b_star = -delta' lambda_min(M0)`` (delta' > 0) or ``-delta' lambda_max(M0)`` (delta' < 0).
 
-Equilibria and the theorems' claims (MODELS.md C.3): uniaxial ``s0 = r0`` asymptotically stable,
+Equilibria and the theorems' claims (docs/models/twobody.md, "Equilibria"): uniaxial ``s0 = r0`` asymptotically stable,
 ``s0 = -r0`` unstable; triaxial ``s~0i = r0i`` asymptotically stable, the three rotations by pi
 about r01, r02, r03 unstable (isolated only when the alpha_i are distinct; equal gains give a
 continuum of pi rotations). See :func:`equilibria_uniaxial`, :func:`equilibria_triaxial`.
@@ -82,7 +82,7 @@ def rotz(d):
 
 
 def m0_matrix(I2):
-    """M0 = [e_z]x I2 - I2 [e_z]x (MODELS.md C.4): J' = delta' delta^ M0 delta^T."""
+    """M0 = [e_z]x I2 - I2 [e_z]x (docs/models/twobody.md, "Theorems as implemented"): J' = delta' delta^ M0 delta^T."""
     ez = hat(np.array([0.0, 0.0, 1.0]))
     I2 = np.asarray(I2, float)
     return ez @ I2 - I2 @ ez

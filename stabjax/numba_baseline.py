@@ -1,8 +1,10 @@
-"""Compiled per-trajectory CPU baseline: numba-jitted Dormand-Prince 5(4) for the monoaxial model.
+"""Compiled per-trajectory CPU baseline of ``stabjax bench``: numba-jitted Dormand-Prince 5(4)
+for the monoaxial model.
 
-Loaded lazily by :func:`stabjax.bench.run_numba` (``import numba`` fails -> the contender is
-skipped). One trajectory at a time, one thread (no ``prange``), so it is comparable with the
-SciPy loop of the benchmark:
+Part of the benchmark users run (``docs/performance.md``), not of the sweep engines; it needs the
+optional ``numba`` (``pip install "stabjax[bench]"``): importing this module without it raises
+``ImportError`` and the benchmark skips the contender. One trajectory at a time, one thread
+(no ``prange``), so it is comparable with the SciPy loop of the benchmark:
 
     ys, acc = solve_many(y0s (k, 6), alphas (k,), c, t1, rtol, atol)
 

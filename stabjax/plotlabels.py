@@ -1,0 +1,85 @@
+"""Text on the figures: discrete-choice axes as labelled categories, the fixed parameters that matter,
+and what one cell of a map is. Kept apart from :mod:`stabjax.plotting` so each can change alone."""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import xarray as xr
+
+
+def _param(ds: xr.Dataset, dim: str):
+    """The system's Param behind grid axis ``dim`` (None when unknown, e.g. a dataset of another version)."""
+    from .registry import get_system
+
+    key = ds[dim].attrs.get("spec_key", dim) if dim in ds.coords else dim
+    try:
+        return get_system(ds.attrs.get("system", "")).params[str(key).split("[")[0]]
+    except Exception:  # noqa: BLE001 -- any lookup failure just means "plot as numbers"
+        return None
+
+
+def _choice_labels(doc: str, values) -> list[str] | None:
+    """Short labels from a help string of the form "0: text; 1: text" (text cut at "(", ",", " = ")."""
+    found = {}
+    for num, text in re.findall(r"(?<![\w.])(\d+): ([^;()]+)", doc):
+        for cut in (",", " = ", " ("):
+            text = text.split(cut)[0]
+        text = text.strip()
+        if len(text) > 28:
+            text = text[:28].rsplit(" ", 1)[0] + "…"
+        found.setdefault(float(num), text)
+    labels = [found.get(float(v)) for v in values]
+    if any(lab is None or not lab for lab in labels) or len(set(labels)) < len(labels):
+        return None
+    return labels
+
+
+def categories(ds: xr.Dataset, dim: str) -> list[str] | None:
+    """Tick labels when grid axis ``dim`` is a discrete choice (model variant, active set, failed gyro),
+    else None. Labels come from the parameter's help text ("k: meaning"), else "name = k"."""
+    prm = _param(ds, dim)
+    if prm is None or prm.choices is None:
+        return None
+    vals = ds[dim].values
+    return _choice_labels(prm.doc, vals) or [f"{dim} = {float(v):g}" for v in vals]
+
+
+def category_axis(ax, which: str, labels: list[str], name: str):
+    set_ticks = ax.set_xticks if which == "x" else ax.set_yticks
+    set_ticks(np.arange(len(labels)), labels, fontsize=8, rotation=15 if which == "x" and len(labels) > 3 else 0)
+    (ax.set_xlabel if which == "x" else ax.set_ylabel)(name)
+
+
+def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
+    """The fixed scalar parameters that matter: those the theorems mention (e.g. mu on the default map),
+    then those the spec sets in [params]; discrete choices by their label ("paper mapping")."""
+    from .plotting import symbol  # plotting imports this module at load; symbol lives there
+
+    try:
+        fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))
+        chosen = list(json.loads(ds.attrs.get("spec_json", "{}")).get("params", {}))
+    except (ValueError, AttributeError):
+        return ""
+    words = set()
+    for k, v in ds.data_vars.items():
+        if k.startswith("theory_"):
+            words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", str(v.attrs.get("long_name", ""))))
+    names = [k for k in fixed if k in words] + [k for k in chosen if k in fixed and k not in words]
+    out = []
+    for k in names:
+        if np.size(fixed[k]) != 1 or k in ds.dims:
+            continue
+        value = float(np.ravel(fixed[k])[0])
+        prm = _param(ds, k)
+        label = _choice_labels(prm.doc, [value]) if prm is not None and prm.choices is not None else None
+        out.append(label[0] if label else f"{symbol(k)} = {value:.4g}")
+    return ", ".join(out[:limit])
+
+
+def cell_note(ds: xr.Dataset) -> str:
+    """What one cell of the map is: one trajectory, or the fraction of n random starts."""
+    if "sample" in ds["verdict"].dims:
+        return f"one cell: fraction of n = {ds.sizes['sample']} random starts"
+    return "one cell: one trajectory"
