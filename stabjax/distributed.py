@@ -262,7 +262,7 @@ BENCH_SPEC = {
     "params": {"mu": 1.5, "sigma": 1.3333333333333333},
     "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 64}},
     "sample": {"n": 64, "seed": 0, "s0": {"dist": "cap", "center": "r", "half_angle": 0.5}},
-    "integrate": {"t1": 100.0, "n_checkpoints": 64},
+    "integrate": {"t1": 1000.0, "n_checkpoints": 64},
 }
 
 
