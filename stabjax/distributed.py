@@ -172,7 +172,7 @@ class DaskExecutor:
 
         n = self.workers
         gpus = _gpu_devices()
-        env = {"OMP_NUM_THREADS": "1", "XLA_PYTHON_CLIENT_PREALLOCATE": os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "true")}
+        env = {"OMP_NUM_THREADS": "1"}
         if gpus:
             if n > len(gpus) and not self.oversubscribe:
                 raise ValidationError("--workers", f"{n} workers for {len(gpus)} GPU(s): one worker per device "

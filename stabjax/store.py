@@ -433,13 +433,18 @@ def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool) -
     g = zarr.open_group(Path(path) / DATA, mode="r")
     out = {}
     for k in manifest["arrays"]:
+        native = np.dtype(g[k].dtype.char)  # zarr 3 reports '<f8'; netCDF4 warns about explicit byte orders
         if lazy:
             import dask.array as da
 
-            out[k] = da.from_zarr(g[k])
+            out[k] = da.from_zarr(g[k]).map_blocks(_native, native, dtype=native)
         else:
-            out[k] = g[k][...]
+            out[k] = _native(g[k][...], native)
     return out
+
+
+def _native(b: np.ndarray, t: np.dtype) -> np.ndarray:
+    return b.view(t) if b.dtype.isnative else b.astype(t)
 
 
 def plan_from_manifest(manifest: Mapping[str, Any]):
