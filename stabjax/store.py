@@ -327,6 +327,11 @@ class ChunkStore:
             else:
                 p.unlink()
 
+    def discard(self):
+        """Delete the data and the manifest (the netCDF file is written); the lock stays until close."""
+        self._group = None
+        self._clear()
+
     def _save_manifest(self):
         try:
             _atomic_json(self.path / MANIFEST, self.manifest)

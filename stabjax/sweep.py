@@ -8,10 +8,10 @@ mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
-import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -248,10 +248,13 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         except OSError as exc:
             raise S.StoreIOError(f"could not write {out}: {exc}. Every chunk is finished and kept in {store_path}; "
                                  f"write the file with: stabjax export {store_path} --out {out}") from None
+        if not keep_partial:
+            sink.discard()  # under the lock: a writer waiting for it finds no store, not half of one
     finally:
         sink.close()
     if not keep_partial:
-        shutil.rmtree(store_path, ignore_errors=True)
+        with contextlib.suppress(OSError):
+            store_path.rmdir()
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
