@@ -59,6 +59,20 @@ def _setup_process():
         jax.config.update("jax_compilation_cache_dir", str(d))
 
 
+def plan_digest(plan) -> str:
+    """Hash of every parameter value a plan resolves to (grid axes, samples, fixed values: each small,
+    the cartesian product is not formed). A worker's re-planned plan must match it, so a Plan built
+    in code rather than from its spec is refused on the workers instead of silently recomputed."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name, arr in ([(f"grid:{a.key}", a.values) for a in plan.grid] + sorted((f"sample:{k}", v) for k, v in plan.sample.items())
+                      + sorted((f"fixed:{k}", v) for k, v in plan.fixed.items())):
+        a = np.ascontiguousarray(np.asarray(arr, dtype=float))
+        h.update(name.encode() + str(a.shape).encode() + a.tobytes())
+    return h.hexdigest()[:16]
+
+
 def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, threads: int | None = None) -> dict:
     """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data)."""
     from dataclasses import asdict
@@ -66,13 +80,14 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
     from .spec import _jsonable
 
     return {"spec": _jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
-            "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "threads": threads}
+            "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
+            "threads": threads}
 
 
 def _plan_key(payload: Mapping[str, Any]) -> str:
     import json
 
-    return payload["fingerprint"] + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True, default=str)
+    return payload["fingerprint"] + payload["digest"] + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True, default=str)
 
 
 def worker_plan(payload: Mapping[str, Any]):
@@ -88,9 +103,10 @@ def worker_plan(payload: Mapping[str, Any]):
         plan = make_plan(payload["spec"], t1=payload["t1"])
         plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**payload["icfg"]),
                        "vcfg": replace(plan.vcfg, **payload["vcfg"])})
-        if plan.fingerprint() != payload["fingerprint"]:
-            raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to fingerprint {plan.fingerprint()}, "
-                               f"the client's is {payload['fingerprint']} (different stabjax versions?)")
+        if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
+            raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
+                               f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
+                               "versions or model files, or a plan not built from its spec)")
         _PLANS[key] = plan
     return plan
 

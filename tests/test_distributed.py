@@ -15,7 +15,7 @@ import pytest
 
 from stabjax import distributed as D
 from stabjax import store as S
-from stabjax.errors import ValidationError
+from stabjax.errors import StabjaxError, ValidationError
 from stabjax.spec import make_plan
 from stabjax.sweep import open_result, run_plan
 
@@ -65,6 +65,14 @@ def test_payload_replans_to_the_same_plan(plan):
     again = D.worker_plan(json.loads(json.dumps(p)))  # plain data survives any serialisation
     assert again.fingerprint() == plan.fingerprint() and again.icfg == plan.icfg and again.vcfg == plan.vcfg
     assert D.worker_plan(p) is again  # planned once per process
+    # a plan changed in code (not from its spec) would be recomputed differently: refused
+    orig = plan.grid[0].values
+    plan.grid[0].values = orig + 0.01
+    try:
+        with pytest.raises(StabjaxError, match="not built from its spec"):
+            D.worker_plan(D.payload_for(plan, 4, {"t1": None}))
+    finally:
+        plan.grid[0].values = orig
 
 
 @pytest.mark.slow  # starts 2 spawned worker processes (~25 s on 2 busy cores)
