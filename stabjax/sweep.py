@@ -301,25 +301,32 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
 
 
 def _theory_vars(plan: Plan, chunk: int = 262_144) -> dict[str, tuple[np.ndarray, dict]]:
-    parts: dict[str, list[np.ndarray]] = {}
+    # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
+    # alone are ~0.65 GB, and a concatenation would hold them twice
+    full: dict[str, np.ndarray] = {}
     meta: dict[str, dict] = {}
     main = ""
+
+    def put(key, lo, hi, val, dtype):
+        if key not in full:
+            full[key] = np.empty(plan.size, dtype=dtype)
+        full[key][lo:hi] = np.broadcast_to(val, (hi - lo,))
+
     for lo in range(0, plan.size, chunk):
-        p = plan.system.check(plan.params_for(lo, min(plan.size, lo + chunk)))
+        hi = min(plan.size, lo + chunk)
+        p = plan.system.check(plan.params_for(lo, hi))
         th = plan.system.theory(p)
         main = th.main
         for name, pred in th.predicates.items():
-            n_here = min(plan.size, lo + chunk) - lo
-            parts.setdefault(f"theory_{name}", []).append(np.broadcast_to(pred.ok, (n_here,)).astype(np.int8))
-            parts.setdefault(f"margin_{name}", []).append(np.broadcast_to(pred.margin, (n_here,)).astype(float))
+            put(f"theory_{name}", lo, hi, pred.ok, np.int8)
+            put(f"margin_{name}", lo, hi, pred.margin, float)
             meta[f"theory_{name}"] = {"long_name": pred.doc, "flag_values": np.array([0, 1], np.int8),
                                       "flag_meanings": "not_guaranteed guaranteed"}
             meta[f"margin_{name}"] = {"long_name": f"signed margin of: {pred.doc} (> 0 inside)"}
         for name, val in th.derived.items():
-            n_here = min(plan.size, lo + chunk) - lo
-            parts.setdefault(f"derived_{name}", []).append(np.broadcast_to(val, (n_here,)).astype(float))
+            put(f"derived_{name}", lo, hi, val, float)
             meta[f"derived_{name}"] = {"long_name": th.derived_doc.get(name, name)}
-    out = {k: (np.concatenate(v), meta[k]) for k, v in parts.items()}
+    out = {k: (v, meta[k]) for k, v in full.items()}
     out["_main"] = (np.array(main), {})
     return out
 
