@@ -328,8 +328,11 @@ class ChunkStore:
                 p.unlink()
 
     def discard(self):
-        """Delete the data and the manifest (the netCDF file is written); the lock stays until close."""
+        """Delete the data and the manifest (the netCDF file is written); the lock stays until close.
+        The manifest goes first: a kill midway leaves a store that starts over, never one whose
+        manifest lists chunks whose data are gone."""
         self._group = None
+        (self.path / MANIFEST).unlink(missing_ok=True)
         self._clear()
 
     def _save_manifest(self):
