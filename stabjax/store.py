@@ -198,6 +198,9 @@ class Lock:
                         and not _pid_alive(holder["pid"]):
                     self._break(holder)
                     continue
+                if not holder and self._age() > 10:  # its creator died between creating and writing it
+                    self._break(holder)
+                    continue
                 who = f"pid {holder.get('pid')} on {holder.get('host')}" if holder else "another process"
                 raise StoreError(
                     f"{store} is in use by {who} (lock {self.path}, since {holder.get('started', '?') if holder else '?'}); "
@@ -210,6 +213,12 @@ class Lock:
             self.held = True
             return
         raise StoreError(f"could not take the lock {self.path} (contended)")
+
+    def _age(self) -> float:
+        try:
+            return time.time() - self.path.stat().st_mtime
+        except OSError:
+            return 0.0
 
     def _break(self, stale: dict):
         # only one process may break a stale lock: otherwise a second breaker could delete the

@@ -145,6 +145,12 @@ def test_second_writer_refused_and_stale_lock_taken_over(spec, tmp_path):
     with S.ChunkStore(path, plan, 4) as st:
         assert json.loads((path / S.LOCK).read_text())["pid"] == os.getpid()
         assert st.pending() == [0, 1, 2, 3]
+    # an empty lock (its creator killed between creating and writing it) is stale once old
+    (path / S.LOCK).write_text("")
+    with pytest.raises(S.StoreError, match="in use by another process"):
+        S.ChunkStore(path, plan, 4)
+    os.utime(path / S.LOCK, (time.time() - 60, time.time() - 60))
+    S.ChunkStore(path, plan, 4).close()
     # a lock held on another host cannot be checked: refused
     (path / S.LOCK).write_text(json.dumps({"pid": 1, "host": "elsewhere", "started": "x"}))
     with pytest.raises(S.StoreError, match="pid 1 on elsewhere"):
