@@ -144,3 +144,38 @@ def test_scheduler_and_two_workers_recipe(tmp_path, reference):
         for p in procs:
             p.wait(30)
         log.close()
+
+
+@pytest.mark.slow  # a CLI client with 2 local workers, killed, then run again (~60 s)
+def test_dask_client_sigkill_then_rerun(tmp_path, reference):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    out = tmp_path / "k.nc"
+    store = tmp_path / "k.nc.zarr"
+    cmd = [sys.executable, "-m", "stabjax", "sweep", str(spec), "--out", str(out), "--batch-size", "2",
+           "--workers", "2", "--threads", "1", "--no-progress", "--no-plot"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    p = subprocess.Popen(cmd, env={**env, "_STABJAX_TEST_CHUNK_SLEEP": "1.0"}, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, cwd=tmp_path)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:
+            try:
+                if len(S.read_manifest(store)["chunks"]) >= 2:
+                    break
+            except (TypeError, S.StoreError):
+                pass
+            time.sleep(0.05)
+        else:
+            pytest.fail("no chunks finished in 120 s")
+        os.kill(p.pid, signal.SIGKILL)
+    finally:
+        p.kill()
+        p.wait(30)
+    done = len(S.read_manifest(store)["chunks"])
+    assert 2 <= done < 8 and not out.exists()
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ds = open_result(out)
+    assert ds.attrs["chunks_resumed"] == done
+    assert_same(ds, reference)
