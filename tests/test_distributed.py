@@ -179,3 +179,16 @@ def test_dask_client_sigkill_then_rerun(tmp_path, reference):
     ds = open_result(out)
     assert ds.attrs["chunks_resumed"] == done
     assert_same(ds, reference)
+
+
+@pytest.mark.slow  # starts 2 worker processes (~15 s)
+def test_one_worker_per_gpu_sees_only_its_device(monkeypatch):
+    """The multi-GPU layout, checked on CPU: with two (pretend) devices each worker gets its own
+    CUDA_VISIBLE_DEVICES; more workers than devices is refused. (No GPU runs here.)"""
+    monkeypatch.setattr(D, "_gpu_devices", lambda: ["3", "5"])
+    with pytest.raises(ValidationError, match="one worker per device"):
+        D.DaskExecutor(workers=3)._local_cluster()
+    with D.DaskExecutor(workers=2) as ex:
+        ex.wait_for_workers(2)
+        seen = ex.client.run(lambda: os.environ.get("CUDA_VISIBLE_DEVICES"))
+    assert sorted(seen.values()) == ["3", "5"]
