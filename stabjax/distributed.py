@@ -145,7 +145,7 @@ class DaskExecutor:
     """
 
     def __init__(self, *, scheduler: str | None = None, workers: int | None = None, threads: int | None = None,
-                 oversubscribe: bool = False, retries: int = 2, timeout: float = 60.0):
+                 oversubscribe: bool = False, retries: int = 2, timeout: float = 30.0):
         if (scheduler is None) == (workers is None):
             raise ValidationError("--scheduler", "give either --scheduler ADDRESS or --workers N (not both)")
         if workers is not None and workers < 1:
