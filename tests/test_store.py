@@ -283,3 +283,31 @@ def test_lazy_assembly_for_big_sweeps(spec, tmp_path, monkeypatch, reference):
     assert ds["verdict"].chunks is not None  # returned lazily, read from the file
     assert_same(ds, reference)
     assert_same(open_result(out), reference)
+
+
+def test_trailing_dims_are_chunked_with_the_sweep(spec, tmp_path, monkeypatch):
+    """Results with trailing dims (INTERFACES item 2: e.g. a verdict per horizon) are stored as
+    (N, *trailing) arrays whose zarr chunks are (batch, *trailing), named from verdict.TRAILING_DIMS."""
+    import zarr
+
+    from stabjax import verdict as V
+
+    monkeypatch.setattr(V, "TRAILING_DIMS", {"verdict": ("horizon",)}, raising=False)
+    plan = make_plan(load_spec(spec))
+    rng = np.random.default_rng(0)
+    full = {"verdict": rng.integers(0, 5, (16, 3)).astype(np.int8), "n_steps": rng.integers(0, 99, 16),
+            "feat": rng.standard_normal((16, 2))}
+    path = tmp_path / "t.zarr"
+    with S.ChunkStore(path, plan, 5) as st:
+        for i in (3, 0, 2, 1):  # any completion order
+            lo, hi = st.bounds(i)
+            st.write(i, {k: v[lo:hi] for k, v in full.items()}, "native")
+        assert st.complete()
+    m = S.read_manifest(path)
+    g = zarr.open_group(path / "data", mode="r")
+    assert g["verdict"].chunks == (5, 3) and g["feat"].chunks == (5, 2)
+    assert tuple(g["verdict"].metadata.dimension_names) == ("traj", "horizon")
+    for lazy in (False, True):
+        got = S.load_results(path, m, lazy=lazy)
+        for k, v in full.items():
+            np.testing.assert_array_equal(np.asarray(got[k]), v)
