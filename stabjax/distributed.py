@@ -34,6 +34,7 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 
 from .errors import StabjaxError, ValidationError
+from .store import model_fingerprint
 
 _PLANS: dict[str, Any] = {}  # per worker process: plan key -> Plan (so each spec is planned and compiled once)
 
@@ -81,7 +82,7 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
 
     return {"spec": _jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
             "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
-            "threads": threads}
+            "model": model_fingerprint(plan.system), "threads": threads}
 
 
 def _plan_key(payload: Mapping[str, Any]) -> str:
@@ -107,6 +108,11 @@ def worker_plan(payload: Mapping[str, Any]):
             raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
                                f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
                                "versions or model files, or a plan not built from its spec)")
+        mine = model_fingerprint(plan.system)
+        if mine != payload["model"]:
+            raise StabjaxError(f"worker {socket.gethostname()}: model source {mine['file']} differs from the client's "
+                               f"(sha256 {mine['sha256']} vs {payload['model']['sha256']}); install the same model files "
+                               "on every worker")
         _PLANS[key] = plan
     return plan
 

@@ -65,6 +65,10 @@ def test_payload_replans_to_the_same_plan(plan):
     again = D.worker_plan(json.loads(json.dumps(p)))  # plain data survives any serialisation
     assert again.fingerprint() == plan.fingerprint() and again.icfg == plan.icfg and again.vcfg == plan.vcfg
     assert D.worker_plan(p) is again  # planned once per process
+    # a worker whose model file differs from the client's refuses the chunk
+    D._PLANS.clear()
+    with pytest.raises(StabjaxError, match="model source monoaxial.py differs"):
+        D.worker_plan({**p, "model": {"file": "monoaxial.py", "sha256": "0" * 16}})
     # a plan changed in code (not from its spec) would be recomputed differently: refused
     orig = plan.grid[0].values
     plan.grid[0].values = orig + 0.01
