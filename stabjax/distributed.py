@@ -18,7 +18,9 @@ Local workers are started by spawning (``distributed.worker.multiprocessing-meth
 never by forking this process, which has loaded JAX. Threads: every worker runs one chunk at a
 time (one Dask thread); the native engine inside it uses ``threads`` OS threads, passed through
 the environment variable ``STABJAX_THREADS`` (read by the native engine's ``default_threads``).
-``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``. On a host with
+``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
+Arbitrary points of a plan (the rounds of :mod:`stabjax.refine`) go to the workers through
+:meth:`DaskExecutor.points_solver`, a ``solve_points(params) -> results`` callable. On a host with
 several GPUs a local cluster runs one worker per device, each seeing only its own
 (``CUDA_VISIBLE_DEVICES``).
 """
@@ -128,6 +130,18 @@ def run_chunk(payload: Mapping[str, Any], i: int):
     res, engine = solve_chunk(plan, payload["batch"], i)
     info = {"worker": f"{socket.gethostname()}:{os.getpid()}", "seconds": round(time.perf_counter() - t0, 4)}
     return i, res, engine, info
+
+
+def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
+    """The task for arbitrary points of the payload's plan (e.g. a refinement round): (results, engine)."""
+    from .engine import last_engine, solve_batch
+    from .sweep import static_params
+
+    if payload.get("threads"):
+        os.environ["STABJAX_THREADS"] = str(int(payload["threads"]))
+    plan = worker_plan(payload)
+    res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
+    return {k: np.asarray(v) for k, v in res.items()}, last_engine()
 
 
 def _gpu_devices() -> list[str]:
@@ -250,6 +264,35 @@ class DaskExecutor:
         self.client.wait_for_workers(n, timeout=timeout or self.timeout)
 
     # -- work
+    def points_solver(self, plan, *, chunk: int | None = None):
+        """A ``solve_points(params) -> results`` callable that evaluates arbitrary points of ``plan``
+        (every parameter, leading dim n, already checked) on the workers: split into pieces of
+        ``chunk`` (default: n / workers, at least 64), each padded to the same size (one compile per
+        shape), results in the order given. For rounds of :mod:`stabjax.refine`."""
+        payload = payload_for(plan, 0, None, None if self.cluster is not None else self.threads)
+
+        def solve_points(params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+            n = len(next(iter(params.values())))
+            size = int(chunk or max(64, -(-n // max(1, self.n_workers()))))
+            pieces = []
+            for lo in range(0, n, size):
+                hi = min(n, lo + size)
+                p = {k: np.asarray(v[lo:hi]) for k, v in params.items()}
+                if hi - lo < size:
+                    p = {k: np.concatenate([v, np.repeat(v[-1:], size - (hi - lo), axis=0)]) for k, v in p.items()}
+                pieces.append((lo, hi, p))
+            futs = [self.client.submit(run_points, payload, p, retries=self.retries, pure=False) for _, _, p in pieces]
+            try:
+                parts = self.client.gather(futs)
+            finally:
+                for f in futs:
+                    f.release()
+            self.last_engines = sorted({e for _, e in parts})
+            return {k: np.concatenate([r[k][: hi - lo] for (lo, hi, _), (r, _) in zip(pieces, parts)])
+                    for k in parts[0][0]}
+
+        return solve_points
+
     def map_chunks(self, plan, batch: int, chunks: Iterable[int], overrides: Mapping[str, Any] | None = None
                    ) -> Iterator[tuple[int, dict[str, np.ndarray], str, dict]]:
         """Submit every chunk; yield (i, results, engine, info) as each completes (any order)."""

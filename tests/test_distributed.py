@@ -91,6 +91,17 @@ def test_local_cluster_same_dataset_and_worker_killed(plan, reference, tmp_path,
         assert_same(ds, reference)  # bitwise: the same engine, the same chunks
         assert ds.attrs["engine"] == reference.attrs["engine"] and "dask" in ds.attrs["executor"]
 
+        # arbitrary points (a refinement round) through the workers: the local engine's values
+        from stabjax.engine import solve_batch
+        from stabjax.sweep import static_params
+
+        pts = plan.params_at(np.array([15, 0, 7, 3, 9]))
+        got = ex.points_solver(plan, chunk=2)(pts)
+        want = solve_batch(plan.system, pts, plan.icfg, plan.vcfg, static=static_params(plan))
+        for k in want:
+            np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+        np.testing.assert_array_equal(got["verdict"], reference["verdict"].values.ravel()[[15, 0, 7, 3, 9]])
+
         done_before = set()
 
         def kill_busy_worker(i, n):
