@@ -1,7 +1,8 @@
-"""Command-line interface: ``stabjax systems | simulate | theory | sweep | plot | horizon-check | reproduce | bench``.
+"""Command-line interface: ``stabjax systems | simulate | theory | sweep | export | plot | horizon-check | reproduce | bench``.
 
 Every user error (:class:`stabjax.errors.StabjaxError`) is printed as ``error: <field>: <message>``
-and exits with status 2; finished sweep chunks are kept on disk, so the same command resumes.
+and exits with status 2 (a failed write of the chunk store or the output, e.g. a full disk: status 1);
+finished sweep chunks are kept on disk, so the same command resumes.
 """
 from __future__ import annotations
 
@@ -210,23 +211,53 @@ def sweep(
     batch_size: Optional[int] = typer.Option(None, "--batch-size", help="trajectories per compiled chunk"),
     t1: Optional[float] = typer.Option(None, help="override [integrate].t1"),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="also write <out>.png"),
-    restart: bool = typer.Option(False, help="discard finished chunks of an earlier run of this output"),
+    restart: bool = typer.Option(False, help="discard the finished chunks of an earlier run of this output"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
+    store: Optional[Path] = typer.Option(None, help="chunk store (zarr directory; default <out>.zarr)"),
+    keep_store: bool = typer.Option(False, "--keep-store", help="keep the chunk store after writing <out>"),
+    scheduler: Optional[str] = typer.Option(None, help="run the chunks on an existing Dask scheduler "
+                                            "(tcp://HOST:8786 or a scheduler file)"),
+    workers: Optional[int] = typer.Option(None, help="run the chunks on a local Dask cluster of N worker processes"),
+    threads: Optional[int] = typer.Option(None, help="native engine threads per Dask worker "
+                                          "(default: cores // workers locally)"),
+    oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
+                                       "(or more local workers than GPUs)"),
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
     from .spec import load_spec
-    from .sweep import run_spec
+    from .sweep import default_store, run_spec
 
+    if threads is not None and scheduler is None and workers is None:
+        from .errors import ValidationError
+
+        raise ValidationError("--threads", "applies to Dask workers: give --workers N or --scheduler ADDRESS "
+                              "(a local run uses $STABJAX_THREADS)")
     s = load_spec(spec)
     out = out or Path("results") / f"{s['name']}.nc"
+    store = store or default_store(out)
+    executor = None
+    if scheduler is not None or workers is not None:
+        import os
+
+        from .distributed import DaskExecutor
+
+        # this process only collects results: keep a GPU's memory for the workers
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+        executor = DaskExecutor(scheduler=scheduler, workers=workers, threads=threads, oversubscribe=oversubscribe)
     try:
-        ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1)
+        if executor is not None:
+            executor.start()
+        ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1, store=store,
+                      keep_partial=keep_store, executor=executor)
     except KeyboardInterrupt:
-        err_console.print(f"[yellow]interrupted: finished chunks are kept in {out}.partial; "
+        err_console.print(f"[yellow]interrupted: finished chunks are kept in {store}; "
                           "run the same command to resume[/yellow]")
         raise typer.Exit(130)
+    finally:
+        if executor is not None:
+            executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
-                  f"{ds.attrs['wall_time_s']:.1f} s)")
+                  f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})")
     _report(ds, out.with_suffix(".png") if plot else None)
 
 
@@ -250,6 +281,18 @@ def _report(ds, png: Optional[Path]):
             plot_sweep(ds, png)
     if png is not None:
         console.print(f"wrote {png}")
+
+
+@app.command()
+def export(
+    store: Path = typer.Argument(..., help="a finished chunk store (the zarr directory of a sweep)"),
+    out: Path = typer.Option(..., help="netCDF file to write"),
+):
+    """Write the netCDF file of a finished chunk store (e.g. one kept with --keep-store)."""
+    from .store import export as export_store
+
+    ds = export_store(store, out)
+    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, engine {ds.attrs['engine']})")
 
 
 @app.command("plot")
@@ -346,7 +389,7 @@ def main(argv: list[str] | None = None):
         app(args=argv, standalone_mode=False)
     except StabjaxError as exc:
         err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
-        sys.exit(2)
+        sys.exit(getattr(exc, "exit_code", 2))  # 2: bad input / refused; 1: I/O failure (store.StoreIOError)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except SystemExit:

@@ -1,16 +1,17 @@
 """Run a sweep plan in chunks of bounded memory, resumable, into a labelled xarray Dataset.
 
 Chunks all have the same size (the last is padded) so the vmapped solve compiles once per
-spec. With an output path, each finished chunk is written to ``<out>.partial/`` with a
-manifest holding the plan fingerprint; a killed sweep restarted with the same spec skips
-finished chunks, and a changed spec is refused rather than silently mixed.
+spec. With an output path, each finished chunk is written to a zarr store (``<out>.zarr``,
+:mod:`stabjax.store`) as it finishes; a killed sweep restarted with the same command continues
+from it, and a changed spec, model or command-line override is refused rather than silently
+mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
-import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -99,109 +100,191 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
     return int(min(batch_size, plan.size))
 
 
-class _Store:
-    """Finished chunks on disk next to the output file."""
+class _Memory:
+    """Chunk results kept in memory (a sweep without an output file); the store's interface."""
 
-    def __init__(self, out: Path, plan: Plan, batch: int, restart: bool):
-        self.dir = Path(str(out) + ".partial")
-        self.manifest = {"fingerprint": plan.fingerprint(), "size": plan.size, "batch_size": batch}
-        mf = self.dir / "manifest.json"
-        if self.dir.exists() and mf.exists() and not restart:
-            old = json.loads(mf.read_text())
-            if old != self.manifest:
-                raise StabjaxError(
-                    f"{self.dir} holds a partial run of a different sweep (fingerprint {old.get('fingerprint')} vs "
-                    f"{self.manifest['fingerprint']}, batch size {old.get('batch_size')} vs {batch}); "
-                    "pass --restart to discard it, or use another --out"
-                )
-        elif self.dir.exists() and restart:
-            shutil.rmtree(self.dir)
-        self.dir.mkdir(parents=True, exist_ok=True)
-        mf.write_text(json.dumps(self.manifest))
+    def __init__(self, plan: Plan, batch: int):
+        self.batch, self.n = batch, plan.size
+        self.n_chunks = -(-self.n // batch)
+        self.results: dict[str, np.ndarray] = {}
+        self.manifest: dict[str, Any] = {"chunks": {}}
 
-    def path(self, i: int) -> Path:
-        return self.dir / f"chunk_{i:06d}.npz"
+    def pending(self) -> list[int]:
+        return [i for i in range(self.n_chunks) if str(i) not in self.manifest["chunks"]]
 
-    def done(self, i: int) -> bool:
-        return self.path(i).exists()
+    def bounds(self, i: int) -> tuple[int, int]:
+        return i * self.batch, min(self.n, (i + 1) * self.batch)
 
-    def load(self, i: int) -> dict[str, np.ndarray]:
-        with np.load(self.path(i)) as z:
-            return {k: z[k] for k in z.files}
+    def steps(self) -> int:
+        return int(sum(c["steps"] for c in self.manifest["chunks"].values()))
 
-    def save(self, i: int, res: Mapping[str, np.ndarray]):
-        tmp = self.dir / f".tmp_{i:06d}.npz"
-        np.savez(tmp, **res)
-        os.replace(tmp, self.path(i))  # atomic: a kill never leaves a half-written chunk
+    def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
+        lo, hi = self.bounds(i)
+        for k, v in res.items():
+            if k not in self.results:
+                self.results[k] = np.empty((self.n, *v.shape[1:]), dtype=v.dtype)
+            self.results[k][lo:hi] = v
+        self.manifest["chunks"][str(i)] = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()),
+                                           **(info or {})}
 
-    def remove(self):
-        shutil.rmtree(self.dir, ignore_errors=True)
+    def close(self):
+        pass
+
+
+LAZY_ABOVE = 1 << 22  # trajectories: above this, the netCDF file is written from the store chunk by chunk
+
+
+def chunk_params(plan: Plan, batch: int, i: int) -> dict[str, np.ndarray]:
+    """Parameters of chunk ``i``; the last chunk is padded with copies of its last trajectory so every
+    chunk has the same shapes (one compile per spec)."""
+    lo, hi = i * batch, min(plan.size, (i + 1) * batch)
+    p = plan.params_for(lo, hi)
+    if hi - lo < batch:
+        p = {k: np.concatenate([v, np.repeat(v[-1:], batch - (hi - lo), axis=0)]) for k, v in p.items()}
+    return p
+
+
+def solve_chunk(plan: Plan, batch: int, i: int, *,
+                progress: Callable[[int, int], None] | None = None) -> tuple[dict[str, np.ndarray], str]:
+    """Integrate chunk ``i`` of ``plan``: (per-trajectory results trimmed to the chunk, engine name).
+
+    The one function that computes a chunk, here and on Dask workers, so both give the same numbers.
+    """
+    delay = os.environ.get("_STABJAX_TEST_CHUNK_SLEEP")  # tests only: widen the window for kill -9
+    if delay:
+        time.sleep(float(delay))
+    lo, hi = i * batch, min(plan.size, (i + 1) * batch)
+    res = solve_batch(plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg, static=static_params(plan),
+                      progress=progress)
+    return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, last_engine()
+
+
+def default_store(out: str | Path) -> Path:
+    return Path(str(out) + ".zarr")
 
 
 def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | None = None, progress: bool = False,
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
-             on_chunk: Callable[[int, int], None] | None = None) -> xr.Dataset:
-    """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset."""
+             on_chunk: Callable[[int, int], None] | None = None, store: str | Path | None = None,
+             overrides: Mapping[str, Any] | None = None, executor=None) -> xr.Dataset:
+    """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset.
+
+    With ``out`` (or ``store``), finished chunks go to a zarr store (:mod:`stabjax.store`; default
+    ``<out>.zarr``) as they finish: the same call after a kill continues from it, ``restart`` starts
+    over, a different computation on the same store is refused, and so is a second writer. After
+    ``out`` is written the store is removed unless ``keep_partial``. ``overrides``: the command-line
+    settings that are not in the spec (``t1``), recorded in the store's identity. ``executor``: a
+    :class:`stabjax.distributed.DaskExecutor` to run the chunks on Dask workers (default: here).
+    """
+    from . import store as S
+
+    store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
+    if batch_size is None and store_path is not None and not restart:
+        batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
     n = plan.size
     n_chunks = -(-n // batch)
-    store = _Store(Path(out), plan, batch, restart) if out is not None else None
-    results: dict[str, np.ndarray] = {}
+    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
+    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
+        else _Memory(plan, batch)
     t_start = time.perf_counter()
-    steps_total = 0
-    n_resumed = 0
-    engines: set[str] = set()
-
-    def put(i, res):
-        nonlocal steps_total
-        lo, hi = i * batch, min(n, (i + 1) * batch)
-        for k, v in res.items():
-            if k not in results:
-                results[k] = np.empty((n, *v.shape[1:]), dtype=v.dtype)
-            results[k][lo:hi] = v[: hi - lo]
-        steps_total += int(res["n_steps"][: hi - lo].sum())
-
-    bar = _progress(progress, n, plan.name)
     try:
-        for i in range(n_chunks):
-            lo, hi = i * batch, min(n, (i + 1) * batch)
-            shown = [0]
-            if store is not None and store.done(i):
-                put(i, store.load(i))
-                n_resumed += 1
+        pending = sink.pending()
+        n_resumed = n_chunks - len(pending)
+        bar = _progress(progress, n, plan.name, n_chunks)
+        try:
+            if bar is not None and n_resumed:
+                bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
+                           steps=0, chunks=n_resumed)
+            steps_run = 0
+            if executor is None:
+                for i in pending:
+                    lo, hi = sink.bounds(i)
+                    shown = [0]
+
+                    def within(done, _total, lo=lo, hi=hi, shown=shown):
+                        k = min(done, hi - lo) - shown[0]
+                        if bar is not None and k > 0:
+                            bar.update(k, steps=steps_run)
+                            shown[0] += k
+
+                    t0 = time.perf_counter()
+                    res, eng = solve_chunk(plan, batch, i, progress=within)
+                    sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
+                                             "seconds": round(time.perf_counter() - t0, 4)})
+                    steps_run += int(res["n_steps"].sum())
+                    if bar is not None:
+                        bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
+                    if on_chunk is not None:
+                        on_chunk(i, n_chunks)
             else:
-                p = plan.params_for(lo, hi)
-                if hi - lo < batch:  # pad with copies of the last trajectory: same shapes, no recompile
-                    p = {k: np.concatenate([v, np.repeat(v[-1:], batch - (hi - lo), axis=0)]) for k, v in p.items()}
-                shown = [0]
-
-                def within(done, _total, lo=lo, hi=hi, shown=shown):
-                    k = min(done, hi - lo) - shown[0]
-                    if bar is not None and k > 0:
-                        bar.update(k, steps=steps_total)
-                        shown[0] += k
-
-                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan), progress=within)
-                engines.add(last_engine())
-                res = {k: v[: hi - lo] for k, v in res.items()}
-                if store is not None:
-                    store.save(i, res)
-                put(i, res)
+                for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
+                    lo, hi = sink.bounds(i)
+                    sink.write(i, res, eng, info)
+                    steps_run += int(res["n_steps"].sum())
+                    del res
+                    if bar is not None:
+                        bar.update(hi - lo, steps=steps_run, chunk_done=True)
+                    if on_chunk is not None:
+                        on_chunk(i, n_chunks)
+        finally:
             if bar is not None:
-                bar.update(hi - lo - shown[0], steps=steps_total)
-            if on_chunk is not None:
-                on_chunk(i, n_chunks)
-    finally:
-        if bar is not None:
-            bar.close()
-    wall = time.perf_counter() - t_start
-    ds = assemble(plan, results, wall=wall, steps=steps_total, batch=batch, n_resumed=n_resumed)
-    ds.attrs["engine"] = ",".join(sorted(engines)) or "resumed"
-    if out is not None:
-        write(ds, out)
+                bar.close()
+        wall = time.perf_counter() - t_start
+        run_attrs = dict(wall=wall, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
+        executor_name = executor.describe() if executor is not None else "local"
+        if isinstance(sink, _Memory):
+            ds = assemble(plan, sink.results, **run_attrs)
+            _engine_attrs(ds, sink.manifest, executor_name)
+            return ds
+        lazy = n > LAZY_ABOVE
+        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, **run_attrs)
+        if not lazy:
+            ds = ds.load()
+        if out is None:
+            return ds
+        try:
+            write(ds, out)
+        except OSError as exc:
+            raise S.StoreIOError(f"could not write {out}: {exc}. Every chunk is finished and kept in {store_path}; "
+                                 f"write the file with: stabjax export {store_path} --out {out}") from None
         if not keep_partial:
-            store.remove()
+            sink.discard()  # under the lock: a writer waiting for it finds no store, not half of one
+    finally:
+        sink.close()
+    if not keep_partial:
+        with contextlib.suppress(OSError):
+            store_path.rmdir()
+    if lazy:  # not loaded into memory: read back lazily, chunk by chunk
+        return xr.open_dataset(out, engine="netcdf4", chunks={})
+    return ds
+
+
+def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str) -> None:
+    from .store import engines_of
+
+    by = engines_of(manifest)
+    ds.attrs["engine"] = ",".join(sorted(by))  # the engines that computed the chunks, resumed ones included
+    ds.attrs["engine_chunks_json"] = json.dumps(by)  # engine -> [first, last] chunk runs
+    ds.attrs["executor"] = executor
+
+
+def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, Any], *, lazy: bool,
+                   executor: str = "", wall: float | None = None, steps: int | None = None, batch: int | None = None,
+                   n_resumed: int | None = None) -> xr.Dataset:
+    """The sweep's Dataset from a complete store (arrays as dask arrays reading the store if ``lazy``)."""
+    from .store import load_results
+
+    results = load_results(store_path, manifest, lazy=lazy)
+    chunks = manifest["chunks"].values()
+    ds = assemble(plan, results,
+                  wall=float(sum(c.get("seconds", 0.0) for c in chunks)) if wall is None else wall,
+                  steps=int(sum(c.get("steps", 0) for c in chunks)) if steps is None else steps,
+                  batch=int(manifest["batch_size"]) if batch is None else batch,
+                  n_resumed=0 if n_resumed is None else n_resumed)
+    _engine_attrs(ds, manifest, executor or "store")
+    ds.attrs["store_created"] = manifest.get("created", "")
     return ds
 
 
@@ -211,32 +294,40 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
     if isinstance(spec, (str, Path)):
         spec = load_spec(spec)
     plan = make_plan(spec, t1=t1)
-    return run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, **kw)
+    return run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart,
+                    overrides={"t1": None if t1 is None else float(t1)}, **kw)
 
 
 # ---- dataset assembly ------------------------------------------------------------------------
 
 
 def _theory_vars(plan: Plan, chunk: int = 262_144) -> dict[str, tuple[np.ndarray, dict]]:
-    parts: dict[str, list[np.ndarray]] = {}
+    # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
+    # alone are ~0.65 GB, and a concatenation would hold them twice
+    full: dict[str, np.ndarray] = {}
     meta: dict[str, dict] = {}
     main = ""
+
+    def put(key, lo, hi, val, dtype):
+        if key not in full:
+            full[key] = np.empty(plan.size, dtype=dtype)
+        full[key][lo:hi] = np.broadcast_to(val, (hi - lo,))
+
     for lo in range(0, plan.size, chunk):
-        p = plan.system.check(plan.params_for(lo, min(plan.size, lo + chunk)))
+        hi = min(plan.size, lo + chunk)
+        p = plan.system.check(plan.params_for(lo, hi))
         th = plan.system.theory(p)
         main = th.main
         for name, pred in th.predicates.items():
-            n_here = min(plan.size, lo + chunk) - lo
-            parts.setdefault(f"theory_{name}", []).append(np.broadcast_to(pred.ok, (n_here,)).astype(np.int8))
-            parts.setdefault(f"margin_{name}", []).append(np.broadcast_to(pred.margin, (n_here,)).astype(float))
+            put(f"theory_{name}", lo, hi, pred.ok, np.int8)
+            put(f"margin_{name}", lo, hi, pred.margin, float)
             meta[f"theory_{name}"] = {"long_name": pred.doc, "flag_values": np.array([0, 1], np.int8),
                                       "flag_meanings": "not_guaranteed guaranteed"}
             meta[f"margin_{name}"] = {"long_name": f"signed margin of: {pred.doc} (> 0 inside)"}
         for name, val in th.derived.items():
-            n_here = min(plan.size, lo + chunk) - lo
-            parts.setdefault(f"derived_{name}", []).append(np.broadcast_to(val, (n_here,)).astype(float))
+            put(f"derived_{name}", lo, hi, val, float)
             meta[f"derived_{name}"] = {"long_name": th.derived_doc.get(name, name)}
-    out = {k: (np.concatenate(v), meta[k]) for k, v in parts.items()}
+    out = {k: (v, meta[k]) for k, v in full.items()}
     out["_main"] = (np.array(main), {})
     return out
 
@@ -353,11 +444,20 @@ def _jsonable(x):
 
 
 def write(ds: xr.Dataset, out: str | Path) -> Path:
+    """Write ``ds`` to ``out`` atomically (temp file of this process + ``os.replace``); dask-backed
+    variables are computed and written one chunk at a time, in this thread (bounded memory)."""
+    import dask
+
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    ds.to_netcdf(tmp, engine="netcdf4")
-    os.replace(tmp, out)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    try:
+        with dask.config.set(scheduler="synchronous"):
+            ds.to_netcdf(tmp, engine="netcdf4")
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return out
 
 
@@ -409,7 +509,7 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
 
 
 class _Bar:
-    def __init__(self, total: int, name: str):
+    def __init__(self, total: int, name: str, chunks: int = 0):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
         self.progress = Progress(
@@ -418,15 +518,24 @@ class _Bar:
         )
         self.t0 = time.perf_counter()
         self.progress.start()
-        self.task = self.progress.add_task(name, total=total, rate="")
+        self.name, self.chunks, self.chunks_done, self.run = name, chunks, 0, 0
+        self.task = self.progress.add_task(self._desc(), total=total, rate="")
 
-    def update(self, k: int, steps: int = 0):
+    def _desc(self) -> str:
+        return f"{self.name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else self.name
+
+    def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
+        """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""
         dt = max(time.perf_counter() - self.t0, 1e-9)
-        self.progress.update(self.task, advance=k, rate=f"{steps / dt:,.0f} traj-steps/s")
+        self.chunks_done += chunks + int(chunk_done)
+        if not chunks:
+            self.run += k
+        self.progress.update(self.task, advance=k, description=self._desc(),
+                             rate=f"{self.run / dt:,.0f} traj/s {steps / dt:,.0f} traj-steps/s")
 
     def close(self):
         self.progress.stop()
 
 
-def _progress(enabled: bool, total: int, name: str):
-    return _Bar(total, name) if enabled else None
+def _progress(enabled: bool, total: int, name: str, chunks: int = 0):
+    return _Bar(total, name, chunks) if enabled else None

@@ -39,7 +39,7 @@ def test_sweep_4x4_end_to_end(tmp_path, capsys):
     out = tmp_path / "tiny.nc"
     assert run_cli("sweep", str(spec), "--out", str(out), "--no-progress") == 0
     assert out.exists() and out.with_suffix(".png").stat().st_size > 10_000
-    assert not Path(str(out) + ".partial").exists()
+    assert not Path(str(out) + ".zarr").exists()
     ds = open_result(out)
     assert ds["verdict"].dims == ("alpha", "sigma") and ds["verdict"].shape == (4, 4)
     for var in ("verdict", "error_t1", "error_max_settled", "t_first_flip", "decay_exponent", "n_steps",
@@ -74,20 +74,22 @@ def test_resume_after_interrupt(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         run_plan(plan, out, batch_size=4, on_chunk=boom)
-    partial = Path(str(out) + ".partial")
-    assert len(list(partial.glob("chunk_*.npz"))) == 2 and not out.exists()
+    from stabjax.store import read_manifest
+
+    partial = Path(str(out) + ".zarr")
+    assert len(read_manifest(partial)["chunks"]) == 2 and not out.exists()
     ds = run_plan(plan, out, batch_size=4)
     assert ds.attrs["chunks_resumed"] == 2
     ref = run_plan(plan, None, batch_size=4)
     np.testing.assert_array_equal(ds["verdict"].values, ref["verdict"].values)
     np.testing.assert_allclose(ds["error_t1"].values, ref["error_t1"].values, rtol=1e-12)
     # a different spec on the same output is refused, not mixed
-    partial.mkdir()
-    (partial / "manifest.json").write_text(json.dumps({"fingerprint": "other", "size": 16, "batch_size": 4}))
     from stabjax.errors import StabjaxError
 
-    with pytest.raises(StabjaxError, match="different sweep"):
-        run_plan(plan, out, batch_size=4)
+    with pytest.raises(KeyboardInterrupt):
+        run_plan(plan, out, batch_size=4, on_chunk=boom)
+    with pytest.raises(StabjaxError, match="different computation"):
+        run_plan(make_plan({**load_spec(spec), "name": "other"}), out, batch_size=4)
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,433 @@
+"""Sweeps on Dask workers: an existing scheduler (``--scheduler tcp://HOST:PORT``) or a local
+cluster of worker processes (``--workers N``).
+
+What is sent to a worker is ``solve chunk i of plan P`` as plain data (the spec dict, the
+command-line t1, the effective integrate/verdict settings and the chunk size); the worker plans
+the spec itself (once per process: :data:`_PLANS`, keyed by the plan fingerprint), checks that its
+fingerprint matches the client's, and runs :func:`stabjax.sweep.solve_chunk`, the same function
+and engine choice as a local run, so results are bitwise those of a local run on the same
+hardware. Each worker compiles once per spec: its compiled kernels stay cached in the process,
+the native engine's C builds are cached on disk (``$STABJAX_CACHE_DIR``), and XLA's compilations
+go to JAX's persistent compilation cache (``<cache>/jax``).
+
+Chunks are futures with ``retries=2``; a worker that dies (kill -9, OOM) has its chunk re-run
+elsewhere by the scheduler (Dask's ``allowed-failures``). The client is the only writer of the
+store: it collects results as chunks complete (:func:`distributed.as_completed`).
+
+Local workers are started by spawning (``distributed.worker.multiprocessing-method: spawn``),
+never by forking this process, which has loaded JAX. Threads: every worker runs one chunk at a
+time (one Dask thread); the native engine inside it uses ``threads`` OS threads, passed through
+the environment variable ``STABJAX_THREADS`` (read by the native engine's ``default_threads``).
+``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
+Arbitrary points of a plan (the rounds of :mod:`stabjax.refine`) go to the workers through
+:meth:`DaskExecutor.points_solver`, a ``solve_points(params) -> results`` callable. On a host with
+several GPUs a local cluster runs one worker per device, each seeing only its own
+(``CUDA_VISIBLE_DEVICES``).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Mapping
+
+import numpy as np
+
+from .errors import StabjaxError, ValidationError
+from .store import model_fingerprint
+
+_PLANS: dict[str, Any] = {}  # per worker process: plan key -> Plan (so each spec is planned and compiled once)
+
+
+def cores() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("STABJAX_CACHE_DIR") or Path.home() / ".cache" / "stabjax")
+
+
+def _setup_process():
+    """Once per worker process: JAX's persistent compilation cache."""
+    import jax
+
+    if not jax.config.jax_compilation_cache_dir:
+        d = cache_dir() / "jax"
+        d.mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(d))
+
+
+def plan_digest(plan) -> str:
+    """Hash of every parameter value a plan resolves to (grid axes, samples, fixed values: each small,
+    the cartesian product is not formed). A worker's re-planned plan must match it, so a Plan built
+    in code rather than from its spec is refused on the workers instead of silently recomputed."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name, arr in ([(f"grid:{a.key}", a.values) for a in plan.grid] + sorted((f"sample:{k}", v) for k, v in plan.sample.items())
+                      + sorted((f"fixed:{k}", v) for k, v in plan.fixed.items())):
+        a = np.ascontiguousarray(np.asarray(arr, dtype=float))
+        h.update(name.encode() + str(a.shape).encode() + a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, threads: int | None = None) -> dict:
+    """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data)."""
+    from dataclasses import asdict
+
+    from .spec import _jsonable
+
+    return {"spec": _jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
+            "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
+            "model": model_fingerprint(plan.system), "threads": threads}
+
+
+def _plan_key(payload: Mapping[str, Any]) -> str:
+    import json
+
+    return payload["fingerprint"] + payload["digest"] + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True, default=str)
+
+
+def worker_plan(payload: Mapping[str, Any]):
+    key = _plan_key(payload)
+    plan = _PLANS.get(key)
+    if plan is None:
+        _setup_process()
+        from dataclasses import replace
+
+        from .engine import IntegrateConfig
+        from .spec import Plan, make_plan
+
+        plan = make_plan(payload["spec"], t1=payload["t1"])
+        plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**payload["icfg"]),
+                       "vcfg": replace(plan.vcfg, **payload["vcfg"])})
+        if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
+            raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
+                               f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
+                               "versions or model files, or a plan not built from its spec)")
+        mine = model_fingerprint(plan.system)
+        if mine != payload["model"]:
+            raise StabjaxError(f"worker {socket.gethostname()}: model source {mine['file']} differs from the client's "
+                               f"(sha256 {mine['sha256']} vs {payload['model']['sha256']}); install the same model files "
+                               "on every worker")
+        _PLANS[key] = plan
+    return plan
+
+
+def run_chunk(payload: Mapping[str, Any], i: int):
+    """The task a worker runs: chunk ``i`` of the payload's plan -> (i, results, engine, info)."""
+    from .sweep import solve_chunk
+
+    t0 = time.perf_counter()
+    if payload.get("threads"):
+        os.environ["STABJAX_THREADS"] = str(int(payload["threads"]))
+    plan = worker_plan(payload)
+    res, engine = solve_chunk(plan, payload["batch"], i)
+    info = {"worker": f"{socket.gethostname()}:{os.getpid()}", "seconds": round(time.perf_counter() - t0, 4)}
+    return i, res, engine, info
+
+
+def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
+    """The task for arbitrary points of the payload's plan (e.g. a refinement round): (results, engine)."""
+    from .engine import last_engine, solve_batch
+    from .sweep import static_params
+
+    if payload.get("threads"):
+        os.environ["STABJAX_THREADS"] = str(int(payload["threads"]))
+    plan = worker_plan(payload)
+    res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
+    return {k: np.asarray(v) for k, v in res.items()}, last_engine()
+
+
+def _gpu_devices() -> list[str]:
+    """Physical ids of the GPUs this process may use (empty on CPU)."""
+    import jax
+
+    if jax.default_backend() != "gpu":
+        return []
+    n = jax.local_device_count()
+    visible = [v.strip() for v in os.environ.get("CUDA_VISIBLE_DEVICES", "").split(",") if v.strip()]
+    return visible[:n] if visible else [str(i) for i in range(n)]
+
+
+class DaskExecutor:
+    """Run sweep chunks on Dask. Use as a context manager (the cluster and client are closed on exit).
+
+    ``scheduler``: address of an existing scheduler (``tcp://host:8786``) or a scheduler file;
+    ``workers``: start a local cluster of that many worker processes instead. ``threads``: native
+    engine threads per worker (default: this machine's cores // workers for a local cluster, the
+    worker's own default for a remote one).
+    """
+
+    def __init__(self, *, scheduler: str | None = None, workers: int | None = None, threads: int | None = None,
+                 oversubscribe: bool = False, retries: int = 2, timeout: float = 30.0):
+        if (scheduler is None) == (workers is None):
+            raise ValidationError("--scheduler", "give either --scheduler ADDRESS or --workers N (not both)")
+        if workers is not None and workers < 1:
+            raise ValidationError("--workers", f"must be >= 1, got {workers}")
+        if threads is not None and threads < 1:
+            raise ValidationError("--threads", f"must be >= 1, got {threads}")
+        self.scheduler, self.workers, self.threads = scheduler, workers, threads
+        self.oversubscribe, self.retries, self.timeout = oversubscribe, retries, timeout
+        self.cluster = None
+        self.client = None
+
+    # -- lifecycle
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def start(self):
+        import dask
+        from distributed import Client
+
+        dask.config.set({"distributed.worker.multiprocessing-method": "spawn"})
+        if self.workers is not None:
+            self.cluster = self._local_cluster()
+            self.client = Client(self.cluster, set_as_default=False, timeout=self.timeout)
+        else:
+            target = self.scheduler
+            kw = {"scheduler_file": target} if not target.startswith(("tcp://", "tls://", "inproc://", "ucx://")) \
+                and Path(target).is_file() else {"address": target}
+            try:
+                self.client = Client(**kw, set_as_default=False, timeout=self.timeout)
+            except (OSError, TimeoutError) as exc:
+                raise ValidationError("--scheduler", f"cannot reach the Dask scheduler at {target}: {exc}") from None
+            self._check_remote_threads()
+
+    def _local_cluster(self):
+        from distributed import LocalCluster, Nanny, Scheduler, SpecCluster
+
+        n = self.workers
+        gpus = _gpu_devices()
+        env = {"OMP_NUM_THREADS": "1"}
+        if gpus:
+            if n > len(gpus) and not self.oversubscribe:
+                raise ValidationError("--workers", f"{n} workers for {len(gpus)} GPU(s): one worker per device "
+                                      "(--oversubscribe to share devices)")
+            specs = {i: {"cls": Nanny, "options": {"nthreads": 1, "env": {**env, "CUDA_VISIBLE_DEVICES": gpus[i % len(gpus)]}}}
+                     for i in range(n)}
+            return SpecCluster(workers=specs, scheduler={"cls": Scheduler, "options": {"host": "127.0.0.1",
+                                                                                      "dashboard_address": None}},
+                               silence_logs=logging.ERROR)
+        c = cores()
+        threads = self.threads or max(1, c // n)
+        if n * threads > c and not self.oversubscribe:
+            raise ValidationError("--threads", f"{n} workers x {threads} threads = {n * threads} exceeds the {c} cores "
+                                  "of this machine; use fewer, or pass --oversubscribe")
+        self.threads = threads
+        env["STABJAX_THREADS"] = str(threads)
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address=None, silence_logs=logging.ERROR, env=env)
+
+    def _check_remote_threads(self):
+        if self.threads is None:
+            return
+        info = self.client.scheduler_info()["workers"]
+        per_host: dict[str, int] = {}
+        for w in info.values():
+            per_host[w["host"]] = per_host.get(w["host"], 0) + int(w["nthreads"]) * self.threads
+        host_cores = self.client.run(lambda: (socket.gethostname(), cores()))
+        by_ip = {}
+        for addr, (_, c) in host_cores.items():
+            by_ip[info[addr]["host"]] = c
+        for host, need in per_host.items():
+            if need > by_ip.get(host, need) and not self.oversubscribe:
+                raise ValidationError("--threads", f"{need} threads on {host} exceed its {by_ip[host]} cores "
+                                      "(Dask threads x --threads); use fewer, or pass --oversubscribe")
+
+    def close(self):
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
+
+    def describe(self) -> str:
+        n = len(self.client.scheduler_info()["workers"]) if self.client is not None else 0
+        where = "local cluster" if self.cluster is not None else self.scheduler
+        return f"dask ({where}, {n} workers, {self.threads or 'default'} engine threads each)"
+
+    def n_workers(self) -> int:
+        return len(self.client.scheduler_info()["workers"])
+
+    def wait_for_workers(self, n: int = 1, timeout: float | None = None):
+        self.client.wait_for_workers(n, timeout=timeout or self.timeout)
+
+    # -- work
+    def points_solver(self, plan, *, chunk: int | None = None):
+        """A ``solve_points(params) -> results`` callable that evaluates arbitrary points of ``plan``
+        (every parameter, leading dim n, already checked) on the workers: split into pieces of
+        ``chunk`` (default: n / workers, at least 64), each padded to the same size (one compile per
+        shape), results in the order given. For rounds of :mod:`stabjax.refine`."""
+        payload = payload_for(plan, 0, None, None if self.cluster is not None else self.threads)
+
+        def solve_points(params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+            n = len(next(iter(params.values())))
+            size = int(chunk or max(64, -(-n // max(1, self.n_workers()))))
+            pieces = []
+            for lo in range(0, n, size):
+                hi = min(n, lo + size)
+                p = {k: np.asarray(v[lo:hi]) for k, v in params.items()}
+                if hi - lo < size:
+                    p = {k: np.concatenate([v, np.repeat(v[-1:], size - (hi - lo), axis=0)]) for k, v in p.items()}
+                pieces.append((lo, hi, p))
+            futs = [self.client.submit(run_points, payload, p, retries=self.retries, pure=False) for _, _, p in pieces]
+            try:
+                parts = self.client.gather(futs)
+            finally:
+                for f in futs:
+                    f.release()
+            self.last_engines = sorted({e for _, e in parts})
+            return {k: np.concatenate([r[k][: hi - lo] for (lo, hi, _), (r, _) in zip(pieces, parts)])
+                    for k in parts[0][0]}
+
+        return solve_points
+
+    def map_chunks(self, plan, batch: int, chunks: Iterable[int], overrides: Mapping[str, Any] | None = None
+                   ) -> Iterator[tuple[int, dict[str, np.ndarray], str, dict]]:
+        """Submit every chunk; yield (i, results, engine, info) as each completes (any order)."""
+        from distributed import as_completed
+
+        chunks = list(chunks)
+        if not chunks:
+            return
+        payload = payload_for(plan, batch, overrides, None if self.cluster is not None else self.threads)
+        futs = [self.client.submit(run_chunk, payload, i, retries=self.retries, pure=False) for i in chunks]
+        try:
+            for fut in as_completed(futs, loop=self.client.loop):
+                try:
+                    out = fut.result()
+                except StabjaxError:
+                    raise
+                except Exception as exc:
+                    raise StabjaxError(f"a chunk failed on the Dask workers after {self.retries} retries: "
+                                       f"{type(exc).__name__}: {exc}") from None
+                fut.release()
+                yield out
+        finally:
+            for f in futs:
+                if not f.done():
+                    f.cancel()
+
+
+# ---- benchmarks ---------------------------------------------------------------------------------
+
+BENCH_SPEC = {
+    "system": "monoaxial", "name": "bench_dask",
+    "params": {"mu": 1.5, "sigma": 1.3333333333333333},
+    "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 64}},
+    "sample": {"n": 256, "seed": 0, "s0": {"dist": "cap", "center": "r", "half_angle": 0.5}},
+    "integrate": {"t1": 1000.0, "n_checkpoints": 64},
+}
+
+
+def benchmark(workers: Iterable[int] = (1, 2), *, spec: Mapping[str, Any] | None = None, batch_size: int = 2048,
+              repeats: int = 2, tiny_chunks: int = 20) -> dict[str, Any]:
+    """Wall time (best of ``repeats``, warm) of the same sweep in this process and on 1, 2, ... local
+    Dask workers (each cluster runs the sweep once first: worker imports and compilation), whether
+    the datasets are identical, and the per-chunk overhead: the round trip of a one-trajectory chunk
+    through the scheduler and back against the same chunk solved in this process (medians)."""
+    from .spec import make_plan
+    from .sweep import run_plan, solve_chunk
+
+    spec = dict(spec or BENCH_SPEC)
+    plan = make_plan(spec)
+    out: dict[str, Any] = {"n_trajectories": plan.size, "batch_size": batch_size, "cores": cores(), "wall_s": {},
+                           "load_avg_before": os.getloadavg()[0]}
+
+    def best(run):
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            ds = run()
+            times.append(time.perf_counter() - t0)
+        return min(times), ds
+
+    run_plan(plan, batch_size=batch_size)  # compile here first
+    out["wall_s"]["local"], ref = best(lambda: run_plan(plan, batch_size=batch_size))
+    tiny = make_plan({**spec, "grid": {"alpha": [0.5]}, "sample": {}})
+    for n in workers:
+        with DaskExecutor(workers=n) as ex:
+            ex.wait_for_workers(n)
+            out.setdefault("threads_per_worker", {})[n] = ex.threads
+            run_plan(plan, batch_size=batch_size, executor=ex)  # warm-up: worker imports + compile
+            out["wall_s"][f"dask_{n}"], ds = best(lambda: run_plan(plan, batch_size=batch_size, executor=ex))
+            out[f"identical_dask_{n}"] = all(np.array_equal(ds[k].values, ref[k].values, equal_nan=True)
+                                             for k in ref.data_vars)
+            if n == min(workers):
+                list(ex.map_chunks(tiny, 1, [0]))
+                rt = []
+                for _ in range(tiny_chunks):
+                    t0 = time.perf_counter()
+                    list(ex.map_chunks(tiny, 1, [0]))
+                    rt.append(time.perf_counter() - t0)
+                solve_chunk(tiny, 1, 0)
+                loc = []
+                for _ in range(tiny_chunks):
+                    t0 = time.perf_counter()
+                    solve_chunk(tiny, 1, 0)
+                    loc.append(time.perf_counter() - t0)
+                out["tiny_chunk_roundtrip_s"] = float(np.median(rt))
+                out["tiny_chunk_local_s"] = float(np.median(loc))
+    out["load_avg_after"] = os.getloadavg()[0]
+    return out
+
+
+def benchmark_big(n_traj: int = 10_000_000, *, out: str | Path = "/tmp/stabjax_big.nc", workers: int | None = None,
+                  batch_size: int | None = None, t1: float = 10.0) -> dict[str, Any]:
+    """A sweep of ``n_traj`` trajectories (monoaxial, short horizon, 8 checkpoints) run to the
+    netCDF file, with the client's peak resident memory (``ru_maxrss``)."""
+    import resource
+
+    from .spec import make_plan
+    from .sweep import run_plan
+
+    n_alpha = 1000
+    spec = {"system": "monoaxial", "name": "big", "params": {"mu": 1.5, "sigma": 1.3333333333333333},
+            "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": n_alpha}},
+            "sample": {"n": n_traj // n_alpha, "seed": 0, "s0": {"dist": "cap", "center": "r", "half_angle": 0.5}},
+            "integrate": {"t1": t1, "n_checkpoints": 8}}
+    plan = make_plan(spec)
+    t0 = time.perf_counter()
+    if workers:
+        with DaskExecutor(workers=workers) as ex:
+            ds = run_plan(plan, out, batch_size=batch_size, executor=ex, restart=True)
+    else:
+        ds = run_plan(plan, out, batch_size=batch_size, restart=True)
+    wall = time.perf_counter() - t0
+    return {"n_trajectories": plan.size, "wall_s": wall, "total_steps": int(ds.attrs["total_steps"]),
+            "engine": ds.attrs["engine"], "batch_size": int(ds.attrs["batch_size"]),
+            "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+            "file_gib": Path(out).stat().st_size / 2**30}
+
+
+def _main(argv: list[str] | None = None):
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser(description="stabjax Dask benchmarks")
+    ap.add_argument("what", choices=["workers", "big"])
+    ap.add_argument("--n", type=int, default=10_000_000)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--batch-size", type=int, default=None)
+    ap.add_argument("--out", default="/tmp/stabjax_big.nc")
+    a = ap.parse_args(argv)
+    if a.what == "workers":
+        r = benchmark()
+    else:
+        r = benchmark_big(a.n, out=a.out, workers=a.workers, batch_size=a.batch_size)
+    print(json.dumps(r, indent=1))
+
+
+if __name__ == "__main__":
+    _main()

@@ -1,0 +1,209 @@
+"""Dask execution: a local cluster of spawned workers gives the local run's dataset bitwise, a worker
+killed mid-sweep loses nothing, the README's scheduler + workers recipe works on 127.0.0.1, and
+workers x threads never oversubscribes the cores unless asked."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stabjax import distributed as D
+from stabjax import store as S
+from stabjax.errors import StabjaxError, ValidationError
+from stabjax.spec import make_plan
+from stabjax.sweep import open_result, run_plan
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = """
+system = "monoaxial"
+name = "tiny"
+[params]
+mu = 1.5
+[grid]
+alpha = {start = 0.3, stop = 1.0, num = 4}
+sigma = [1.2, 1.3, 1.4, 1.5]
+[integrate]
+t1 = 100.0
+n_checkpoints = 32
+"""
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return make_plan(tomllib.loads(TINY))
+
+
+@pytest.fixture(scope="module")
+def reference(plan):
+    return run_plan(plan, None, batch_size=4)
+
+
+def assert_same(ds, ref):
+    assert set(ds.data_vars) == set(ref.data_vars)
+    for k in ref.data_vars:
+        np.testing.assert_array_equal(ds[k].values, ref[k].values, err_msg=k)
+
+
+def test_oversubscription_refused(monkeypatch):
+    monkeypatch.setattr(D, "cores", lambda: 2)
+    with pytest.raises(ValidationError, match="2 workers x 2 threads = 4 exceeds the 2 cores"):
+        D.DaskExecutor(workers=2, threads=2)._local_cluster()
+    with pytest.raises(ValidationError, match="--scheduler"):
+        D.DaskExecutor(workers=2, scheduler="tcp://127.0.0.1:1")
+
+
+def test_payload_replans_to_the_same_plan(plan):
+    p = D.payload_for(plan, 4, {"t1": None})
+    D._PLANS.clear()
+    again = D.worker_plan(json.loads(json.dumps(p)))  # plain data survives any serialisation
+    assert again.fingerprint() == plan.fingerprint() and again.icfg == plan.icfg and again.vcfg == plan.vcfg
+    assert D.worker_plan(p) is again  # planned once per process
+    # a worker whose model file differs from the client's refuses the chunk
+    D._PLANS.clear()
+    with pytest.raises(StabjaxError, match="model source monoaxial.py differs"):
+        D.worker_plan({**p, "model": {"file": "monoaxial.py", "sha256": "0" * 16}})
+    # a plan changed in code (not from its spec) would be recomputed differently: refused
+    orig = plan.grid[0].values
+    plan.grid[0].values = orig + 0.01
+    try:
+        with pytest.raises(StabjaxError, match="not built from its spec"):
+            D.worker_plan(D.payload_for(plan, 4, {"t1": None}))
+    finally:
+        plan.grid[0].values = orig
+
+
+@pytest.mark.slow  # starts 2 spawned worker processes (~25 s on 2 busy cores)
+def test_local_cluster_same_dataset_and_worker_killed(plan, reference, tmp_path, monkeypatch):
+    # each chunk takes >= 1 s on the workers, so a worker can be killed while it holds one
+    monkeypatch.setenv("_STABJAX_TEST_CHUNK_SLEEP", "1.0")
+    out = tmp_path / "d.nc"
+    killed = {}
+    with D.DaskExecutor(workers=2, threads=1) as ex:
+        ex.wait_for_workers(2)
+        ds = run_plan(plan, None, batch_size=4, executor=ex)
+        assert_same(ds, reference)  # bitwise: the same engine, the same chunks
+        assert ds.attrs["engine"] == reference.attrs["engine"] and "dask" in ds.attrs["executor"]
+
+        # arbitrary points (a refinement round) through the workers: the local engine's values
+        from stabjax.engine import solve_batch
+        from stabjax.sweep import static_params
+
+        pts = plan.params_at(np.array([15, 0, 7, 3, 9]))
+        got = ex.points_solver(plan, chunk=2)(pts)
+        want = solve_batch(plan.system, pts, plan.icfg, plan.vcfg, static=static_params(plan))
+        for k in want:
+            np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+        np.testing.assert_array_equal(got["verdict"], reference["verdict"].values.ravel()[[15, 0, 7, 3, 9]])
+
+        done_before = set()
+
+        def kill_busy_worker(i, n):
+            if killed:
+                return
+            done_before.add(i)
+            pids = ex.client.run(os.getpid)
+            for addr, keys in ex.client.processing().items():
+                if keys:
+                    os.kill(pids[addr], signal.SIGKILL)
+                    killed[addr] = pids[addr]
+                    return
+
+        ds2 = run_plan(plan, out, batch_size=4, executor=ex, on_chunk=kill_busy_worker, keep_partial=True)
+    assert killed, "no worker was busy after the first chunk"
+    assert_same(ds2, reference)
+    m = S.read_manifest(tmp_path / "d.nc.zarr")
+    assert len(m["chunks"]) == 4
+    pid = next(iter(killed.values()))
+    after = [c["worker"] for i, c in m["chunks"].items() if int(i) not in done_before]
+    assert after and not any(w.endswith(f":{pid}") for w in after)  # the chunk it held was re-run elsewhere
+    assert_same(open_result(out), reference)
+
+
+@pytest.mark.slow  # the README recipe: a scheduler, two workers and the client as separate processes (~40 s)
+def test_scheduler_and_two_workers_recipe(tmp_path, reference):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    sched_file = tmp_path / "scheduler.json"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu", STABJAX_THREADS="1")
+    procs = []
+    log = open(tmp_path / "dask.log", "w")
+    try:
+        procs.append(subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                       "--scheduler-file", str(sched_file)], env=env, stdout=log, stderr=log))
+        deadline = time.time() + 60
+        while not sched_file.exists() and time.time() < deadline:
+            time.sleep(0.2)
+        assert sched_file.exists(), "scheduler did not start"
+        address = json.loads(sched_file.read_text())["address"]
+        for _ in range(2):
+            procs.append(subprocess.Popen(["dask", "worker", address, "--nworkers", "1", "--nthreads", "1",
+                                           "--no-dashboard"], env=env, stdout=log, stderr=log))
+        out = tmp_path / "r.nc"
+        r = subprocess.run([sys.executable, "-m", "stabjax", "sweep", str(spec), "--scheduler", address, "--out",
+                            str(out), "--batch-size", "4", "--threads", "1", "--no-progress", "--no-plot"],
+                           env=env, capture_output=True, text=True, timeout=240, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr[-3000:]
+        ds = open_result(out)
+        assert_same(ds, reference)
+        assert address in ds.attrs["executor"]
+    finally:
+        for p in procs[::-1]:
+            p.kill()
+        for p in procs:
+            p.wait(30)
+        log.close()
+
+
+@pytest.mark.slow  # a CLI client with 2 local workers, killed, then run again (~60 s)
+def test_dask_client_sigkill_then_rerun(tmp_path, reference):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    out = tmp_path / "k.nc"
+    store = tmp_path / "k.nc.zarr"
+    cmd = [sys.executable, "-m", "stabjax", "sweep", str(spec), "--out", str(out), "--batch-size", "2",
+           "--workers", "2", "--threads", "1", "--no-progress", "--no-plot"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    p = subprocess.Popen(cmd, env={**env, "_STABJAX_TEST_CHUNK_SLEEP": "1.0"}, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, cwd=tmp_path)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:
+            try:
+                if len(S.read_manifest(store)["chunks"]) >= 2:
+                    break
+            except (TypeError, S.StoreError):
+                pass
+            time.sleep(0.05)
+        else:
+            pytest.fail("no chunks finished in 120 s")
+        os.kill(p.pid, signal.SIGKILL)
+    finally:
+        p.kill()
+        p.wait(30)
+    done = len(S.read_manifest(store)["chunks"])
+    assert 2 <= done < 8 and not out.exists()
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ds = open_result(out)
+    assert ds.attrs["chunks_resumed"] == done
+    assert_same(ds, reference)
+
+
+@pytest.mark.slow  # starts 2 worker processes (~15 s)
+def test_one_worker_per_gpu_sees_only_its_device(monkeypatch):
+    """The multi-GPU layout, checked on CPU: with two (pretend) devices each worker gets its own
+    CUDA_VISIBLE_DEVICES; more workers than devices is refused. (No GPU runs here.)"""
+    monkeypatch.setattr(D, "_gpu_devices", lambda: ["3", "5"])
+    with pytest.raises(ValidationError, match="one worker per device"):
+        D.DaskExecutor(workers=3)._local_cluster()
+    with D.DaskExecutor(workers=2) as ex:
+        ex.wait_for_workers(2)
+        seen = ex.client.run(lambda: os.environ.get("CUDA_VISIBLE_DEVICES"))
+    assert sorted(seen.values()) == ["3", "5"]
