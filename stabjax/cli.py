@@ -184,13 +184,19 @@ def sweep(
     restart: bool = typer.Option(False, help="discard finished chunks of an earlier run of this output"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
 ):
-    """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
+    """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
+
+    A spec with a [refine] section brackets the boundary between outcomes adaptively instead."""
     from .plotting import format_confusion, plot_sweep
     from .spec import load_spec
     from .sweep import run_spec
 
     s = load_spec(spec)
     out = out or Path("results") / f"{s['name']}.nc"
+    if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
+        from .refine import run_cli
+
+        return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console)
     try:
         ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1)
     except KeyboardInterrupt:

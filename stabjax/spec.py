@@ -31,7 +31,7 @@ from .params import Param, parse_value
 from .registry import get_system
 from .system import System, VerdictConfig
 
-TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "run"}
+TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "run", "refine"}
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
 
