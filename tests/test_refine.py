@@ -313,3 +313,37 @@ n_checkpoints = 200
     assert exc.value.code == 2
     assert "refine.tol.k" in capsys.readouterr().err
     assert not (tmp_path / "bad.nc").exists() and not (tmp_path / "bad.nc.partial").exists()
+
+
+def _synthetic(inside):
+    """A solve_points that labels points by a closed-form region (no integration): converged inside."""
+    def solve_points(p):
+        v = np.where(inside(p), V.CONVERGED, V.FLIPPED).astype(np.int8)
+        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+    return solve_points
+
+
+def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
+    """Disk boundary (k - 0.5)^2 + (c - 0.5)^2 = 0.3^2 on a log c axis: the refinement finds exactly the
+    boundary edges of the full lattice of the same resolution, and never evaluates a point twice."""
+    from stabjax.refine import Refiner, _fine_values, refine_config
+    from stabjax.spec import make_plan
+
+    inside = lambda p: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < 0.09
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 9}, "c": {"start": 0.1, "stop": 1.0, "num": 7, "log": True}},
+                          {"tol": {"k": 0.01, "c": 0.005}}))
+    cfg = refine_config(plan)
+    ref = Refiner(plan, cfg, _synthetic(inside)).run()
+    kf, cf = ref.fine
+    np.testing.assert_allclose(cf[:: 2 ** cfg.levels[1]], plan.grid[1].values, rtol=1e-14)
+    assert np.max(np.diff(cf)) <= 0.005 and np.max(np.diff(kf)) <= 0.01
+    assert np.max(np.diff(cf)) > 0.005 / 2  # the fewest halvings
+    np.testing.assert_allclose(np.diff(np.log(cf))[:4], np.diff(np.log(cf))[0])  # geometric within a coarse interval
+    K, C = np.meshgrid(kf, cf, indexing="ij")
+    full = inside({"k": K, "c": C})
+    edges = {(0, (i, j), (i + 1, j)) for i, j in zip(*np.nonzero(full[1:] != full[:-1]))}
+    edges |= {(1, (i, j), (i, j + 1)) for i, j in zip(*np.nonzero(full[:, 1:] != full[:, :-1]))}
+    assert set(ref.segments()) == edges
+    coords = np.concatenate(ref.coords)
+    assert len({tuple(c) for c in coords}) == len(coords) < full.size / 4
+    np.testing.assert_array_equal(ref.lab[tuple(coords.T)], np.where(full[tuple(coords.T)], 0, 1))
