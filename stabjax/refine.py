@@ -849,13 +849,16 @@ def full_lattice_spec(spec: Mapping[str, Any], ref_ds: xr.Dataset | None = None,
 
 
 def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | None = None, full: bool = True,
-              full_rows: int | None = None, out: str | Path | None = None) -> dict[str, Any]:
+              full_rows: int | None = None, out: str | Path | None = None,
+              full_from: str | Path | None = None) -> dict[str, Any]:
     """Trajectories and trajectory-steps of the refinement against the full lattice of the same resolution.
 
     ``full_rows``: integrate only that many evenly spaced rows (first axis) of the full lattice and scale
     its trajectory-steps by rows / rows run (stated in the result as ``full_rows_run``). With the full
     lattice run whole, also counts its boundary edges (adjacent lattice points of different classes) that
-    the refinement did not find, and checks that the labels at the shared points agree.
+    the refinement did not find, and checks that the labels at the shared points agree. ``out``: keep the
+    full lattice's dataset there; ``full_from``: compare with such a dataset instead of integrating the full
+    lattice again (same lattice and fingerprint required; its recorded steps and wall time are reported).
     """
     from .sweep import run_plan
 
@@ -890,9 +893,18 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
         else:
             pick = np.arange(rows)
         fplan = make_plan(fspec)
-        t = time.perf_counter()
-        fds = run_plan(fplan, out)
-        wall_full = time.perf_counter() - t
+        if full_from is not None:
+            from .sweep import open_result
+
+            fds = open_result(full_from)
+            if fds.attrs.get("fingerprint") != fplan.fingerprint():
+                raise ValidationError("full_from", f"{full_from} is not the full lattice of this spec (fingerprint "
+                                      f"{fds.attrs.get('fingerprint')} vs {fplan.fingerprint()})")
+            wall_full = float(fds.attrs["wall_time_s"])
+        else:
+            t = time.perf_counter()
+            fds = run_plan(fplan, out)
+            wall_full = time.perf_counter() - t
         steps_run = int(fds.attrs["total_steps"])
         res.update(full_rows_run=int(len(pick)), full_rows=int(rows), full_steps_run=steps_run,
                    full_steps=int(round(steps_run * rows / len(pick))), full_wall_s=wall_full,
@@ -978,12 +990,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--t1", type=float, default=None)
     ap.add_argument("--no-full", action="store_true", help="skip the full lattice")
     ap.add_argument("--full-rows", type=int, default=None, help="run only this many rows of the full lattice, scaled")
+    ap.add_argument("--full-out", default=None, help="keep the full lattice's dataset (netCDF) here")
+    ap.add_argument("--full-from", default=None, help="compare with a full lattice dataset written by --full-out")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     a = ap.parse_args(argv)
     if not a.bench:
         ap.print_usage()
         return 2
-    r = benchmark(a.spec, t1=a.t1, full=not a.no_full, full_rows=a.full_rows)
+    r = benchmark(a.spec, t1=a.t1, full=not a.no_full, full_rows=a.full_rows, out=a.full_out, full_from=a.full_from)
     print(format_benchmark(r))
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
