@@ -347,3 +347,23 @@ def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
     coords = np.concatenate(ref.coords)
     assert len({tuple(c) for c in coords}) == len(coords) < full.size / 4
     np.testing.assert_array_equal(ref.lab[tuple(coords.T)], np.where(full[tuple(coords.T)], 0, 1))
+
+
+def test_benchmark_against_full_lattice(oscillator, tmp_path):
+    """The benchmark's bookkeeping on the oscillator: the full lattice (1-D, 65 points) holds exactly one
+    boundary edge, found by the refinement, with the same labels at the shared points; --full-from re-uses it."""
+    from stabjax.refine import benchmark, format_benchmark
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 64, "pair": ["converged", "*"]},
+             params={"c": C1})
+    full_nc = tmp_path / "full.nc"
+    r = benchmark(s, out=full_nc)
+    assert r["lattice"] == [65] and r["full_trajectories"] == 65 and r["refine_trajectories"] == 3 + 5
+    assert r["full_boundary_edges"] == 1 and r["missed_edges"] == 0
+    assert r["labels_agree"] == r["labels_compared"] == 8
+    assert r["full_steps"] > r["refine_steps"] > 0 and r["ratio_steps"] == r["full_steps"] / r["refine_steps"]
+    again = benchmark(s, full_from=full_nc)
+    assert again["full_steps"] == r["full_steps"] and again["refine_steps"] == r["refine_steps"]
+    assert "full / refinement" in format_benchmark(again)
+    with pytest.raises(ValidationError, match="full_from"):
+        benchmark({**s, "params": {"c": 0.6}}, full_from=full_nc)
