@@ -114,8 +114,20 @@ def label_names(plan: Plan, label: str) -> tuple[str, ...]:
 
 
 def horizon_times(plan: Plan) -> np.ndarray | None:
-    """The verdict horizons of the plan (ascending, last = t1), if it has several; else None."""
-    hs = getattr(plan.vcfg, "horizons", None)
+    """The verdict horizons of the plan (ascending, last = t1), if it has several; else None.
+
+    Uses the verdict module's resolver when it has one (``horizon_times(vcfg, t0, t1)``: a default list of
+    horizons is resolved there), else the ``horizons`` field of the verdict config.
+    """
+    fn = getattr(V, "horizon_times", None)
+    hs = None
+    if callable(fn):
+        try:
+            hs = fn(plan.vcfg, plan.icfg.t0, plan.icfg.t1)
+        except TypeError:
+            hs = None
+    if hs is None:
+        hs = getattr(plan.vcfg, "horizons", None)
     if hs is None:
         return None
     try:
@@ -703,11 +715,20 @@ def assemble(ref: Refiner) -> xr.Dataset:
 # ---- entry points -------------------------------------------------------------------------------
 
 
+def _fingerprint(plan: Plan) -> str:
+    """The plan's fingerprint plus the resolved solver and classifier settings (a --t1 override is not in the spec)."""
+    import hashlib
+
+    blob = json.dumps({"plan": plan.fingerprint(), "integrate": plan.icfg.__dict__,
+                       "verdict": {k: repr(v) for k, v in plan.vcfg.__dict__.items()}}, sort_keys=True, default=repr)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
 def refine_plan(plan: Plan, out: str | Path | None = None, *, solve_points: SolvePoints | None = None,
                 restart: bool = False, keep_partial: bool = False, plot: bool = False) -> xr.Dataset:
     """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given."""
     cfg = refine_config(plan)
-    store = RoundStore(Path(out), plan.fingerprint(), restart) if out is not None else None
+    store = RoundStore(Path(out), _fingerprint(plan), restart) if out is not None else None
     ref = Refiner(plan, cfg, solve_points, store).run()
     ds = assemble(ref)
     if out is not None:

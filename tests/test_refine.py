@@ -367,3 +367,53 @@ def test_benchmark_against_full_lattice(oscillator, tmp_path):
     assert "full / refinement" in format_benchmark(again)
     with pytest.raises(ValidationError, match="full_from"):
         benchmark({**s, "params": {"c": 0.6}}, full_from=full_nc)
+
+
+class NamedOutcomes(DampedOscillator):
+    """The oscillator with named outcomes (the 'bring your own model' shape): refinement labels by ``outcome``."""
+
+    name = "test_named"
+    outcomes = ("decays", "rings", "grows")
+
+
+def test_named_outcomes_label_and_pair(monkeypatch):
+    from stabjax.refine import Refiner, assemble, refine_config
+    from stabjax.spec import make_plan
+
+    monkeypatch.setitem(registry.SYSTEMS, "test_named", f"{__name__}:NamedOutcomes")
+    monkeypatch.setitem(registry._cache, "test_named", NamedOutcomes())
+
+    def solve_points(p):  # outcome by closed form: decays below k = 0.3, rings up to 0.6, grows above
+        o = np.where(p["k"] < 0.3, 0, np.where(p["k"] < 0.6, 1, 2)).astype(np.int8)
+        return {"outcome": o, "verdict": np.zeros_like(o), "n_steps": np.ones(len(o), np.int64)}
+
+    s = {**spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "pair": ["decays", "rings"]}),
+         "system": "test_named"}
+    plan = make_plan(s)
+    cfg = refine_config(plan)
+    assert cfg.label == "outcome" and cfg.names == ("decays", "rings", "grows") and cfg.stable == "decays"
+    ds = assemble(Refiner(plan, cfg, solve_points).run())
+    assert ds.attrs["n_segments"] == 1  # rings | grows is not part of the pair
+    assert float(ds["k_lo"][0]) < 0.3 <= float(ds["k_hi"][0]) and float(ds["width_k"][0]) <= 0.01
+    assert ds["label_lo"].attrs["flag_meanings"] == "decays rings grows"
+    with pytest.raises(ValidationError, match="refine.pair"):
+        refine_config(make_plan({**s, "refine": {"pair": ["decays", "converged"]}}))
+
+
+def test_resume_refuses_another_horizon(oscillator, tmp_path):
+    """Saved rounds belong to one t1: a --t1 override (not part of the spec) is a different computation."""
+    from stabjax.errors import StabjaxError
+    from stabjax.refine import refine_spec
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 8}, params={"c": C1})
+    calls = []
+
+    def dies(_p):
+        calls.append(1)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        refine_spec(s, tmp_path / "o.nc", solve_points=dies)
+    with pytest.raises(StabjaxError, match="different spec"):
+        refine_spec(s, tmp_path / "o.nc", t1=2 * T1, solve_points=dies)
+    assert len(calls) == 1
