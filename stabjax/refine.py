@@ -430,7 +430,8 @@ class Refiner:
         n_done = sum(len(c) for c in self.coords)
         if n_done + len(coords) > self.cfg.max_points:
             raise StabjaxError(f"refinement needs more than refine.max_points = {self.cfg.max_points} points "
-                               f"(round {r}: {n_done} done, {len(coords)} more); raise it or coarsen the tolerance")
+                               f"(round {r}: {n_done} done, {len(coords)} more); raise it (finished rounds are kept and "
+                               "re-used) or coarsen the tolerance")
         saved = self.store.load(r) if self.store is not None else None
         if saved is not None:
             old, res = saved
@@ -719,7 +720,11 @@ def _fingerprint(plan: Plan) -> str:
     """The plan's fingerprint plus the resolved solver and classifier settings (a --t1 override is not in the spec)."""
     import hashlib
 
-    blob = json.dumps({"plan": plan.fingerprint(), "integrate": plan.icfg.__dict__,
+    spec = dict(plan.spec)
+    if isinstance(spec.get("refine"), Mapping):  # max_points only stops a run: raising it resumes the same one
+        spec["refine"] = {k: v for k, v in spec["refine"].items() if k != "max_points"}
+    same = Plan(**{**plan.__dict__, "spec": spec})
+    blob = json.dumps({"plan": same.fingerprint(), "integrate": plan.icfg.__dict__,
                        "verdict": {k: repr(v) for k, v in plan.vcfg.__dict__.items()}}, sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -417,3 +417,10 @@ def test_resume_refuses_another_horizon(oscillator, tmp_path):
     with pytest.raises(StabjaxError, match="different spec"):
         refine_spec(s, tmp_path / "o.nc", t1=2 * T1, solve_points=dies)
     assert len(calls) == 1
+    # max_points only stops a run: raising it resumes the same run
+    s2 = {**s, "refine": {**s["refine"], "max_points": 4}}
+    with pytest.raises(StabjaxError, match="max_points"):
+        refine_spec(s2, tmp_path / "p.nc")
+    assert len(list((tmp_path / "p.nc.partial").glob("round_*.npz"))) == 2  # 3 coarse points + 1 bisection
+    done = refine_spec({**s2, "refine": {**s["refine"], "max_points": 100}}, tmp_path / "p.nc")
+    assert done.attrs["rounds_resumed"] == 2 and done.attrs["n_points"] == 3 + 2  # 0.5 halved twice <= 1/8
