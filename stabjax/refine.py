@@ -760,8 +760,8 @@ def refine_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = N
 def format_summary(ds: xr.Dataset) -> str:
     lines = [f"{ds.attrs['n_segments']} boundary segments ({ds.attrs['n_unbracketed']} wider than the tolerance) "
              f"from {ds.attrs['n_points']} points ({ds.attrs['n_trajectories']} trajectories, "
-             f"{ds.attrs['total_steps']:,} steps, {ds.attrs['rounds']} rounds); the full lattice "
-             f"{' x '.join(map(str, np.atleast_1d(ds.attrs['lattice_shape'])))} holds {ds.attrs['full_grid_points']:,} points"]
+             f"{ds.attrs['total_steps']:,} steps, {ds.attrs['rounds']} rounds); the full lattice of the same resolution "
+             f"({' x '.join(map(str, np.atleast_1d(ds.attrs['lattice_shape'])))}) holds {ds.attrs['full_grid_points']:,}"]
     summ = json.loads(ds.attrs.get("theory_distance_json", "{}"))
     for n, s in summ.items():
         lines.append(f"distance to the {ds.attrs['theory_main']} boundary along {n} (> 0: theorem conservative): "
