@@ -424,3 +424,19 @@ def test_resume_refuses_another_horizon(oscillator, tmp_path):
     assert len(list((tmp_path / "p.nc.partial").glob("round_*.npz"))) == 2  # 3 coarse points + 1 bisection
     done = refine_spec({**s2, "refine": {**s["refine"], "max_points": 100}}, tmp_path / "p.nc")
     assert done.attrs["rounds_resumed"] == 2 and done.attrs["n_points"] == 3 + 2  # 0.5 halved twice <= 1/8
+
+
+def test_multi_horizon_verdicts_refine_t1_by_default(oscillator):
+    """Results shaped (N, n_horizons) (horizons ascending, last = t1): without [refine] horizon, t1's column."""
+    from stabjax.refine import Refiner, assemble, refine_config
+    from stabjax.spec import make_plan
+
+    def solve_points(p):
+        at_t1 = np.where(p["k"] < 0.37, V.CONVERGED, V.FLIPPED)
+        early = np.where(p["k"] < 0.81, V.CONVERGED, V.UNDECIDED)  # a different boundary at an earlier horizon
+        v = np.stack([early, early, at_t1], axis=1).astype(np.int8)
+        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01}))
+    ds = assemble(Refiner(plan, refine_config(plan), solve_points).run())
+    assert ds.attrs["n_segments"] == 1 and float(ds["k_lo"][0]) < 0.37 <= float(ds["k_hi"][0])
