@@ -245,7 +245,9 @@ def _fine_values(coarse: np.ndarray, log: bool, level: int) -> np.ndarray:
     frac = np.arange(k) / k
     v = (c[:-1, None] + frac[None, :] * np.diff(c)[:, None]).ravel()
     v = np.append(v, c[-1])
-    return np.exp(v) if log else v
+    v = np.exp(v) if log else v
+    v[::k] = coarse  # the coarse grid's own values, bit for bit (round 0 = the plain sweep's grid)
+    return v
 
 
 def _max_width(coarse: np.ndarray, log: bool, level: int) -> float:
