@@ -869,7 +869,7 @@ def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot
 BENCH_SPEC = Path(__file__).resolve().parent.parent / "sweeps" / "refine_default.toml"
 
 
-def full_lattice_spec(spec: Mapping[str, Any], ref_ds: xr.Dataset | None = None, plan: Plan | None = None) -> dict:
+def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict:
     """The plain sweep over the refinement's whole final lattice (the full grid of the same resolution)."""
     plan = plan or make_plan(spec)
     cfg = refine_config(plan)
