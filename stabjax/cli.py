@@ -223,7 +223,9 @@ def sweep(
     oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
                                        "(or more local workers than GPUs)"),
 ):
-    """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
+    """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
+
+    A spec with a [refine] section brackets the boundary between outcomes adaptively instead."""
     from .spec import load_spec
     from .sweep import default_store, run_spec
 
@@ -234,6 +236,10 @@ def sweep(
                               "(a local run uses $STABJAX_THREADS)")
     s = load_spec(spec)
     out = out or Path("results") / f"{s['name']}.nc"
+    if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
+        from .refine import run_cli
+
+        return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console)
     store = store or default_store(out)
     executor = None
     if scheduler is not None or workers is not None:

@@ -32,7 +32,8 @@ from .models import model_fingerprint, resolve as resolve_system
 from .outcomes import OutcomeScheme, Outcomes, scheme
 from .system import System, VerdictConfig
 
-TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run"}
+TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run",
+            "refine"}
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
 

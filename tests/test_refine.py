@@ -1,0 +1,442 @@
+"""Adaptive boundary refinement (stabjax.refine) on a model whose boundary is known in closed form.
+
+The damped linear oscillator x'' + (c - k) x' + x = 0 from (x, x') = (1, 0): with d = c - k,
+d/dt (x^2 + x'^2) = -2 d x'^2, so the error e = |(x, x')| (distance to the equilibrium 0) decreases
+monotonically for k < c and grows for k > c. The thresholds below make the verdict change exactly
+there, up to a band set by the horizon: converged needs e < 0.999 over the late window [t1/2, t1],
+i.e. roughly exp(-d t1 / 4) < 0.999, d > 4 ln(1/0.999) / t1 = 8e-5; diverged needs the size e to pass
+1.001 by t1, d < -2 ln(1.001) / t1 = -4e-5 (e^2 grows like exp(|d| t) on average). So the empirical
+boundary lies in k in [c - DELTA, c + DELTA] with DELTA = 1e-3, ten times those bands, and far below
+the tolerances tested (1/64 of the axis range and more).
+"""
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stabjax import registry
+from stabjax import verdict as V
+from stabjax.errors import ValidationError
+from stabjax.params import Param, ParamSet
+from stabjax.system import Predicate, System, Theory, VerdictConfig
+
+T1 = 50.0
+DELTA = 1e-3
+
+
+class DampedOscillator(System):
+    """x'' + (c - k) x' + x = 0; the theorem below claims stability for k < c - 0.1 (conservative by 0.1)."""
+
+    name = "test_oscillator"
+    title = "damped linear oscillator with a gain threshold"
+    params = ParamSet((
+        Param("k", 0.0, "gain (negative damping)"),
+        Param("c", 0.5, "damping"),
+        Param("x0", 1.0, "initial position", kind="initial"),
+    ))
+    state = (("x", ()), ("v", ()))
+    observables = ("error", "size")
+    observable_doc = ("|(x, x')|", "|(x, x')|")
+    verdict = VerdictConfig(settle_tol=0.999, excursion_tol=1.2, flip_tol=1.5, converged_tol=0.999,
+                            diverge_size=1.001, growth_tol=0.5)
+    default_t1 = T1
+
+    def theory(self, p):
+        margin = np.asarray(p["c"] - 0.1 - p["k"], float)
+        return Theory(predicates={"bound": Predicate(margin > 0, margin, "k < c - 0.1")}, main="bound")
+
+    def initial_state(self, p):
+        return jnp.stack([p["x0"], jnp.zeros_like(p["x0"])])
+
+    def equilibrium(self, p):
+        return jnp.zeros(2)
+
+    def rhs(self, t, y, a):
+        return jnp.stack([y[1], -(a["c"] - a["k"]) * y[1] - y[0]])
+
+    def observe(self, t, y, a):
+        e = jnp.sqrt(y[0] ** 2 + y[1] ** 2)
+        return jnp.stack([e, e])
+
+
+@pytest.fixture
+def oscillator(monkeypatch):
+    monkeypatch.setitem(registry.SYSTEMS, "test_oscillator", f"{__name__}:DampedOscillator")
+    monkeypatch.setitem(registry._cache, "test_oscillator", DampedOscillator())
+    return registry._cache["test_oscillator"]
+
+
+def spec(grid, refine, **extra):
+    return {"system": "test_oscillator", "name": "osc", "grid": grid, "refine": refine,
+            "integrate": {"t1": T1, "n_checkpoints": 200, "rtol": 1e-8, "atol": 1e-10}, **extra}
+
+
+C1 = 0.5 + 1 / 7  # c in the 1-D tests: no lattice point lands on the boundary
+
+
+def closed_form(k, c):
+    return np.where(k < c - DELTA, V.CONVERGED, np.where(k > c + DELTA, V.DIVERGED, -1))
+
+
+def test_closed_form_labels(oscillator):
+    """The verdicts on both sides agree with the closed form (the premise of the tests below)."""
+    from stabjax.refine import default_solver, point_params
+    from stabjax.spec import make_plan
+
+    plan = make_plan(spec({"k": [0.0, 1.0]}, {}, params={"c": C1}))
+    k = np.array([0.0, C1 - 0.01, C1 - 2 * DELTA, C1 + 2 * DELTA, C1 + 0.01, 1.0])
+    res = default_solver(plan)(point_params(plan, k[:, None]))
+    np.testing.assert_array_equal(res["verdict"], closed_form(k, C1))
+
+
+def test_bisection_1d_brackets_boundary(oscillator):
+    from stabjax.refine import refine_spec
+
+    tol = 0.004
+    ds = refine_spec(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": {"k": tol}}, params={"c": C1}))
+    assert ds.attrs["n_segments"] == 1 and ds.attrs["n_unbracketed"] == 0
+    lo, hi = float(ds["k_lo"][0]), float(ds["k_hi"][0])
+    assert 0 < hi - lo <= tol
+    assert lo - DELTA <= C1 <= hi + DELTA  # the exact boundary k = c is inside the bracket (up to the horizon band)
+    assert {int(ds["label_lo"][0]), int(ds["label_hi"][0])} <= {V.CONVERGED, V.UNDECIDED, V.DIVERGED}
+    np.testing.assert_array_equal(ds["point_label"].values, closed_form(ds["point_k"].values, C1))
+    # 4 coarse intervals of 0.25 halved 6 times (0.25/64 <= 0.004 < 0.25/32): bisection costs 5 + 6 points, not 257
+    assert list(np.atleast_1d(ds.attrs["lattice_shape"])) == [257] and ds.attrs["n_points"] == 5 + 6
+    # theory: k < c - 0.1 -> the empirical boundary lies 0.1 beyond the theorem's, on its unsafe side
+    np.testing.assert_allclose(float(ds["theory_distance_k"][0]), 0.1 + float(ds["k_mid"][0]) - C1, atol=1e-9)
+
+
+def test_quadtree_2d_brackets_boundary_and_resumes(oscillator, tmp_path):
+    from stabjax.refine import plot_refine, refine_spec
+    from stabjax.sweep import open_result
+
+    grid = {"k": {"start": 0.0, "stop": 1.0, "num": 5}, "c": {"start": 0.2, "stop": 0.8, "num": 4}}
+    s = spec(grid, {"rel_tol": "1/64"})
+    out = tmp_path / "osc.nc"
+    ds = refine_spec(s, out, keep_partial=True)
+    tk, tc = 1 / 64, 0.6 / 64
+    assert ds.attrs["n_segments"] > 0 and ds.attrs["n_unbracketed"] == 0
+    wk, wc = ds["width_k"].values, ds["width_c"].values
+    along_k = ds["segment_axis"].values == 0
+    assert np.all(wk[along_k] <= tk * (1 + 1e-12)) and np.all(wc[~along_k] <= tc * (1 + 1e-12))
+    assert np.all(wc[along_k] == 0) and np.all(wk[~along_k] == 0)
+    # every bracket contains the line k = c (up to the horizon band): along k, k_lo <= c <= k_hi; along c, likewise
+    klo, khi = np.minimum(ds["k_lo"], ds["k_hi"]).values, np.maximum(ds["k_lo"], ds["k_hi"]).values
+    clo, chi = np.minimum(ds["c_lo"], ds["c_hi"]).values, np.maximum(ds["c_lo"], ds["c_hi"]).values
+    assert np.all((klo - DELTA <= chi) & (clo <= khi + DELTA))
+    assert np.all(np.abs(ds["k_mid"].values - ds["c_mid"].values) <= np.maximum(tk, tc) / 2 + DELTA)
+    # the boundary crosses the whole square: every coarse row in c is represented
+    assert np.ptp(ds["c_mid"].values) > 0.5
+    expect = closed_form(ds["point_k"].values, ds["point_c"].values)
+    band = expect == -1  # lattice points with k = c exactly (e.g. k = c = 0.5): undecided, any verdict allowed
+    assert band.sum() < 0.1 * len(expect)
+    np.testing.assert_array_equal(ds["point_label"].values[~band], expect[~band])
+    # far fewer points than the lattice of the same resolution: k 4 intervals / 2^4, c 3 intervals / 2^5 (0.2/16 > tc)
+    assert ds.attrs["full_grid_points"] == 65 * 97 and ds.attrs["n_points"] < ds.attrs["full_grid_points"] / 8
+    # signed distance along k to k = c - 0.1: +0.1 (conservative) up to the bracket
+    # (only for boundaries of the converged region; undecided | diverged segments in the band have none)
+    st = (ds["label_lo"].values == V.CONVERGED) ^ (ds["label_hi"].values == V.CONVERGED)
+    assert st.sum() > 0.5 * len(st)
+    dk = ds["theory_distance_k"].values
+    assert np.all(np.isnan(dk[~st]))
+    np.testing.assert_allclose(dk[st], (0.1 + ds["k_mid"].values - ds["c_mid"].values)[st], atol=1e-9)
+    # along c the contour c = k + 0.1 has slope 1 too, where it lies inside the c range [0.2, 0.8]
+    dc = ds["theory_distance_c"].values
+    inside = st & (ds["k_mid"].values + 0.1 <= 0.8)
+    np.testing.assert_allclose(dc[inside], dk[inside], atol=1e-9)
+    assert np.all(np.isnan(dc[~inside]))
+    assert np.all(np.abs(dk[st] - 0.1) <= tk / 2 + DELTA)
+
+    # resume: a re-run with every round saved integrates nothing and gives the identical dataset
+    def refuse(_params):
+        raise AssertionError("a resumed run must not integrate")
+
+    again = refine_spec(s, out, solve_points=refuse)
+    assert again.attrs["rounds_resumed"] == again.attrs["rounds"] == ds.attrs["rounds"]
+    for k in ds.data_vars:
+        np.testing.assert_array_equal(again[k].values, ds[k].values, err_msg=k)
+    written = open_result(out)
+    np.testing.assert_array_equal(written["k_mid"].values, ds["k_mid"].values)
+    assert not (tmp_path / "osc.nc.partial").exists()
+    png = tmp_path / "osc.png"
+    plot_refine(written, png)
+    assert png.stat().st_size > 0
+
+
+def test_partial_resume_after_kill(oscillator, tmp_path):
+    """A run killed after some rounds resumes them from disk and ends with the uninterrupted result."""
+    from stabjax.refine import default_solver, refine_spec
+    from stabjax.spec import make_plan
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 128}, params={"c": C1})
+    full = refine_spec(s)
+    solve = default_solver(make_plan(s))
+    calls = []
+
+    def dies_after_two(p):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return solve(p)
+
+    out = tmp_path / "osc1.nc"
+    with pytest.raises(KeyboardInterrupt):
+        refine_spec(s, out, solve_points=dies_after_two)
+    assert len(list((tmp_path / "osc1.nc.partial").glob("round_*.npz"))) == 2
+    resumed = refine_spec(s, out)
+    assert resumed.attrs["rounds_resumed"] == 2
+    for k in ("k_lo", "k_hi", "label_lo", "label_hi", "point_k", "point_label"):
+        np.testing.assert_array_equal(resumed[k].values, full[k].values)
+    # a changed spec is refused rather than mixed in
+    (tmp_path / "osc2.nc.partial").mkdir()
+    (tmp_path / "osc2.nc.partial" / "manifest.json").write_text(json.dumps({"fingerprint": "x", "kind": "refine"}))
+    from stabjax.errors import StabjaxError
+
+    with pytest.raises(StabjaxError, match="different spec"):
+        refine_spec(s, tmp_path / "osc2.nc")
+
+
+def test_samples_dominant_label_and_pair(oscillator):
+    """With samples a point's label is its dominant outcome; pair restricts which boundaries count."""
+    from stabjax.refine import refine_spec
+
+    # x0 in [1, 1.0005]: below diverge_size and above settle_tol at t = 0, so the closed form still holds
+    # (the horizon bands grow to 1.2e-4 at most, within DELTA)
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "pair": ["converged", "*"]},
+             params={"c": C1}, sample={"n": 3, "seed": 1, "x0": {"dist": "uniform", "low": 1.0, "high": 1.0005}})
+    ds = refine_spec(s)
+    assert ds.attrs["n_trajectories"] == 3 * ds.attrs["n_points"]
+    assert np.all(ds["point_share"].values == 1.0)
+    assert ds.attrs["n_segments"] == 1
+    assert int(ds["label_lo"][0]) == V.CONVERGED and int(ds["label_hi"][0]) != V.CONVERGED
+    assert float(ds["k_lo"][0]) - DELTA <= C1 <= float(ds["k_hi"][0]) + DELTA
+    # a pair that never meets (converged next to failed): nothing to bracket
+    ds2 = refine_spec(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "pair": ["converged", "failed"]},
+                           params={"c": C1}))
+    assert ds2.attrs["n_segments"] == 0 and ds2.attrs["n_points"] == 5
+
+
+def test_dominant_label_and_horizon_column():
+    """Unit test of the label reduction: mode over samples (ties -> lower code); (N, H) verdicts -> one column."""
+    from types import SimpleNamespace
+
+    from stabjax.refine import RefineConfig, _labels
+
+    cfg = RefineConfig(tol=(0.1,), levels=(1,), label="verdict", names=V.NAMES, pair=None, stable="converged",
+                       horizon=100.0, max_points=10)
+    plan = SimpleNamespace(vcfg=SimpleNamespace(horizons=[10.0, 1.0]), icfg=SimpleNamespace(t1=100.0, t0=0.0))
+    lab, share = _labels(plan, cfg, {"verdict": np.array([1, 1, 0, 3, 0, 3])}, 2)  # 2 points x 3 samples
+    np.testing.assert_array_equal(lab, [1, 3])
+    np.testing.assert_allclose(share, [2 / 3, 2 / 3])
+    lab, share = _labels(plan, cfg, {"verdict": np.array([3, 0, 2, 2])}, 2)  # a tie goes to the lower code
+    np.testing.assert_array_equal(lab, [0, 2])
+    np.testing.assert_allclose(share, [1 / 2, 1])
+    hv = np.array([[1, 2, 0], [1, 2, 3]])  # horizons 1, 10, 100 (t1)
+    np.testing.assert_array_equal(_labels(plan, cfg, {"verdict": hv}, 2)[0], [0, 3])
+    cfg10 = RefineConfig(**{**cfg.__dict__, "horizon": 10.0})
+    np.testing.assert_array_equal(_labels(plan, cfg10, {"verdict": hv}, 2)[0], [2, 2])
+
+
+@pytest.mark.parametrize("refine, field", [
+    ({"tol": {"k": float("nan")}}, "refine.tol.k"),
+    ({"tol": {"k": -1.0}}, "refine.tol.k"),
+    ({"tol": {"q": 0.1}}, "refine.tol.q"),
+    ({"tol": "abc"}, "refine.tol"),
+    ({"rel_tol": float("inf")}, "refine.rel_tol"),
+    ({"rel_tol": 2}, "refine.rel_tol"),
+    ({"rel_tol": True}, "refine.rel_tol"),
+    ({"bogus": 1}, "refine.bogus"),
+    ({"pair": ["converged"]}, "refine.pair"),
+    ({"pair": ["converged", "nope"]}, "refine.pair"),
+    ({"horizon": 1e9}, "refine.horizon"),
+    ({"horizon": 10.0}, "refine.horizon"),  # no multi-horizon verdicts in this plan
+    ({"label": "colour"}, "refine.label"),
+    ({"label": "outcome"}, "refine.label"),  # the oscillator declares no named outcomes
+    ({"stable": "stable"}, "refine.stable"),
+    ({"max_points": 0}, "refine.max_points"),
+    ({"tol": 1e-12}, "refine.tol"),  # lattice too large
+    ("x", "refine"),
+])
+def test_bad_refine_fields(oscillator, refine, field):
+    from stabjax.refine import refine_config
+    from stabjax.spec import make_plan
+
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, refine))
+    with pytest.raises(ValidationError) as exc:
+        refine_config(plan)
+    assert exc.value.field == field
+
+
+def test_bad_grids(oscillator):
+    from stabjax.refine import refine_config
+    from stabjax.spec import make_plan
+
+    for grid, field in [({"k": [0.5]}, "grid.k"), ({"k": [0.0, 0.5, 0.2]}, "grid.k"), ({}, "grid"),
+                        ({"k": [0.0, 1.0], "c": [0.0, 1.0], "x0": [1.0, 2.0]}, "grid")]:
+        with pytest.raises(ValidationError) as exc:
+            refine_config(make_plan(spec(grid, {})))
+        assert exc.value.field == field
+
+
+def test_cli_sweep_with_refine_and_bad_field(oscillator, tmp_path, capsys):
+    """`stabjax sweep` runs the refinement for a spec with [refine]; a bad field exits 2 naming it, writing nothing."""
+    from stabjax.cli import main
+    from stabjax.sweep import open_result
+
+    body = f"""system = "test_oscillator"
+name = "osc"
+[params]
+c = {C1!r}
+[grid]
+k = {{start = 0.0, stop = 1.0, num = 5}}
+[integrate]
+t1 = {T1}
+n_checkpoints = 200
+"""
+    good = tmp_path / "good.toml"
+    good.write_text(body + "[refine]\nrel_tol = \"1/64\"\n")
+    out = tmp_path / "good.nc"
+    main(["sweep", str(good), "--out", str(out), "--no-progress"])
+    ds = open_result(out)
+    assert ds.attrs["kind"] == "refine" and ds.attrs["n_segments"] == 1
+    assert float(ds["k_lo"][0]) - DELTA <= C1 <= float(ds["k_hi"][0]) + DELTA
+    assert out.with_suffix(".png").exists()
+    assert "boundary segments" in capsys.readouterr().out
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(body + "[refine]\ntol = {k = nan}\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(bad), "--out", str(tmp_path / "bad.nc")])
+    assert exc.value.code == 2
+    assert "refine.tol.k" in capsys.readouterr().err
+    assert not (tmp_path / "bad.nc").exists() and not (tmp_path / "bad.nc.partial").exists()
+
+
+def _synthetic(inside):
+    """A solve_points that labels points by a closed-form region (no integration): converged inside."""
+    def solve_points(p):
+        v = np.where(inside(p), V.CONVERGED, V.FLIPPED).astype(np.int8)
+        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+    return solve_points
+
+
+def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
+    """Disk boundary (k - 0.5)^2 + (c - 0.5)^2 = 0.3^2 on a log c axis: the refinement finds exactly the
+    boundary edges of the full lattice of the same resolution, and never evaluates a point twice."""
+    from stabjax.refine import Refiner, _fine_values, refine_config
+    from stabjax.spec import make_plan
+
+    inside = lambda p: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < 0.09
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 9}, "c": {"start": 0.1, "stop": 1.0, "num": 7, "log": True}},
+                          {"tol": {"k": 0.01, "c": 0.005}}))
+    cfg = refine_config(plan)
+    ref = Refiner(plan, cfg, _synthetic(inside)).run()
+    kf, cf = ref.fine
+    np.testing.assert_array_equal(cf[:: 2 ** cfg.levels[1]], plan.grid[1].values)
+    assert np.max(np.diff(cf)) <= 0.005 and np.max(np.diff(kf)) <= 0.01
+    assert np.max(np.diff(cf)) > 0.005 / 2  # the fewest halvings
+    np.testing.assert_allclose(np.diff(np.log(cf))[:4], np.diff(np.log(cf))[0])  # geometric within a coarse interval
+    K, C = np.meshgrid(kf, cf, indexing="ij")
+    full = inside({"k": K, "c": C})
+    edges = {(0, (i, j), (i + 1, j)) for i, j in zip(*np.nonzero(full[1:] != full[:-1]))}
+    edges |= {(1, (i, j), (i, j + 1)) for i, j in zip(*np.nonzero(full[:, 1:] != full[:, :-1]))}
+    assert set(ref.segments()) == edges
+    coords = np.concatenate(ref.coords)
+    assert len({tuple(c) for c in coords}) == len(coords) < full.size / 4
+    np.testing.assert_array_equal(ref.lab[tuple(coords.T)], np.where(full[tuple(coords.T)], 0, 1))
+
+
+def test_benchmark_against_full_lattice(oscillator, tmp_path):
+    """The benchmark's bookkeeping on the oscillator: the full lattice (1-D, 65 points) holds exactly one
+    boundary edge, found by the refinement, with the same labels at the shared points; --full-from re-uses it."""
+    from stabjax.refine import benchmark, format_benchmark
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 64, "pair": ["converged", "*"]},
+             params={"c": C1})
+    full_nc = tmp_path / "full.nc"
+    r = benchmark(s, out=full_nc)
+    assert r["lattice"] == [65] and r["full_trajectories"] == 65 and r["refine_trajectories"] == 3 + 5
+    assert r["full_boundary_edges"] == 1 and r["missed_edges"] == 0
+    assert r["labels_agree"] == r["labels_compared"] == 8
+    assert r["full_steps"] > r["refine_steps"] > 0 and r["ratio_steps"] == r["full_steps"] / r["refine_steps"]
+    again = benchmark(s, full_from=full_nc)
+    assert again["full_steps"] == r["full_steps"] and again["refine_steps"] == r["refine_steps"]
+    assert "full / refinement" in format_benchmark(again)
+    with pytest.raises(ValidationError, match="full_from"):
+        benchmark({**s, "params": {"c": 0.6}}, full_from=full_nc)
+
+
+class NamedOutcomes(DampedOscillator):
+    """The oscillator with named outcomes (the 'bring your own model' shape): refinement labels by ``outcome``."""
+
+    name = "test_named"
+    outcomes = ("decays", "rings", "grows")
+
+
+def test_named_outcomes_label_and_pair(monkeypatch):
+    from stabjax.refine import Refiner, assemble, refine_config
+    from stabjax.spec import make_plan
+
+    monkeypatch.setitem(registry.SYSTEMS, "test_named", f"{__name__}:NamedOutcomes")
+    monkeypatch.setitem(registry._cache, "test_named", NamedOutcomes())
+
+    def solve_points(p):  # outcome by closed form: decays below k = 0.3, rings up to 0.6, grows above
+        o = np.where(p["k"] < 0.3, 0, np.where(p["k"] < 0.6, 1, 2)).astype(np.int8)
+        return {"outcome": o, "verdict": np.zeros_like(o), "n_steps": np.ones(len(o), np.int64)}
+
+    s = {**spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "pair": ["decays", "rings"]}),
+         "system": "test_named"}
+    plan = make_plan(s)
+    cfg = refine_config(plan)
+    assert cfg.label == "outcome" and cfg.names == ("decays", "rings", "grows") and cfg.stable == "decays"
+    ds = assemble(Refiner(plan, cfg, solve_points).run())
+    assert ds.attrs["n_segments"] == 1  # rings | grows is not part of the pair
+    assert float(ds["k_lo"][0]) < 0.3 <= float(ds["k_hi"][0]) and float(ds["width_k"][0]) <= 0.01
+    assert ds["label_lo"].attrs["flag_meanings"] == "decays rings grows"
+    with pytest.raises(ValidationError, match="refine.pair"):
+        refine_config(make_plan({**s, "refine": {"pair": ["decays", "converged"]}}))
+
+
+def test_resume_refuses_another_horizon(oscillator, tmp_path):
+    """Saved rounds belong to one t1: a --t1 override (not part of the spec) is a different computation."""
+    from stabjax.errors import StabjaxError
+    from stabjax.refine import refine_spec
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 8}, params={"c": C1})
+    calls = []
+
+    def dies(_p):
+        calls.append(1)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        refine_spec(s, tmp_path / "o.nc", solve_points=dies)
+    with pytest.raises(StabjaxError, match="different spec"):
+        refine_spec(s, tmp_path / "o.nc", t1=2 * T1, solve_points=dies)
+    assert len(calls) == 1
+    # max_points only stops a run: raising it resumes the same run
+    s2 = {**s, "refine": {**s["refine"], "max_points": 4}}
+    with pytest.raises(StabjaxError, match="max_points"):
+        refine_spec(s2, tmp_path / "p.nc")
+    assert len(list((tmp_path / "p.nc.partial").glob("round_*.npz"))) == 2  # 3 coarse points + 1 bisection
+    done = refine_spec({**s2, "refine": {**s["refine"], "max_points": 100}}, tmp_path / "p.nc")
+    assert done.attrs["rounds_resumed"] == 2 and done.attrs["n_points"] == 3 + 2  # 0.5 halved twice <= 1/8
+
+
+def test_multi_horizon_verdicts_refine_t1_by_default(oscillator):
+    """Results shaped (N, n_horizons) (horizons ascending, last = t1): without [refine] horizon, t1's column."""
+    from stabjax.refine import Refiner, assemble, refine_config
+    from stabjax.spec import make_plan
+
+    def solve_points(p):
+        at_t1 = np.where(p["k"] < 0.37, V.CONVERGED, V.FLIPPED)
+        early = np.where(p["k"] < 0.81, V.CONVERGED, V.UNDECIDED)  # a different boundary at an earlier horizon
+        v = np.stack([early, early, at_t1], axis=1).astype(np.int8)
+        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01}))
+    ds = assemble(Refiner(plan, refine_config(plan), solve_points).run())
+    assert ds.attrs["n_segments"] == 1 and float(ds["k_lo"][0]) < 0.37 <= float(ds["k_hi"][0])
