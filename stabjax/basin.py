@@ -30,18 +30,26 @@ def template_features(plan) -> np.ndarray | None:
     sch = plan.outcomes
     if sch is None or sch.decl is None or not sch.decl.templates:
         return None
+    ns = max(plan.n_sample, 1)
+    return template_features_at(plan, plan.params_at(np.arange(_grid_points(plan)) * ns))
+
+
+def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    """Template feature vectors (P, n_templates, n_features) at P parameter points.
+
+    ``base``: every parameter of one trajectory per point (its swept values); each template's
+    overrides replace the initial conditions, and the templates run with the plan's settings.
+    """
+    sch = plan.outcomes
+    if sch is None or sch.decl is None or not sch.decl.templates:
+        return None
     from .engine import solve_batch
     from .sweep import static_params
 
     decl = sch.decl
-    g = _grid_points(plan)
-    ns = max(plan.n_sample, 1)
-    first = np.arange(g) * ns  # sample 0 of every grid point: its swept parameters
-    base = plan.params_at(first)
+    g = len(next(iter(base.values())))
     names = list(decl.templates)
-    params = {}
-    for k, v in base.items():
-        params[k] = np.concatenate([v] * len(names))
+    params = {k: np.concatenate([np.asarray(v)] * len(names)) for k, v in base.items()}
     for j, name in enumerate(names):
         over = plan.system.params.resolve(decl.templates[name])
         for k in decl.templates[name]:
@@ -56,10 +64,23 @@ def template_features(plan) -> np.ndarray | None:
     def par(name):
         return np.asarray(params[name], float).reshape(n)
 
-    x = O._feature_matrix(decl, plan.system, feat, par)  # (T * G, F)
+    x = O._feature_matrix(decl, plan.system, feat, par)  # (T * P, F)
     ok = np.asarray(res["solver_status"]) == 0
     x = np.where(ok[:, None], x, np.nan)
     return x.reshape(len(names), g, -1).transpose(1, 0, 2)
+
+
+def point_outcomes(plan, params: Mapping[str, np.ndarray], results: Mapping[str, np.ndarray],
+                   n_points: int) -> np.ndarray:
+    """Outcome codes of trajectories laid out point-major (each point's samples contiguous), as the
+    boundary refinement evaluates them; templates are integrated at each point's parameters."""
+    sch = plan.scheme
+    if sch.from_verdicts:
+        return O.assign(sch, plan.system, results, {})
+    n = len(np.asarray(results["solver_status"]))
+    ns = n // n_points
+    tf = template_features_at(plan, {k: np.asarray(v)[::ns] for k, v in params.items()})
+    return O.assign(sch, plan.system, results, params, None if tf is None else np.repeat(tf, ns, axis=0))
 
 
 def outcome_codes(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None = None) -> np.ndarray:

@@ -236,10 +236,6 @@ def sweep(
                               "(a local run uses $STABJAX_THREADS)")
     s = load_spec(spec)
     out = out or Path("results") / f"{s['name']}.nc"
-    if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
-        from .refine import run_cli
-
-        return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console)
     store = store or default_store(out)
     executor = None
     if scheduler is not None or workers is not None:
@@ -253,6 +249,11 @@ def sweep(
     try:
         if executor is not None:
             executor.start()
+        if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
+            from .refine import run_cli
+
+            return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console,
+                           executor=executor)
         ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1, store=store,
                       keep_partial=keep_store, executor=executor)
     except KeyboardInterrupt:

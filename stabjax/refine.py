@@ -104,13 +104,9 @@ def label_names(plan: Plan, label: str) -> tuple[str, ...]:
     """Names of the label codes: verdict names, or the system's declared outcomes."""
     if label == "verdict":
         return tuple(V.NAMES)
-    outs = getattr(plan.system, "outcomes", None)
-    if isinstance(outs, Mapping):
-        outs = list(outs)
-    names = [o if isinstance(o, str) else getattr(o, "name", str(o)) for o in (outs or [])]
-    if not names:
+    if plan.outcomes is None:
         raise ValidationError("refine.label", f"{plan.system.name} declares no named outcomes; use label = \"verdict\"")
-    return tuple(names)
+    return tuple(plan.outcomes.names)
 
 
 def horizon_times(plan: Plan) -> np.ndarray | None:
@@ -194,7 +190,7 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
 
     label = raw.get("label")
     if label is None:
-        label = "outcome" if getattr(plan.system, "outcomes", None) else "verdict"
+        label = "outcome" if plan.outcomes is not None else "verdict"
     if label not in ("verdict", "outcome"):
         raise ValidationError("refine.label", f"must be \"verdict\" or \"outcome\", got {label!r}")
     names = label_names(plan, label)
@@ -445,6 +441,10 @@ class Refiner:
             values = np.stack([self.fine[a][coords[:, a]] for a in range(self.D)], axis=1)
             p = _check(self.plan, point_params(self.plan, values))
             res = {k: np.asarray(v) for k, v in self.solve_points(p).items()}
+            if self.cfg.label == "outcome" and "outcome" not in res:
+                from .basin import point_outcomes
+
+                res["outcome"] = point_outcomes(self.plan, p, res, len(coords))
             from .engine import last_engine
 
             if last_engine():
@@ -843,12 +843,16 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
 
 
 def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot: bool = True, restart: bool = False,
-            console=None, err_console=None) -> xr.Dataset:
-    """`stabjax sweep SPEC` for a spec with a [refine] section: refine, write ``out`` (+ .png), print a summary."""
+            console=None, err_console=None, executor=None) -> xr.Dataset:
+    """`stabjax sweep SPEC` for a spec with a [refine] section: refine, write ``out`` (+ .png), print a summary.
+
+    ``executor`` (a started :class:`stabjax.distributed.DaskExecutor`): each round's points run on its workers.
+    """
     plan = make_plan(spec, t1=t1)
     refine_config(plan)  # every field checked before anything is integrated or written
+    solve_points = executor.points_solver(plan) if executor is not None else None
     try:
-        ds = refine_plan(plan, out, restart=restart, plot=plot)
+        ds = refine_plan(plan, out, restart=restart, plot=plot, solve_points=solve_points)
     except KeyboardInterrupt:
         if err_console is not None:
             err_console.print(f"[yellow]interrupted: finished rounds are kept in {out}.partial; "
@@ -866,7 +870,7 @@ def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot
 
 # ---- benchmark ----------------------------------------------------------------------------------
 
-BENCH_SPEC = Path(__file__).resolve().parent.parent / "sweeps" / "refine_default.toml"
+BENCH_SPEC = Path(__file__).resolve().parent / "sweeps" / "refine_default.toml"  # package data
 
 
 def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict:

@@ -20,6 +20,7 @@ import pytest
 from stabjax import registry
 from stabjax import verdict as V
 from stabjax.errors import ValidationError
+from stabjax.outcomes import Outcomes
 from stabjax.params import Param, ParamSet
 from stabjax.system import Predicate, System, Theory, VerdictConfig
 
@@ -373,7 +374,7 @@ class NamedOutcomes(DampedOscillator):
     """The oscillator with named outcomes (the 'bring your own model' shape): refinement labels by ``outcome``."""
 
     name = "test_named"
-    outcomes = ("decays", "rings", "grows")
+    outcomes = Outcomes(rules={"decays": "max(error) < 1e-3", "rings": "max(error) < 1", "grows": "max(error) >= 1"})
 
 
 def test_named_outcomes_label_and_pair(monkeypatch):
@@ -391,11 +392,12 @@ def test_named_outcomes_label_and_pair(monkeypatch):
          "system": "test_named"}
     plan = make_plan(s)
     cfg = refine_config(plan)
-    assert cfg.label == "outcome" and cfg.names == ("decays", "rings", "grows") and cfg.stable == "decays"
+    assert cfg.label == "outcome" and cfg.stable == "decays"
+    assert cfg.names == ("decays", "rings", "grows", "unclassified", "failed")
     ds = assemble(Refiner(plan, cfg, solve_points).run())
     assert ds.attrs["n_segments"] == 1  # rings | grows is not part of the pair
     assert float(ds["k_lo"][0]) < 0.3 <= float(ds["k_hi"][0]) and float(ds["width_k"][0]) <= 0.01
-    assert ds["label_lo"].attrs["flag_meanings"] == "decays rings grows"
+    assert ds["label_lo"].attrs["flag_meanings"] == "decays rings grows unclassified failed"
     with pytest.raises(ValidationError, match="refine.pair"):
         refine_config(make_plan({**s, "refine": {"pair": ["decays", "converged"]}}))
 
@@ -440,3 +442,34 @@ def test_multi_horizon_verdicts_refine_t1_by_default(oscillator):
     plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01}))
     ds = assemble(Refiner(plan, refine_config(plan), solve_points).run())
     assert ds.attrs["n_segments"] == 1 and float(ds["k_lo"][0]) < 0.37 <= float(ds["k_hi"][0])
+
+
+def test_refine_named_outcome_of_a_user_model_file(tmp_path):
+    """Refinement labels by a user model's named outcome (rules over features), the boundary from a closed form.
+
+    tests/models/oscillator.py: x'' + (c - k) x' + x = 0 from (1, 0); "grows" when the amplitude
+    sqrt(x^2 + v^2) at t1 = 40 exceeds 10. With g = (k - c)/2, w = sqrt(1 - g^2):
+    x = e^{gt}(cos wt - (g/w) sin wt), v = -e^{gt} sin(wt) / w.
+    """
+    from pathlib import Path
+
+    from scipy.optimize import brentq
+
+    from stabjax.refine import refine_spec
+
+    def amp(k, c=0.5, t=40.0):
+        g = (k - c) / 2
+        w = np.sqrt(1 - g * g)
+        x = np.exp(g * t) * (np.cos(w * t) - g / w * np.sin(w * t))
+        v = -np.exp(g * t) * np.sin(w * t) / w
+        return np.hypot(x, v)
+
+    k_star = brentq(lambda k: amp(k) - 10.0, 0.55, 0.8)
+    model = Path(__file__).parent / "models" / "oscillator.py"
+    s = {"system": f"{model}:Oscillator", "grid": {"k": {"start": 0.5, "stop": 0.9, "num": 5}},
+         "integrate": {"t1": 40.0, "n_checkpoints": 64, "rtol": 1e-10, "atol": 1e-12},
+         "refine": {"tol": {"k": 1e-3}, "pair": ["grows", "*"]}}
+    ds = refine_spec(s, tmp_path / "r.nc")
+    assert ds.attrs["n_segments"] == 1
+    assert float(ds["k_lo"][0]) <= k_star <= float(ds["k_hi"][0])
+    assert float(ds["width_k"][0]) <= 1e-3
