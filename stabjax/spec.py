@@ -25,11 +25,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .engine import IntegrateConfig, verdict_config
+from .config import IntegrateConfig, VerdictConfig, verdict_config
 from .errors import ValidationError
 from .params import Param, parse_value
 from .registry import get_system
-from .system import System, VerdictConfig
+from .system import System
 
 TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "run"}
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
@@ -55,8 +55,13 @@ class Axis:
         return () if self.index is not None else self.param.shape
 
 
-@dataclass
+@dataclass(frozen=True)
 class Plan:
+    """A validated, fully resolved sweep (an immutable value: derive changed ones with
+    ``dataclasses.replace``). ``engine``: the engine that runs it, resolved once by
+    :func:`stabjax.engines.resolve_plan` ("" until then), and ``engine_note`` why it is not the
+    first choice ("" when it is)."""
+
     system: System
     name: str
     spec: dict
@@ -66,6 +71,8 @@ class Plan:
     n_sample: int = 0
     icfg: IntegrateConfig = field(default_factory=IntegrateConfig)
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
+    engine: str = ""
+    engine_note: str = ""
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -304,7 +311,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
 
     icfg = IntegrateConfig.from_dict(spec.get("integrate"), default_t1=system.default_t1)
     if t1 is not None:
-        icfg = IntegrateConfig(**{**icfg.__dict__, "t1": float(t1)})
+        icfg = icfg.replace(t1=float(t1))
         icfg.validate()
     vcfg = verdict_config(system, spec.get("verdict"))
     plan = Plan(system=system, name=str(spec.get("name", "sweep")), spec=spec, fixed=fixed, grid=grid,

@@ -7,6 +7,7 @@ finished chunks, and a changed spec is refused rather than silently mixed.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import platform
@@ -20,7 +21,9 @@ import numpy as np
 import xarray as xr
 
 from . import verdict as V
-from .engine import last_engine, solve_batch
+from . import engines
+from .config import setup_jax
+from .engine import solve_batch
 from .errors import StabjaxError, ValidationError
 from .spec import Plan, check_plan, load_spec, make_plan
 
@@ -42,36 +45,18 @@ def static_params(plan: Plan) -> list[str]:
 
 
 def bytes_per_trajectory(plan: Plan) -> int:
-    """Working memory of one trajectory inside a compiled chunk.
-
-    diffrax path: the observables at every checkpoint dominate. Native/fused engines: no per-checkpoint
-    storage, only the parameters and the summaries of each queued trajectory (lane state lives in
-    cache on CPU, on the device on a GPU).
-    """
-    if _queued(plan):
-        n_par = sum(int(np.prod(np.shape(v))) or 1 for v in plan.fixed.values())
-        return 8 * (2 * n_par + 2 * N_SUMMARY_FIELDS + 64)
-    k = len(plan.icfg.checkpoints())
-    n_obs = len(plan.system.observables)
-    return 8 * (6 * k * n_obs + 64 * plan.system.state_size + 256)
+    """Working memory of one trajectory inside a compiled chunk, on the plan's engine."""
+    return _engine(plan).bytes_per_trajectory(plan)
 
 
 def default_batch(plan: Plan) -> int:
-    """Chunk size when none is given: the native/fused engines refill lanes from a queue, so longer
-    queues (bigger chunks) waste less at the tail; progress is still reported per chunk. On a GPU
-    the fused engine keeps 2^18 lanes busy, so a chunk holds 2^20 trajectories (NOTES.md G2)."""
-    if not _queued(plan):
-        return 4096
-    import jax
-
-    return 65536 if jax.default_backend() == "cpu" else 1 << 20
+    """Chunk size when none is given: the plan's engine's (:meth:`stabjax.engines.Engine.default_chunk`)."""
+    return _engine(plan).default_chunk(plan)
 
 
-def _queued(plan: Plan) -> bool:
-    """Whether a queued engine (native or fused: no per-checkpoint storage) takes this plan."""
-    from .engine import engine_chain
-
-    return engine_chain(plan.system, plan.icfg)[0] != "diffrax"
+def _engine(plan: Plan):
+    """The plan's engine; for a plan not yet resolved, the first that accepts it (no translation)."""
+    return engines.get(plan.engine or engines.resolve(plan.system, plan.icfg).engine)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -140,7 +125,13 @@ class _Store:
 def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | None = None, progress: bool = False,
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
              on_chunk: Callable[[int, int], None] | None = None) -> xr.Dataset:
-    """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset."""
+    """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset.
+
+    The engine is resolved here once (:func:`stabjax.engines.resolve_plan`) unless ``plan.engine``
+    is set; it sizes the chunks and runs every one of them.
+    """
+    setup_jax()
+    plan = engines.resolve_plan(plan, static=static_params(plan))
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
     n = plan.size
@@ -150,7 +141,6 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     t_start = time.perf_counter()
     steps_total = 0
     n_resumed = 0
-    engines: set[str] = set()
 
     def put(i, res):
         nonlocal steps_total
@@ -181,8 +171,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                         bar.update(k, steps=steps_total)
                         shown[0] += k
 
-                res = solve_batch(plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan), progress=within)
-                engines.add(last_engine())
+                res = engines.solve(plan.engine, plan.system, p, plan.icfg, plan.vcfg, static=static_params(plan),
+                                    progress=within)
                 res = {k: v[: hi - lo] for k, v in res.items()}
                 if store is not None:
                     store.save(i, res)
@@ -196,7 +186,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             bar.close()
     wall = time.perf_counter() - t_start
     ds = assemble(plan, results, wall=wall, steps=steps_total, batch=batch, n_resumed=n_resumed)
-    ds.attrs["engine"] = ",".join(sorted(engines)) or "resumed"
+    ds.attrs["engine"] = plan.engine
+    ds.attrs["engine_note"] = plan.engine_note
     if out is not None:
         write(ds, out)
         if not keep_partial:
@@ -207,6 +198,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
              progress: bool = False, restart: bool = False, t1: float | None = None, **kw) -> xr.Dataset:
     """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.spec` for the format."""
+    setup_jax()
     if isinstance(spec, (str, Path)):
         spec = load_spec(spec)
     plan = make_plan(spec, t1=t1)
@@ -356,10 +348,8 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
     rng = np.random.default_rng(seed)
     n = min(n, plan.size)
     idx = np.sort(rng.choice(plan.size, size=n, replace=False))
-    from .engine import IntegrateConfig
-
-    long_cfg = IntegrateConfig(**{**icfg.__dict__, "t1": icfg.t1 * factor})
-    plan_long = Plan(**{**plan.__dict__, "icfg": long_cfg})
+    long_cfg = icfg.replace(t1=icfg.t1 * factor)
+    plan_long = dataclasses.replace(plan, icfg=long_cfg)
     p = plan_long.system.check(plan_long.params_at(idx))
     res = solve_batch(plan.system, p, long_cfg, plan.vcfg)
     old = np.asarray(ds["verdict"].values).ravel()[idx]
