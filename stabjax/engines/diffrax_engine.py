@@ -6,11 +6,11 @@ observables at the checkpoint times, which the classifier (:mod:`stabjax.verdict
 per-trajectory scalars inside the same compiled function, so a chunk of B trajectories costs
 O(B * n_checkpoints) memory whatever the number of steps.
 
-Early stops, as on the other engines (a ``diffrax.Event`` checked after every accepted step): a
-state whose derivative is not finite stops at once with status 1 (diffrax would otherwise shrink
-the step until ``max_steps``), and with an escape radius a state outside the ball stops at once
-with :data:`stabjax.config.STATUS_ESCAPED`. The finiteness test costs one extra evaluation of the
-right-hand side per accepted step.
+Early stops, as on the other engines: a state whose derivative is not finite (a ``diffrax.Event``)
+and a step size below ~10 ulp of the horizon (``PIDController(dtmin=...)``) stop at once with
+status 1, where diffrax would otherwise reject steps until ``max_steps``; with an escape radius, a
+state outside the ball stops at once (an event) with :data:`stabjax.config.STATUS_ESCAPED`. The
+finiteness test costs one extra evaluation of the right-hand side per step.
 """
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ import numpy as np
 from .. import verdict as V
 from ..config import STATUS_ESCAPED, STATUS_MAX_STEPS, IntegrateConfig, escape_radius
 from .base import Engine
+from .tsit5 import MIN_STEP_REL
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
@@ -62,15 +63,19 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
     # default I controller Kvaerno5 rejected about half its steps on the gyrodyne model
     pi = dict(pcoeff=0.3, icoeff=0.4) if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
     conds = _events(system, escape_radius(system, icfg))
+    # step-size collapse (as in the other engines, but absolute: diffrax's dtmin is a constant):
+    # a step below ~10 ulp of the horizon's largest time stops the solve (dt_min_reached)
+    dtmin = MIN_STEP_REL * max(abs(float(icfg.t0)), abs(float(icfg.t1)))
     sol = diffrax.diffeqsolve(
         term, solver, icfg.t0, icfg.t1, icfg.dt0, y0, args=args, saveat=saveat,
-        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, **pi),
+        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, dtmin=dtmin, force_dtmin=False, **pi),
         max_steps=icfg.max_steps, throw=False,
         adjoint=diffrax.ForwardMode(),  # plain while loop: no checkpointing machinery for a forward-only solve
         event=diffrax.Event(conds),
     )
     status = sol.result._value
-    status = jnp.where(sol.event_mask["nonfinite"], STATUS_MAX_STEPS, status)
+    collapsed = sol.result == diffrax.RESULTS.dt_min_reached
+    status = jnp.where(sol.event_mask["nonfinite"] | collapsed, STATUS_MAX_STEPS, status)
     if "escape" in conds:
         status = jnp.where(sol.event_mask["escape"], STATUS_ESCAPED, status)
     return sol, status.astype(jnp.int32)

@@ -32,8 +32,8 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   its own loop (``shard_map``); :func:`stabjax.config.setup_jax` asks JAX for one host device per core. On a GPU
   the same code runs on one device with wide lanes.
 
-A trajectory that cannot progress (its right-hand side is not finite at an accepted state:
-diffrax would shrink the step until ``max_steps``) is stopped at once with the status code
+A trajectory that cannot progress (its right-hand side is not finite at an accepted state, or
+its step size collapsed below ~10 ulp of t: diffrax would reject steps until ``max_steps``) is stopped at once with the status code
 diffrax would end with (``max_steps_reached`` = 1); with an escape radius, one whose accepted
 state leaves the ball is stopped at once with :data:`stabjax.config.STATUS_ESCAPED`. For FAILED
 trajectories only ``verdict``, ``solver_status`` and the step counts are meaningful.
@@ -54,7 +54,8 @@ from .base import Engine, Unsupported, queued_bytes_per_trajectory
 from .lanes import (LaneFn, Lanes, NoRule, RowSpec, flat_rows, is_const, materialize, materializing, obj, obj0,
                     obj1, rows_to_objs)
 from .static import StaticParams, split_static
-from .tsit5 import A, C, E, FACTORMAX, FACTORMIN, ORDER, SAFETY, SOLVER, interp_weights, t1_clip_floor
+from .tsit5 import (A, C, E, FACTORMAX, FACTORMIN, MIN_STEP_REL, ORDER, SAFETY, SOLVER, interp_weights,
+                    t1_clip_floor)
 from .vmath import fast_log
 
 # Checkpoints handled per step: a step that would contain more ends on the next one (measured
@@ -251,6 +252,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
         if with_state:
             for i in range(n_state):
                 out[f"__y{i}"] = jnp.zeros((M,), f64)
+            out["__t"] = jnp.zeros((M,), f64)
 
         def sel(mask, a, b):
             return jax.tree.map(lambda x, y: jnp.where(mask, x, y), a, b)
@@ -264,6 +266,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             if with_state:
                 for i in range(n_state):
                     summ[f"__y{i}"] = lane["y"][i]
+                summ["__t"] = lane["t"]
             widx = jnp.where(done, idx, M)  # out of range: dropped
             out = {k: out[k].at[widx].set(summ[k].astype(out[k].dtype), mode="drop") for k in out}
             rank = jnp.cumsum(done.astype(jnp.int32)) - 1
@@ -334,7 +337,9 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
 
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
-            stuck = active & ~reached & (((nacc + nrej) >= max_steps) | ~finite)
+            # no progress possible (at t1 a step of length 0 may still observe the last checkpoint)
+            collapsed = ((t_next - t_prev) < MIN_STEP_REL * jnp.abs(t_prev)) & (t_prev < t1)
+            stuck = active & ~reached & (((nacc + nrej) >= max_steps) | ~finite | collapsed)
             done = reached | stuck
             status = jnp.where(reached, STATUS_OK, STATUS_MAX_STEPS)
             if radius is not None:  # an accepted state outside the ball: stop at once
@@ -422,7 +427,8 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, lanes: int | 
 
     ``static``: names of parameters that are the same for every trajectory of this batch *and of
     every other batch of the same sweep* (they are compiled in as constants); default: those equal
-    across this batch. ``with_state``: also return ``state_t1`` (N, n_state), the state at the stop.
+    across this batch. ``with_state``: also return ``state_t1`` (N, n_state) and ``t_stop`` (N,), the
+    state and time where each trajectory stopped (t1 unless it failed or escaped).
     ``lanes``: default ``icfg.lanes``, else :func:`default_lanes`.
     Raises :class:`Unsupported` when the system cannot run lane-wise.
     """
@@ -445,6 +451,8 @@ def unpack(out, order, n) -> dict[str, np.ndarray]:
     ys = sorted((k for k in res if k.startswith("__y")), key=lambda k: int(k[3:]))
     if ys:
         res["state_t1"] = np.stack([res.pop(k) for k in ys], axis=1)
+    if "__t" in res:
+        res["t_stop"] = res.pop("__t")
     return res
 
 

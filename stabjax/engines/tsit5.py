@@ -25,6 +25,11 @@ E = (0.0017800110522257773, 0.0008164344596567463, -0.007880878010261994, 0.1447
      -0.5823571654525552, 0.45808210592918686, -0.015151515151515152)  # error weights (5th - 4th order)
 ORDER = 5  # diffrax's error order for Tsit5 on an ODE
 SAFETY, FACTORMIN, FACTORMAX = 0.9, 0.2, 10.0
+# Step-size collapse: a proposed step below MIN_STEP_REL * |t| (5 to 10 ulp of t) cannot make
+# progress (t + h rounds to within a few ulp of t), so the trajectory stops as failed (status 1)
+# instead of rejecting steps until max_steps (SciPy's solve_ivp uses 10 ulp). Happens at a
+# finite-time blow-up; diffrax itself has no such test (see the diffrax engine's dtmin).
+MIN_STEP_REL = 10 * 2.0 ** -52
 
 
 def interp_weights(th):

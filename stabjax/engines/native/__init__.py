@@ -76,6 +76,11 @@ def _kernel(system, icfg, vcfg, static: StaticParams, dyn_shapes: tuple, width: 
     return _Kernel(system, icfg, vcfg, static.values, dict(dyn_shapes), width, eval_only)
 
 
+def clear_cache() -> None:
+    """Forget the kernels loaded in this process (the next solve builds, or loads from disk, anew)."""
+    _kernel.cache_clear()
+
+
 def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray, *,
              split: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The compiled rhs and observables of one trajectory (prepared args ``a`` as from host_inputs).
@@ -168,6 +173,7 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     summ["solver_status"] = raw["status"]
     if with_state:
         summ["state_t1"] = raw["y"]
+        summ["t_stop"] = raw["t"]
     return summ
 
 
@@ -181,6 +187,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
         ain = np.ascontiguousarray(np.zeros((n, NA)) if model.n_args == 0 else ain)
     cout = np.empty((n, model.n_c), np.float64)
     yout = np.empty((n, model.n_state), np.float64)
+    tout = np.empty(n, np.float64)
     nacc = np.zeros(n, np.int32)
     nrej = np.zeros(n, np.int32)
     status = np.full(n, STATUS_MAX_STEPS, np.int32)
@@ -197,7 +204,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
               dt0=float(icfg.dt0) if icfg.dt0 is not None else -1.0,
               ain=ptr(ain), y0in=ptr(y0), c0=ptr(c0), ts=ptr(kern.ts), cout=ptr(cout), yout=ptr(yout),
               nacc_out=ptr(nacc), nrej_out=ptr(nrej), status_out=ptr(status), next=ptr(nxt), ndone=ptr(ndone),
-              stop=ptr(stop))
+              stop=ptr(stop), tout=ptr(tout))
     n_threads = max(1, min(int(threads or default_threads()), -(-n // kern.width)))
     workers = [threading.Thread(target=kern.lib.stabjax_run, args=(ctypes.byref(job),), daemon=True)
                for _ in range(n_threads)]
@@ -217,7 +224,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
         w.join()
     if int(ndone[0]) != n:
         raise RuntimeError(f"native engine finished {int(ndone[0])} of {n} trajectories")
-    return {"c": cout, "y": yout, "nacc": nacc, "nrej": nrej, "status": status}
+    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status}
 
 
 class NativeEngine(Engine):
@@ -255,4 +262,4 @@ class NativeEngine(Engine):
 ENGINE = NativeEngine()
 
 __all__ = ["ENGINE", "NativeEngine", "solve", "available", "Unsupported", "compiler", "kernel_for", "run_raw", "evaluate",
-           "update", "warm", "default_threads", "DEFAULT_WIDTH"]
+           "update", "warm", "clear_cache", "default_threads", "DEFAULT_WIDTH"]

@@ -20,8 +20,8 @@ one piece. Why each part is written the way it is: the comments in the C, and do
 * **Checkpoints.** Each lane's first checkpoint of a step is interpolated and observed in lane
   layout; later ones of the same step become items observed in SIMD batches over items; the
   observables wait in per-lane FIFOs for vectorised classifier passes.
-* **Stops.** A lane stops at t1, at ``max_steps``, at once when its derivative is not finite
-  (status 1, what diffrax would end with), and, with an escape radius, at once when an accepted
+* **Stops.** A lane stops at t1, at ``max_steps``, at once when its derivative is not finite or
+  its step size collapses (status 1, what diffrax would end with; :data:`..tsit5.MIN_STEP_REL`), and, with an escape radius, at once when an accepted
   state leaves the ball (status :data:`stabjax.config.STATUS_ESCAPED`).
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ import ctypes
 from typing import Callable
 
 from ...config import STATUS_ESCAPED, STATUS_MAX_STEPS, STATUS_OK
-from ..tsit5 import A, C, E, FACTORMAX, FACTORMIN, SAFETY
+from ..tsit5 import A, C, E, FACTORMAX, FACTORMIN, MIN_STEP_REL, SAFETY
 from .emit import NativeModel, flit
 
 # ==== the kernel ==================================================================================
@@ -188,6 +188,7 @@ typedef struct {{
     int32_t *nacc_out, *nrej_out, *status_out;
     int64_t *next, *ndone;
     volatile int32_t *stop;
+    double *tout;
 }} job_t;
 
 static inline double rms_scaled(const double *v, const double *scale) {{
@@ -435,18 +436,22 @@ int64_t stabjax_run(const job_t *jb) {{
         for (int l = 0; l < W; l++) {{
             const double probe = {fin_probe};  /* NaN iff some component of f is not finite */
             {esc_vec}const double c1 = T[l] >= t1 ? 1.0 : 0.0, c2 = NACC[l] + NREJ[l] >= max_steps_d ? 1.0 : 0.0;
-            const double c = c1 + c2 + (probe != probe ? 1.0 : 0.0){esc_term} > 0.0 ? ACT[l] : 0.0;
+            /* step-size collapse: the next step is within ~10 ulp of t, no progress is possible */
+            const double c3 = TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l]) && T[l] < t1 ? 1.0 : 0.0;
+            const double c = c1 + c2 + c3 + (probe != probe ? 1.0 : 0.0){esc_term} > 0.0 ? ACT[l] : 0.0;
             cand = c > cand ? c : cand;
         }}
         if (cand != 0.0) for (int l = 0; l < W; l++) {{
             if (ACT[l] == 0.0) continue;
             {esc_scalar}const int reached = {reached};
-            const int stuck = {stuck}((NACC[l] + NREJ[l] >= max_steps_d) | !finite_row(KS[0] + l));
+            const int stuck = {stuck}((NACC[l] + NREJ[l] >= max_steps_d) | !finite_row(KS[0] + l)
+                                      | ((TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
             if (!({done})) continue;
             const int64_t j = IDX[l];
             while (QN[l] > 0) DRAIN_ONE(l);
             for (int q = 0; q < NC; q++) jb->cout[j * NC + q] = C[q * W + l];
             for (int q = 0; q < NS; q++) jb->yout[j * NS + q] = Y[q * W + l];
+            jb->tout[j] = T[l];
             jb->nacc_out[j] = (int32_t)NACC[l]; jb->nrej_out[j] = (int32_t)NREJ[l];
             jb->status_out[j] = {status};
             __atomic_fetch_add(jb->ndone, 1, __ATOMIC_RELAXED);
@@ -491,5 +496,6 @@ class Job(ctypes.Structure):
                 ("ain", ctypes.c_void_p), ("y0in", ctypes.c_void_p), ("c0", ctypes.c_void_p), ("ts", ctypes.c_void_p),
                 ("cout", ctypes.c_void_p), ("yout", ctypes.c_void_p),
                 ("nacc_out", ctypes.c_void_p), ("nrej_out", ctypes.c_void_p), ("status_out", ctypes.c_void_p),
-                ("next", ctypes.c_void_p), ("ndone", ctypes.c_void_p), ("stop", ctypes.c_void_p)]
+                ("next", ctypes.c_void_p), ("ndone", ctypes.c_void_p), ("stop", ctypes.c_void_p),
+                ("tout", ctypes.c_void_p)]
 
