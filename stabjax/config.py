@@ -182,10 +182,13 @@ def setup_jax(x64: bool | None = None) -> None:
     os.environ.setdefault("EQX_ON_ERROR", "nan")
     import jax
 
-    if x64 is None:
-        x64 = os.environ.get("STABJAX_X64", "1").strip().lower() not in ("0", "false", "no", "off")
-    jax.config.update("jax_enable_x64", bool(x64))
+    jax.config.update("jax_enable_x64", x64_wanted() if x64 is None else bool(x64))
     _host_devices(jax)
+
+
+def x64_wanted() -> bool:
+    """float64 unless the environment variable ``STABJAX_X64`` is 0, false, no or off."""
+    return os.environ.get("STABJAX_X64", "1").strip().lower() not in ("0", "false", "no", "off")
 
 
 def _host_devices(jax) -> None:

@@ -24,11 +24,11 @@ from . import verdict as V
 from . import engines
 from .config import setup_jax
 from .engine import solve_batch
+from .engines.base import N_SUMMARY_FIELDS
 from .errors import StabjaxError, ValidationError
 from .spec import Plan, check_plan, load_spec, make_plan
 
 DEFAULT_MEMORY_FRACTION = 0.25
-N_SUMMARY_FIELDS = 24  # generous upper bound on per-trajectory float outputs (summaries + theory)
 
 
 def _available_memory() -> int:

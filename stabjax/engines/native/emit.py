@@ -67,8 +67,10 @@ _LIBM1 = {n: n for n in ("exp", "log", "sin", "cos", "tan", "asin", "acos", "ata
                          "acosh", "atanh", "sqrt", "cbrt", "log1p", "expm1", "exp2", "erf", "erfc", "floor", "ceil",
                          "lgamma")}
 _IDENTITY = frozenset({"copy", "copy_p", "reduce_precision", "optimization_barrier"})
+
+
 class CEmit(Lanes):
-    """The lane-wise evaluator of :mod:`stabjax.fast`, emitting one line of C per scalar operation.
+    """The lane-wise evaluator of :mod:`stabjax.engines.lanes`, emitting one line of C per scalar operation.
 
     Every value is a C ``double``: booleans are 0.0/1.0 and integers integral doubles (exact below
     2**53; the classifier's counters are far below). Why: GCC does not vectorise a loop that
@@ -76,7 +78,7 @@ class CEmit(Lanes):
     left scalar), while a loop of doubles only becomes AVX-512 code throughout.
     """
 
-    drop_zero_terms = True  # see Lanes
+    drop_zero_terms = True  # see Lanes.drop_zero_terms
 
     def __init__(self, prefix="v"):
         super().__init__(1)
