@@ -144,7 +144,7 @@ class IntegrateConfig:
 
 def escape_radius(system, icfg: IntegrateConfig) -> float | None:
     """The radius in force: the ``[integrate]`` table's, else the system's (None: no escape stop)."""
-    r = icfg.escape_radius if icfg.escape_radius is not None else getattr(system, "escape_radius", None)
+    r = icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius
     return None if r is None else float(r)
 
 
