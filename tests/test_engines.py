@@ -57,6 +57,9 @@ class BlowUp(Growth):
         return y * y
 
 
+GROWTH, ESCAPING, BLOWUP = Growth(), Escaping(), BlowUp()  # one instance each: compiled once per engine
+
+
 def _params(system, n=2):
     return {"k": np.ones(n), "y0": np.ones(n)}
 
@@ -153,12 +156,16 @@ def test_x64_opt_out(monkeypatch):
 # ---- early stops ---------------------------------------------------------------------------
 
 
-def _run(name, system, icfg):
-    """One engine on two identical trajectories; native and fused also return where they stopped."""
+def _run(name, system, icfg, params=None):
+    """One engine on two trajectories (default: identical); native and fused also return where they stopped."""
+    params = _params(system) if params is None else params
     if name == "diffrax":
-        return diffrax_engine.solve(system, _params(system), icfg, system.verdict)
+        return diffrax_engine.solve(system, params, icfg, system.verdict)
     module = native if name == "native" else fused
-    return module.solve(system, _params(system), icfg, system.verdict, with_state=True)
+    return module.solve(system, params, icfg, system.verdict, with_state=True, static=[])
+
+
+ESCAPE_CFG = IntegrateConfig(t1=20.0, rtol=RTOL, atol=ATOL, n_checkpoints=16, escape_radius=1e3)
 
 
 @pytest.mark.parametrize("name", _engines())
@@ -166,8 +173,7 @@ def test_escape_stops_at_the_first_accepted_state_outside_the_radius(name):
     """dy/dt = y, y0 = 1, radius 1e3: y leaves the ball at t* = ln 1000. The engines stop at the end
     of the first accepted step beyond it: the stop time lies after t* by less than one step, and
     there y(t_stop) = e^t_stop to the solver's tolerance."""
-    icfg = IntegrateConfig(t1=20.0, rtol=RTOL, atol=ATOL, n_checkpoints=16, escape_radius=1e3)
-    res = _run(name, Growth(), icfg)
+    res = _run(name, GROWTH, ESCAPE_CFG)
     assert np.all(res["solver_status"] == STATUS_ESCAPED)
     assert np.all(res["verdict"] == V.FAILED)  # solver_ok is False; the outcome code maps the status
     steps = res["n_steps"]
@@ -190,8 +196,8 @@ def test_escape_stops_at_the_first_accepted_state_outside_the_radius(name):
 def test_system_escape_radius_and_its_override(name):
     """``System.escape_radius`` applies; ``[integrate] escape_radius`` overrides it."""
     icfg = IntegrateConfig(t1=20.0, rtol=RTOL, atol=ATOL, n_checkpoints=16)
-    near = _run(name, Escaping(), icfg)
-    far = _run(name, Escaping(), icfg.replace(escape_radius=1e6))
+    near = _run(name, ESCAPING, icfg)
+    far = _run(name, ESCAPING, icfg.replace(escape_radius=1e6))
     assert np.all(near["solver_status"] == STATUS_ESCAPED) and np.all(far["solver_status"] == STATUS_ESCAPED)
     # ln(1e6) is twice ln(1e3): about twice the steps at a step size set by rtol alone
     assert np.all(far["n_steps"] > 1.5 * near["n_steps"]) and np.all(far["n_steps"] < 2.5 * near["n_steps"] + 5)
@@ -203,10 +209,25 @@ def test_blow_up_stops_at_once_on_every_engine(name):
     collapses to ~10 ulp of t, or the derivative overflows) after a number of steps of the order of
     the steps to t = 1, not after max_steps rejected ones."""
     icfg = IntegrateConfig(t1=2.0, rtol=RTOL, atol=ATOL, n_checkpoints=16, max_steps=200_000)
-    res = _run(name, BlowUp(), icfg)
+    res = _run(name, BLOWUP, icfg)
     assert np.all(res["solver_status"] == STATUS_MAX_STEPS)
     assert np.all(np.isin(res["verdict"], [V.FAILED, V.DIVERGED]))
     total = res["n_steps"] + res["n_rejected"]
     assert np.all(total < 5000), total  # ~550 measured; max_steps would be 200000
     if name != "diffrax":  # where: at the blow-up time 1, to the accumulated tolerance (n_steps rtol)
         assert np.all(np.abs(res["t_stop"] - 1.0) < RTOL * res["n_steps"]) and np.all(res["state_t1"] > 1e6)
+
+
+@pytest.mark.parametrize("name", _engines())
+def test_non_finite_derivative_stops_at_once(name):
+    """A derivative that is NaN from t0 (k = NaN): status 1 after at most a step or two on every
+    engine (the diffrax engine used to reject steps until max_steps); the other trajectory of the
+    same batch is untouched."""
+    p = _params(GROWTH)
+    p["k"][1] = np.nan
+    res = _run(name, GROWTH, ESCAPE_CFG, p)
+    assert res["solver_status"][1] == STATUS_MAX_STEPS and res["verdict"][1] == V.FAILED
+    assert res["n_steps"][1] + res["n_rejected"][1] <= 2
+    ref = _run(name, GROWTH, ESCAPE_CFG)
+    for k in ("solver_status", "n_steps", "n_rejected", "verdict"):
+        assert res[k][0] == ref[k][0], k
