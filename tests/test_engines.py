@@ -220,14 +220,18 @@ def test_blow_up_stops_at_once_on_every_engine(name):
 
 @pytest.mark.parametrize("name", _engines())
 def test_non_finite_derivative_stops_at_once(name):
-    """A derivative that is NaN from t0 (k = NaN): status 1 after at most a step or two on every
-    engine (the diffrax engine used to reject steps until max_steps); the other trajectory of the
-    same batch is untouched."""
+    """A derivative that is NaN from t0 (k = NaN): status 1 at once on the native and fused engines;
+    on the diffrax engine (which used to reject steps until max_steps) once the rejected steps, each
+    5 times shorter, are below ~10 ulp of t1. The other trajectory of the same batch is untouched."""
+    from stabjax.engines.tsit5 import MIN_STEP_REL
+
     p = _params(GROWTH)
     p["k"][1] = np.nan
     res = _run(name, GROWTH, ESCAPE_CFG, p)
     assert res["solver_status"][1] == STATUS_MAX_STEPS and res["verdict"][1] == V.FAILED
-    assert res["n_steps"][1] + res["n_rejected"][1] <= 2
+    t1 = ESCAPE_CFG.t1
+    bound = 2 if name != "diffrax" else math.ceil(math.log(t1 / (MIN_STEP_REL * t1)) / math.log(5)) + 2  # 22
+    assert res["n_steps"][1] + res["n_rejected"][1] <= bound
     ref = _run(name, GROWTH, ESCAPE_CFG)
     for k in ("solver_status", "n_steps", "n_rejected", "verdict"):
         assert res[k][0] == ref[k][0], k

@@ -6,11 +6,15 @@ observables at the checkpoint times, which the classifier (:mod:`stabjax.verdict
 per-trajectory scalars inside the same compiled function, so a chunk of B trajectories costs
 O(B * n_checkpoints) memory whatever the number of steps.
 
-Early stops, as on the other engines: a state whose derivative is not finite (a ``diffrax.Event``)
-and a step size below ~10 ulp of the horizon (``PIDController(dtmin=...)``) stop at once with
-status 1, where diffrax would otherwise reject steps until ``max_steps``; with an escape radius, a
-state outside the ball stops at once (an event) with :data:`stabjax.config.STATUS_ESCAPED`. The
-finiteness test costs one extra evaluation of the right-hand side per step.
+Early stops, as on the other engines: a trajectory that cannot progress -- its state or
+derivative turned non-finite, or a finite-time blow-up -- has its step size collapse, and a step
+below ~10 ulp of the horizon (``PIDController(dtmin=...)``) stops it with status 1 after a few
+rejected steps (each shrinks the step by 5; ~20 from a NaN at t0), where diffrax would otherwise
+reject steps until ``max_steps``. With an escape radius, a ``diffrax.Event`` stops a state outside
+the ball at once with :data:`stabjax.config.STATUS_ESCAPED`. (An event testing the derivative for
+NaN would stop a NaN trajectory after one step instead of ~20, but costs an evaluation of the
+right-hand side per step and misses the blow-up: measured +55% time on the monoaxial model, against
++40% for ``dtmin``, which catches both.)
 """
 from __future__ import annotations
 
@@ -41,19 +45,9 @@ SOLVERS = {
 CHUNK = 4096  # the diffrax engine stores every checkpoint: bound its memory per call
 
 
-def _events(system, radius: float | None):
-    def nonfinite(t, y, args, **kw):
-        return ~(jnp.all(jnp.isfinite(y)) & jnp.all(jnp.isfinite(system.rhs(t, y, args))))
-
-    conds = {"nonfinite": nonfinite}
-    if radius is not None:
-        conds["escape"] = lambda t, y, args, **kw: jnp.max(jnp.abs(y)) > radius
-    return conds
-
-
 def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
     """One trajectory: ``(diffrax solution, solver_status)``; the status is diffrax's code, or
-    :data:`STATUS_MAX_STEPS` for a non-finite state, :data:`STATUS_ESCAPED` for an escape."""
+    :data:`STATUS_MAX_STEPS` for a collapsed step size, :data:`STATUS_ESCAPED` for an escape."""
     args = system.prepare(p)
     y0 = system.initial_state(p)
     term = diffrax.ODETerm(system.rhs)
@@ -62,7 +56,7 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
     # implicit solvers: a PI controller (diffrax docs' suggestion for mildly stiff problems); with the
     # default I controller Kvaerno5 rejected about half its steps on the gyrodyne model
     pi = dict(pcoeff=0.3, icoeff=0.4) if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
-    conds = _events(system, escape_radius(system, icfg))
+    radius = escape_radius(system, icfg)
     # step-size collapse (as in the other engines, but absolute: diffrax's dtmin is a constant):
     # a step below ~10 ulp of the horizon's largest time stops the solve (dt_min_reached)
     dtmin = MIN_STEP_REL * max(abs(float(icfg.t0)), abs(float(icfg.t1)))
@@ -71,13 +65,13 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
         stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, dtmin=dtmin, force_dtmin=False, **pi),
         max_steps=icfg.max_steps, throw=False,
         adjoint=diffrax.ForwardMode(),  # plain while loop: no checkpointing machinery for a forward-only solve
-        event=diffrax.Event(conds),
+        event=None if radius is None else diffrax.Event(lambda t, y, a, **kw: jnp.max(jnp.abs(y)) > radius),
     )
     status = sol.result._value
     collapsed = sol.result == diffrax.RESULTS.dt_min_reached
-    status = jnp.where(sol.event_mask["nonfinite"] | collapsed, STATUS_MAX_STEPS, status)
-    if "escape" in conds:
-        status = jnp.where(sol.event_mask["escape"], STATUS_ESCAPED, status)
+    status = jnp.where(collapsed, STATUS_MAX_STEPS, status)
+    if radius is not None:
+        status = jnp.where(sol.result == diffrax.RESULTS.event_occurred, STATUS_ESCAPED, status)
     return sol, status.astype(jnp.int32)
 
 
