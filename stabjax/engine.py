@@ -25,7 +25,8 @@ def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: In
                 progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Integrate and classify a batch. ``params``: every parameter, leading dim N (already checked).
 
-    The engine is chosen as for a sweep (:func:`stabjax.engines.resolve`; a fallback is logged).
+    The engine is chosen as for a sweep (:func:`stabjax.engines.resolve`; a fallback is logged at
+    level INFO on the logger ``stabjax.engines``).
     ``static`` (native and fused engines): names of parameters that are the same in every batch
     of the sweep; they are compiled in as constants (default: those equal across this batch).
     ``progress(done, n)``: called while the native engine runs.
@@ -34,8 +35,8 @@ def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: In
     system = _as_system(system)
     vcfg = vcfg or system.verdict
     choice = engines.resolve(system, icfg, vcfg, params, static)
-    if choice.note:
-        engines.log.warning(choice.note)
+    if choice.note:  # a sweep warns once per plan; a batch call may be one of many: not shown by default
+        engines.log.info(choice.note)
     return engines.solve(choice.engine, system, params, icfg, vcfg, static=static, progress=progress)
 
 
