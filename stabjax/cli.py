@@ -390,7 +390,10 @@ def bench(
 
 
 def main(argv: list[str] | None = None):
+    from .config import setup_jax
     from .errors import StabjaxError
+
+    setup_jax()
 
     try:
         app(args=argv, standalone_mode=False)

@@ -104,7 +104,9 @@ def worker_plan(payload: Mapping[str, Any]):
         from .spec import Plan, make_plan
 
         plan = make_plan(payload["spec"], t1=payload["t1"])
-        plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**payload["icfg"]),
+        # the native engine's threads per worker: an [integrate] setting that changes no result
+        threads = {"threads": int(payload["threads"])} if payload.get("threads") else {}
+        plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**{**payload["icfg"], **threads}),
                        "vcfg": replace(plan.vcfg, **payload["vcfg"])})
         if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
             raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
@@ -124,8 +126,6 @@ def run_chunk(payload: Mapping[str, Any], i: int):
     from .sweep import solve_chunk
 
     t0 = time.perf_counter()
-    if payload.get("threads"):
-        os.environ["STABJAX_THREADS"] = str(int(payload["threads"]))
     plan = worker_plan(payload)
     res, engine = solve_chunk(plan, payload["batch"], i)
     info = {"worker": f"{socket.gethostname()}:{os.getpid()}", "seconds": round(time.perf_counter() - t0, 4)}
@@ -134,14 +134,12 @@ def run_chunk(payload: Mapping[str, Any], i: int):
 
 def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
     """The task for arbitrary points of the payload's plan (e.g. a refinement round): (results, engine)."""
-    from .engine import last_engine, solve_batch
+    from . import engines
     from .sweep import static_params
 
-    if payload.get("threads"):
-        os.environ["STABJAX_THREADS"] = str(int(payload["threads"]))
-    plan = worker_plan(payload)
-    res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
-    return {k: np.asarray(v) for k, v in res.items()}, last_engine()
+    plan = engines.resolve_plan(worker_plan(payload), static=static_params(worker_plan(payload)))
+    res = engines.solve(plan.engine, plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
+    return {k: np.asarray(v) for k, v in res.items()}, plan.engine
 
 
 def _gpu_devices() -> list[str]:

@@ -338,21 +338,23 @@ def _check(plan: Plan, p: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def default_solver(plan: Plan) -> SolvePoints:
-    """``solve_points`` through the public engine entry, one call per round."""
-    from .engine import engine_chain, solve_batch
+    """``solve_points`` on the plan's engine (resolved once), one call per round."""
+    from . import engines
     from .sweep import static_params
 
     static = static_params(plan)
-    pad = engine_chain(plan.system, plan.icfg)[0] != "native"  # shape-compiled engines: few distinct shapes
+    plan = engines.resolve_plan(plan, static=static)
+    pad = plan.engine != "native"  # shape-compiled engines: few distinct shapes
 
     def solve_points(params):
         n = len(next(iter(params.values())))
         m = max(64, 1 << (n - 1).bit_length()) if pad else n
         if m > n:
             params = {k: np.concatenate([v, np.repeat(v[-1:], m - n, axis=0)]) for k, v in params.items()}
-        res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static)
+        res = engines.solve(plan.engine, plan.system, params, plan.icfg, plan.vcfg, static=static)
         return {k: np.asarray(v)[:n] for k, v in res.items()}
 
+    solve_points.engine = plan.engine
     return solve_points
 
 
@@ -445,10 +447,9 @@ class Refiner:
                 from .basin import point_outcomes
 
                 res["outcome"] = point_outcomes(self.plan, p, res, len(coords))
-            from .engine import last_engine
-
-            if last_engine():
-                self.engines.add(last_engine())
+            engine = getattr(self.solve_points, "engine", "")
+            if engine:
+                self.engines.add(engine)
             if self.store is not None:
                 self.store.save(r, coords, res)
         lab, share = _labels(self.plan, self.cfg, res, len(coords))

@@ -25,12 +25,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .engine import IntegrateConfig, verdict_config
+from .config import IntegrateConfig, VerdictConfig, verdict_config
 from .errors import ValidationError
 from .params import Param, parse_value
 from .models import model_fingerprint, resolve as resolve_system
 from .outcomes import OutcomeScheme, Outcomes, scheme
-from .system import System, VerdictConfig
+from .system import System
 
 TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run",
             "refine"}
@@ -57,8 +57,13 @@ class Axis:
         return () if self.index is not None else self.param.shape
 
 
-@dataclass
+@dataclass(frozen=True)
 class Plan:
+    """A validated, fully resolved sweep (an immutable value: derive changed ones with
+    ``dataclasses.replace``). ``engine``: the engine that runs it, resolved once by
+    :func:`stabjax.engines.resolve_plan` ("" until then), and ``engine_note`` why it is not the
+    first choice ("" when it is)."""
+
     system: System
     name: str
     spec: dict
@@ -71,9 +76,12 @@ class Plan:
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     model_sha256: str = ""  # hash of the file defining the system's class
 
+    engine: str = ""
+    engine_note: str = ""
+
     @property
     def escape_radius(self) -> float | None:
-        r = getattr(self.icfg, "escape_radius", None)
+        r = self.icfg.escape_radius
         return r if r is not None else self.system.escape_radius
 
     @property
@@ -341,7 +349,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
 
     icfg = IntegrateConfig.from_dict(spec.get("integrate"), default_t1=system.default_t1)
     if t1 is not None:
-        icfg = IntegrateConfig(**{**icfg.__dict__, "t1": float(t1)})
+        icfg = icfg.replace(t1=float(t1))
         icfg.validate()
     vcfg = verdict_config(system, spec.get("verdict"))
     decl = system.outcomes
@@ -349,8 +357,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         decl = Outcomes.from_spec(spec["outcomes"], base=decl)
     outcomes = None
     if decl is not None:
-        escape_radius = getattr(icfg, "escape_radius", None)
-        escape = (escape_radius if escape_radius is not None else system.escape_radius) is not None
+        escape = (icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius) is not None
         decl.check(system, where="outcomes", escape=escape)
         outcomes = scheme(system, decl, escape)
         vcfg = vcfg.replace(features=True, feature_from=icfg.t0 + (1.0 - decl.window) * (icfg.t1 - icfg.t0))

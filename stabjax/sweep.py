@@ -9,6 +9,7 @@ mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import platform
@@ -21,13 +22,15 @@ import numpy as np
 import xarray as xr
 
 from . import verdict as V
-from .engine import last_engine, solve_batch
+from . import engines
+from .config import setup_jax
+from .engine import solve_batch
+from .engines.base import N_SUMMARY_FIELDS
 from .errors import StabjaxError, ValidationError
 from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, load_spec, make_plan
 
 DEFAULT_MEMORY_FRACTION = 0.25
-N_SUMMARY_FIELDS = 24  # generous upper bound on per-trajectory float outputs (summaries + theory)
 
 
 def _available_memory() -> int:
@@ -44,36 +47,18 @@ def static_params(plan: Plan) -> list[str]:
 
 
 def bytes_per_trajectory(plan: Plan) -> int:
-    """Working memory of one trajectory inside a compiled chunk.
-
-    diffrax path: the observables at every checkpoint dominate. Native/fused engines: no per-checkpoint
-    storage, only the parameters and the summaries of each queued trajectory (lane state lives in
-    cache on CPU, on the device on a GPU).
-    """
-    if _queued(plan):
-        n_par = sum(int(np.prod(np.shape(v))) or 1 for v in plan.fixed.values())
-        return 8 * (2 * n_par + 2 * N_SUMMARY_FIELDS + 64)
-    k = len(plan.icfg.checkpoints())
-    n_obs = len(plan.system.observables)
-    return 8 * (6 * k * n_obs + 64 * plan.system.state_size + 256)
+    """Working memory of one trajectory inside a compiled chunk, on the plan's engine."""
+    return _engine(plan).bytes_per_trajectory(plan)
 
 
 def default_batch(plan: Plan) -> int:
-    """Chunk size when none is given: the native/fused engines refill lanes from a queue, so longer
-    queues (bigger chunks) waste less at the tail; progress is still reported per chunk. On a GPU
-    the fused engine keeps 2^18 lanes busy, so a chunk holds 2^20 trajectories (NOTES.md G2)."""
-    if not _queued(plan):
-        return 4096
-    import jax
-
-    return 65536 if jax.default_backend() == "cpu" else 1 << 20
+    """Chunk size when none is given: the plan's engine's (:meth:`stabjax.engines.Engine.default_chunk`)."""
+    return _engine(plan).default_chunk(plan)
 
 
-def _queued(plan: Plan) -> bool:
-    """Whether a queued engine (native or fused: no per-checkpoint storage) takes this plan."""
-    from .engine import engine_chain
-
-    return engine_chain(plan.system, plan.icfg)[0] != "diffrax"
+def _engine(plan: Plan):
+    """The plan's engine; for a plan not yet resolved, the first that accepts it (no translation)."""
+    return engines.get(plan.engine or engines.resolve(plan.system, plan.icfg).engine)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -154,9 +139,10 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
     if delay:
         time.sleep(float(delay))
     lo, hi = i * batch, min(plan.size, (i + 1) * batch)
-    res = solve_batch(plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg, static=static_params(plan),
-                      progress=progress)
-    return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, last_engine()
+    plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
+    res = engines.solve(plan.engine, plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
+                        static=static_params(plan), progress=progress)
+    return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, plan.engine
 
 
 def default_store(out: str | Path) -> Path:
@@ -177,6 +163,9 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     :class:`stabjax.distributed.DaskExecutor` to run the chunks on Dask workers (default: here).
     """
     from . import store as S
+
+    setup_jax()
+    plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
 
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
     if batch_size is None and store_path is not None and not restart:
@@ -236,10 +225,11 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         executor_name = executor.describe() if executor is not None else "local"
         if isinstance(sink, _Memory):
             ds = assemble(plan, sink.results, **run_attrs)
-            _engine_attrs(ds, sink.manifest, executor_name)
+            _engine_attrs(ds, sink.manifest, executor_name, plan.engine_note)
             return ds
         lazy = n > LAZY_ABOVE
         ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, **run_attrs)
+        ds.attrs["engine_note"] = plan.engine_note
         if not lazy:
             ds = ds.load()
         if out is None:
@@ -261,9 +251,10 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     return ds
 
 
-def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str) -> None:
+def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str, note: str = "") -> None:
     from .store import engines_of
 
+    ds.attrs["engine_note"] = note  # why the plan's engine is not the first choice ("" when it is)
     by = engines_of(manifest)
     ds.attrs["engine"] = ",".join(sorted(by))  # the engines that computed the chunks, resumed ones included
     ds.attrs["engine_chunks_json"] = json.dumps(by)  # engine -> [first, last] chunk runs
@@ -291,6 +282,7 @@ def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, An
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
              progress: bool = False, restart: bool = False, t1: float | None = None, **kw) -> xr.Dataset:
     """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.spec` for the format."""
+    setup_jax()
     if isinstance(spec, (str, Path)):
         spec = load_spec(spec)
     plan = make_plan(spec, t1=t1)
@@ -486,10 +478,8 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
     rng = np.random.default_rng(seed)
     n = min(n, plan.size)
     idx = np.sort(rng.choice(plan.size, size=n, replace=False))
-    from .engine import IntegrateConfig
-
-    long_cfg = IntegrateConfig(**{**icfg.__dict__, "t1": icfg.t1 * factor})
-    plan_long = Plan(**{**plan.__dict__, "icfg": long_cfg})
+    long_cfg = icfg.replace(t1=icfg.t1 * factor)
+    plan_long = dataclasses.replace(plan, icfg=long_cfg)
     p = plan_long.system.check(plan_long.params_at(idx))
     res = solve_batch(plan.system, p, long_cfg, plan.vcfg)
     old = np.asarray(ds["verdict"].values).ravel()[idx]

@@ -1,6 +1,7 @@
 import os
 
-os.environ.setdefault("EQX_ON_ERROR", "nan")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import stabjax  # noqa: E402,F401  (enables float64 before any test builds arrays)
+import stabjax  # noqa: E402
+
+stabjax.setup_jax()  # float64, EQX_ON_ERROR=nan, one CPU device per core: before any test builds arrays

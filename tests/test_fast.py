@@ -1,4 +1,4 @@
-"""The fused engine (stabjax.fast) against diffrax, an independent SciPy reference and the
+"""The fused engine (stabjax.engines.fused) against diffrax, an independent SciPy reference and the
 diffrax engine path: final states, verdicts and summaries, refill, devices, constant folding,
 failures, the lane-wise evaluator on every registered system, and the vectorised math."""
 import math
@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from stabjax import fast
 from stabjax import verdict as V
+from stabjax.config import STATUS_MAX_STEPS
+from stabjax.engines import diffrax_engine, lanes, vmath
+from stabjax.engines import fused as fast
+from stabjax.engines.base import Unsupported
 from stabjax.engine import IntegrateConfig, batch_params, solve_batch
 from stabjax.registry import get_system, list_systems
 
@@ -96,36 +99,32 @@ def test_failures_are_reported_not_raised():
     icfg = IntegrateConfig(t1=20.0, rtol=1e-8, atol=1e-10, n_checkpoints=16, max_steps=400)
     out = fast.solve(SYS, p, icfg, SYS.verdict, lanes=2, n_devices=1)
     assert out["verdict"][0] != V.FAILED and out["solver_status"][0] == 0
-    assert out["verdict"][1] == V.FAILED and out["solver_status"][1] == fast.STATUS_MAX_STEPS
-    assert out["verdict"][2] == V.FAILED and out["solver_status"][2] == fast.STATUS_MAX_STEPS
+    assert out["verdict"][1] == V.FAILED and out["solver_status"][1] == STATUS_MAX_STEPS
+    assert out["verdict"][2] == V.FAILED and out["solver_status"][2] == STATUS_MAX_STEPS
     assert out["n_steps"][2] + out["n_rejected"][2] == 400
 
 
 def test_engine_dispatch_and_fallback(monkeypatch):
     calls = []
-    import stabjax.engine as E
-
-    monkeypatch.setattr(E, "_solve_diffrax", lambda s, p, i, v: calls.append(s.name) or {"verdict": np.zeros(1)})
-    custom = next(get_system(n) for n in list_systems(available_only=True) if getattr(get_system(n), "classify", None))
-    with pytest.raises(fast.Unsupported):
+    monkeypatch.setattr(diffrax_engine, "solve", lambda s, p, i, v: calls.append(s.name) or {"verdict": np.zeros(1)})
+    custom = next(get_system(n) for n in list_systems(available_only=True) if get_system(n).classify is not None)
+    with pytest.raises(Unsupported):
         fast.solve(custom, batch_params(custom, None, 1), ICFG, custom.verdict)
-    solve_batch(custom, batch_params(custom, None, 1), ICFG)  # engine="fused" falls back
+    solve_batch(custom, batch_params(custom, None, 1), ICFG.replace(engine="fused"))  # falls back to diffrax
     solve_batch(SYS, batch_params(SYS, None, 1), IntegrateConfig(engine="diffrax", t1=10.0))
     assert calls == [custom.name, SYS.name]
-    with pytest.raises(fast.Unsupported):
+    with pytest.raises(Unsupported):
         fast.solve(SYS, batch_params(SYS, None, 1), IntegrateConfig(solver="dopri5"), SYS.verdict)
 
 
 def test_diffrax_path_subchunks_large_batches(monkeypatch):
-    """A fused-sized chunk falling back to diffrax is split (its checkpoints would not fit in memory)."""
-    import stabjax.engine as E
-
+    """A fused-sized chunk on the diffrax engine is split (its checkpoints would not fit in memory)."""
     p = batch_params(SYS, None, 7)
     p["alpha"] = np.linspace(0.4, 1.0, 7)
     icfg = IntegrateConfig(t1=5.0, n_checkpoints=16, engine="diffrax")
-    whole = E._solve_diffrax(SYS, p, icfg, SYS.verdict)
-    monkeypatch.setattr(E, "DIFFRAX_CHUNK", 3)
-    split = E._solve_diffrax(SYS, p, icfg, SYS.verdict)
+    whole = diffrax_engine.solve(SYS, p, icfg, SYS.verdict)
+    monkeypatch.setattr(diffrax_engine, "CHUNK", 3)
+    split = diffrax_engine.solve(SYS, p, icfg, SYS.verdict)
     # XLA:CPU gives bit-identical results for any batch size; on a GPU another batch shape may
     # change the rounding of a reduction (seen on an H100: 1.2e-14 relative), nothing more
     exact = jax.default_backend() == "cpu"
@@ -161,7 +160,7 @@ def test_lanewise_evaluation_equals_vmap(name):
           jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape[:-1], a.dtype), args))
     for fn in (S.rhs, S.observe):
         ref = jax.vmap(fn, in_axes=(0, -1, -1), out_axes=-1)(t, y, args)
-        got = fast.LaneFn(fn, *ex)(L, t, y, args)
+        got = lanes.LaneFn(fn, *ex)(L, t, y, args)
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-13 * float(jnp.max(jnp.abs(ref))))
 
 
@@ -169,10 +168,10 @@ def test_fast_log_matches_libm():
     rng = np.random.default_rng(1)
     x = np.concatenate([10 ** rng.uniform(-300, 300, 20000), rng.uniform(0.5, 2.0, 20000),
                         [1.0, 2.0, 0.5, np.finfo(float).max, 2.2250738585072014e-308]])
-    got = np.asarray(fast.fast_log(jnp.asarray(x)))
+    got = np.asarray(vmath.fast_log(jnp.asarray(x)))
     ref = np.log(x)
     assert np.max(np.abs(got - ref) / np.spacing(np.abs(ref) + 1e-300)) <= 2.0  # ulps
-    special = np.asarray(fast.fast_log(jnp.asarray([0.0, -1.0, np.inf, np.nan])))
+    special = np.asarray(vmath.fast_log(jnp.asarray([0.0, -1.0, np.inf, np.nan])))
     assert special[0] == -np.inf and np.isnan(special[1]) and special[2] == np.inf and np.isnan(special[3])
 
 
@@ -181,30 +180,20 @@ def test_fast_sin_cos_match_libm_including_huge_arguments():
     x = np.concatenate([rng.uniform(-10, 10, 20000), rng.uniform(-1e5, 1e5, 20000), rng.uniform(-1e8, 1e8, 5000),
                         np.arange(-40, 41) * np.pi / 2])
     for name, ref in (("sin", np.sin), ("cos", np.cos)):
-        got = np.asarray(jax.jit(lambda v: fast._sincos(name, v))(jnp.asarray(x)))
+        got = np.asarray(jax.jit(lambda v: lanes.sincos(name, v))(jnp.asarray(x)))
         np.testing.assert_allclose(got, ref(x), atol=2.3e-16, rtol=0, err_msg=name)
         huge = np.array([3e9, -1e15, 1e300, 0.5])  # beyond the fast reduction: exact path for the batch
-        got = np.asarray(jax.jit(lambda v: fast._sincos(name, v))(jnp.asarray(huge)))
+        got = np.asarray(jax.jit(lambda v: lanes.sincos(name, v))(jnp.asarray(huge)))
         np.testing.assert_allclose(got, ref(huge), atol=1e-15, rtol=0, err_msg=name)
-    assert np.isnan(np.asarray(fast._sincos("cos", jnp.asarray([np.inf, np.nan])))).all()
-
-
-def test_fast_atan2_matches_libm():
-    rng = np.random.default_rng(3)
-    y = np.concatenate([rng.normal(size=50000) * 10 ** rng.uniform(-5, 5, 50000), [0.0, -0.0, 1.0, np.inf, -np.inf, 5.0]])
-    x = np.concatenate([rng.normal(size=50000) * 10 ** rng.uniform(-5, 5, 50000), [-0.0, 0.0, -1e300, np.inf, -np.inf, np.nan]])
-    got = np.asarray(jax.jit(fast.fast_atan2)(jnp.asarray(y), jnp.asarray(x)))
-    ref = np.arctan2(y, x)
-    np.testing.assert_allclose(got, ref, atol=4.5e-16, rtol=0)
-    assert np.array_equal(np.signbit(got), np.signbit(ref))
+    assert np.isnan(np.asarray(lanes.sincos("cos", jnp.asarray([np.inf, np.nan])))).all()
 
 
 def test_lanewise_pow_special_cases():
-    lanes = fast._Lanes(1)
+    ev = lanes.Lanes(1)
     vals = [0.0, -0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 3.0, -3.0, np.inf, -np.inf, np.nan, 1e-300, 1e300]
     xs, ys = np.meshgrid(vals, vals)
     xs, ys = xs.ravel(), ys.ravel()
-    got = np.array([float(lanes.pow(jnp.asarray([x]), jnp.asarray([y]), [np.float64, np.float64])[0])
+    got = np.array([float(ev.pow(jnp.asarray([x]), jnp.asarray([y]), [np.float64, np.float64])[0])
                     for x, y in zip(xs, ys)])
     ref = np.asarray(jnp.power(jnp.asarray(xs), jnp.asarray(ys)))  # XLA's pow: what the vmap path computes
     finite = np.isfinite(ref)

@@ -1,4 +1,4 @@
-"""The native engine (stabjax.native: jaxprs translated to C, SIMD Tsit5 loop) against SciPy
+"""The native engine (stabjax.engines.native: jaxprs translated to C, SIMD Tsit5 loop) against SciPy
 DOP853, diffrax and the diffrax engine path; its C translation of every registered model against
 JAX; failures, interruption, fallbacks and the sweep runner's use of it."""
 
@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from stabjax import native
+from stabjax import engines
 from stabjax import verdict as V
-from stabjax.engine import IntegrateConfig, batch_params, engine_chain, last_engine, solve_batch
+from stabjax.engine import IntegrateConfig, batch_params, solve_batch
+from stabjax.engines import native
+from stabjax.engines.lanes import NoRule
+from stabjax.engines.native import emit
 from stabjax.registry import get_system, list_systems
 
 from references import monoaxial_rhs
@@ -70,7 +73,7 @@ def test_results_do_not_depend_on_threads_width_or_static_folding(nat):
 def test_every_summary_is_bit_identical_across_threads_and_runs(nat):
     """Which trajectories share a SIMD block depends on thread scheduling; every observation and
     classifier update goes through the same vector code (item batches padded, FIFO drains
-    vectorised), so no summary may move even in its last bit (NOTES.md N14)."""
+    vectorised), so no summary may move even in its last bit (docs/performance.md)."""
     p = batch()
     runs = [native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=t) for t in (1, 2, 2)]
     for other in runs:
@@ -121,38 +124,43 @@ def test_progress_and_interruption():
 
 
 def test_dispatch_prefers_native_and_falls_back(monkeypatch):
-    assert engine_chain(SYS, IntegrateConfig())[0] == "native"
-    assert engine_chain(SYS, IntegrateConfig(engine="fused")) == ["fused", "diffrax"]
-    assert engine_chain(SYS, IntegrateConfig(solver="dopri5")) == ["diffrax"]
+    assert engines.resolve(SYS, IntegrateConfig()) == ("native", "")
+    assert engines.chain("fused") == ("fused", "native", "diffrax")
+    choice = engines.resolve(SYS, IntegrateConfig(solver="dopri5"))
+    assert choice.engine == "diffrax" and "solver 'dopri5'" in choice.note
     small = IntegrateConfig(t1=50.0, n_checkpoints=32)
-    solve_batch(SYS, batch_params(SYS, None, 2), small)
-    assert last_engine() == "native"
+    assert engines.resolve(SYS, small, SYS.verdict, batch_params(SYS, None, 2)).engine == "native"
 
-    # a primitive without a C rule: the fused engine takes over, same answer
+    # a primitive without a C rule: the fused engine takes over (once, with the reason), same answer
     def refuse(self, prim, params, es, in_dtypes):
-        raise native.fast._Unsupported(prim.name)
+        raise NoRule(prim.name)
 
     native._kernel.cache_clear()
-    monkeypatch.setattr(native._CEmit, "bind_elem", refuse)
-    out = solve_batch(SYS, batch_params(SYS, None, 2), small)
-    assert last_engine() == "fused" and out["verdict"].shape == (2,)
+    monkeypatch.setattr(emit.CEmit, "bind_elem", refuse)
+    p = batch_params(SYS, None, 2)
+    choice = engines.resolve(SYS, small, SYS.verdict, p)
+    assert choice.engine == "fused" and choice.note.startswith("engine fused runs monoaxial (native: no C rule for")
+    out = solve_batch(SYS, p, small)
+    assert out["verdict"].shape == (2,)
     native._kernel.cache_clear()
 
 
 def test_no_compiler_means_no_native(monkeypatch):
+    monkeypatch.setattr(native.build, "compiler", lambda: None)
     monkeypatch.setattr(native, "compiler", lambda: None)
     native.available.cache_clear()
     try:
         assert not native.available()
-        assert engine_chain(SYS, IntegrateConfig())[0] == "fused"
+        choice = engines.resolve(SYS, IntegrateConfig())
+        assert choice.engine == "fused" and "native: no C compiler on PATH" in choice.note
     finally:
         native.available.cache_clear()
 
 
 def test_generated_c_is_exact_where_it_should_be():
-    em = native._CEmit()
-    assert native._flit(0.1) == "(0x1.999999999999ap-4)" and float.fromhex("0x1.999999999999ap-4") == 0.1
-    x = native.Sym("x", np.float64)
+    em = emit.CEmit()
+    assert emit.flit(0.1) == "(0x1.999999999999ap-4)" and float.fromhex("0x1.999999999999ap-4") == 0.1
+    x = emit.Sym("x", np.float64)
     assert em.pow_(x, np.float64(0.5), ["x", "0.5"], [np.float64, np.float64]).name in em.lines[-1]
     assert "sqrt(x)" in em.lines[-1]
     assert em.pow_(x, np.float64(1.0), ["x", "1.0"], [np.float64, np.float64]) is x
@@ -199,12 +207,12 @@ def test_rhs_split_and_zero_terms():
     assert "(0x0.0p+0) *" not in rhs and "(-0x0.0p+0) *" not in rhs
     lines = ["const double v0 = y[0*S];", "const double v1 = a[0*S];", "const double v2 = v1 * v0;",
              "out[0*S] = v2;"]
-    assert native._split_t(lines) is None  # autonomous: nothing to share
+    assert emit.split_t(lines) is None  # autonomous: nothing to share
     # a term t * y stays with the state; the product c * t that a sum consumes is not stored
     lines = ["const double v0 = y[0*S];", "const double v1 = t * v0;", "const double v2 = (0x1p+1) * t;",
              "const double v3 = cos(v2);", "const double v4 = v1 + v2;", "const double v5 = v4 * v3;",
              "out[0*S] = v5;"]
-    t_lines, frontier, y_lines = native._split_t(lines)
+    t_lines, frontier, y_lines = emit.split_t(lines)
     assert frontier == ["v3"] and "const double v3 = cos(v2);" in t_lines
     assert "const double v1 = t * v0;" in y_lines and "const double v2 = (0x1p+1) * t;" in y_lines
     assert not any("cos(" in ln for ln in y_lines)

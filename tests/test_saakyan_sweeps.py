@@ -64,7 +64,7 @@ def test_generic_classifier_on_the_fused_engine():
     """No system-specific classify(): the fused engine takes all five loops, and the generic rules
     (size = |w1|/lam, diverge_size = SPIN_DIVERGE; noise floor floor_tol) give the shipped no-mu
     finding: runaway without mu is DIVERGED, not flipped; with mu the run converges."""
-    from stabjax import fast
+    from stabjax.engines import fused as fast
     from stabjax.engine import IntegrateConfig, batch_params
     from stabjax.registry import get_system
     from stabjax.verdict import DIVERGED

@@ -57,7 +57,7 @@ def test_near_unstable_and_b_rate_end_to_end():
 def test_generic_classifier_on_the_fused_engine(name):
     """No system-specific classify(): the fused engine takes these loops (no primitive without a
     lane-wise rule) and the default start converges there."""
-    from stabjax import fast
+    from stabjax.engines import fused as fast
     from stabjax.engine import IntegrateConfig, batch_params
     from stabjax.registry import get_system
 

@@ -1,0 +1,212 @@
+"""Settings as immutable values: the ``[integrate]`` and ``[verdict]`` tables, status codes, JAX setup.
+
+Nothing here imports an engine (or diffrax): the spec loader (:mod:`stabjax.spec`) validates a
+spec with this module alone. The solver names are plain strings; the diffrax engine
+(:mod:`stabjax.engines.diffrax_engine`) maps them to diffrax classes.
+
+JAX's global settings (float64, one CPU device per core, equinox's error mode) are changed by
+:func:`setup_jax`, which the command line and the documented entry points (``run_spec``,
+``run_plan``, ``simulate``, ``solve_batch``) call; importing :mod:`stabjax` changes nothing.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, fields, replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import ValidationError
+
+ENGINES = ("auto", "native", "fused", "diffrax")
+# explicit Runge-Kutta pairs and (kvaerno*) L-stable ESDIRK methods for stiff systems; only tsit5
+# runs on the native and fused engines, the others on the diffrax engine
+SOLVERS = ("tsit5", "dopri5", "dopri8", "heun", "bosh3", "kvaerno5", "kvaerno3")
+
+# per-trajectory ``solver_status``: diffrax's RESULTS codes (0 success, 1 max_steps_reached, ...)
+# and the project's own codes from 100 on
+STATUS_OK = 0
+STATUS_MAX_STEPS = 1  # also: the state or its derivative turned non-finite (stopped at once)
+STATUS_ESCAPED = 100  # an accepted state left the ball max_i |y_i| <= escape_radius (stopped at once)
+
+
+@dataclass(frozen=True)
+class VerdictConfig:
+    """Thresholds of the excursion classifier (:mod:`stabjax.verdict`). All angles in radians.
+
+    settle_tol      error below which the trajectory counts as settled near the target
+    excursion_tol   after settling, a run of checkpoints with error above this is an excursion
+                    (default acos(0.9): the paper-A analysis counts s.r < 0.9)
+    flip_tol        an excursion whose peak passes this has flipped (pi/2: closer to -r than to r)
+    converged_tol   error at t1 (and throughout the late window) must be below this to converge
+    late_fraction   the late window is t >= t0 + (1 - late_fraction) (t1 - t0)
+    diverge_size    observable 1 (size) above this -> diverged
+    growth_tol      late log-log slope of the error above this (error growing) -> diverged
+    floor_tol       late-window errors all below this are at the solver's noise floor (~rtol):
+                    their log-log trend is noise and is not used against convergence
+    """
+
+    settle_tol: float = 0.1
+    excursion_tol: float = float(np.arccos(0.9))
+    flip_tol: float = float(np.pi / 2)
+    converged_tol: float = 1e-3
+    late_fraction: float = 0.5
+    diverge_size: float = 1e6
+    growth_tol: float = 0.5
+    floor_tol: float = 1e-6
+    features: bool = False  # also fold late-window statistics of every observable (named outcomes)
+    feature_from: float = 0.0  # ... over the checkpoints with t >= feature_from (set by the plan)
+
+    def replace(self, **kw) -> "VerdictConfig":
+        return replace(self, **kw)
+
+
+@dataclass(frozen=True)
+class IntegrateConfig:
+    """The ``[integrate]`` table of a sweep spec.
+
+    ``engine``: "auto" (native C engine on CPU when a compiler works, else the fused XLA engine,
+    else diffrax), or one of "native", "fused", "diffrax" (a named engine that cannot run the
+    system falls back in the same order, with one line saying why). ``lanes``: fused engine,
+    trajectories stepped side by side per device (0: 256 on CPU, 2^18 on a GPU). ``width``:
+    native engine, trajectories per SIMD block (0: 16). ``threads``: native engine, threads
+    (0: one per core available to the process). None of these changes a result.
+
+    ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
+    (status :data:`STATUS_ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
+    """
+
+    t1: float = 1.0e4
+    t0: float = 0.0
+    solver: str = "tsit5"
+    rtol: float = 1e-8
+    atol: float = 1e-10
+    max_steps: int = 2_000_000
+    n_checkpoints: int = 2000
+    dt0: float | None = None
+    engine: str = "auto"
+    lanes: int = 0
+    width: int = 0
+    threads: int = 0
+    escape_radius: float | None = None
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None, *, section: str = "integrate", default_t1: float | None = None):
+        d = dict(d or {})
+        known = {f.name for f in fields(cls)}
+        for k in d:
+            if k not in known:
+                raise ValidationError(f"{section}.{k}", f"unknown field; known: {', '.join(sorted(known))}")
+        if "t1" not in d and default_t1 is not None:
+            d["t1"] = default_t1
+        try:
+            cfg = cls(**{k: (type(getattr(cls, k))(v) if getattr(cls, k) is not None else (None if v is None else float(v)))
+                         for k, v in d.items()})
+        except (TypeError, ValueError) as exc:
+            raise ValidationError(section, f"bad value ({exc})") from None
+        cfg.validate(section)
+        return cfg
+
+    def validate(self, section: str = "integrate"):
+        if not np.isfinite(self.t1) or not self.t1 > self.t0:
+            raise ValidationError(f"{section}.t1", f"must be finite and > t0 = {self.t0}, got {self.t1}")
+        if self.solver not in SOLVERS:
+            raise ValidationError(f"{section}.solver", f"unknown solver {self.solver!r}; choose from {', '.join(SOLVERS)}")
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if not (v > 0 and v < 1):
+                raise ValidationError(f"{section}.{name}", f"must be in (0, 1), got {v}")
+        if self.max_steps < 1:
+            raise ValidationError(f"{section}.max_steps", f"must be >= 1, got {self.max_steps}")
+        if not 8 <= self.n_checkpoints <= 200_000:
+            raise ValidationError(f"{section}.n_checkpoints", f"must be in [8, 200000], got {self.n_checkpoints}")
+        if self.dt0 is not None and not self.dt0 > 0:
+            raise ValidationError(f"{section}.dt0", f"must be > 0, got {self.dt0}")
+        if self.engine not in ENGINES:
+            raise ValidationError(f"{section}.engine", f"unknown engine {self.engine!r}; choose from {', '.join(ENGINES)}")
+        for name in ("lanes", "width", "threads"):
+            if getattr(self, name) < 0:
+                raise ValidationError(f"{section}.{name}", f"must be >= 0 (0: automatic), got {getattr(self, name)}")
+        if self.escape_radius is not None and not (np.isfinite(self.escape_radius) and self.escape_radius > 0):
+            raise ValidationError(f"{section}.escape_radius", f"must be a finite number > 0, got {self.escape_radius}")
+
+    def replace(self, **kw) -> "IntegrateConfig":
+        return replace(self, **kw)
+
+    def checkpoints(self) -> np.ndarray:
+        """Half log-spaced (early power-law transients), half linear (late excursions); includes t1."""
+        k = self.n_checkpoints
+        span = self.t1 - self.t0
+        lin = np.linspace(self.t0, self.t1, k - k // 2)
+        log = self.t0 + np.logspace(np.log10(span * 1e-5), np.log10(span), k // 2)
+        ts = np.unique(np.concatenate([lin, log]))
+        ts[-1] = self.t1
+        return ts
+
+
+def escape_radius(system, icfg: IntegrateConfig) -> float | None:
+    """The radius in force: the ``[integrate]`` table's, else the system's (None: no escape stop)."""
+    r = icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius
+    return None if r is None else float(r)
+
+
+def verdict_config(system, overrides: Mapping[str, Any] | None = None, section: str = "verdict") -> VerdictConfig:
+    """The system's classifier thresholds with the ``[verdict]`` table's overrides."""
+    cfg = system.verdict
+    overrides = dict(overrides or {})
+    known = {f.name for f in fields(VerdictConfig)}
+    for k, v in overrides.items():
+        if k not in known:
+            raise ValidationError(f"{section}.{k}", f"unknown threshold; known: {', '.join(sorted(known))}")
+        try:
+            overrides[k] = float(v)
+        except (TypeError, ValueError):
+            raise ValidationError(f"{section}.{k}", f"must be a number, got {v!r}") from None
+    return cfg.replace(**overrides)
+
+
+_SETUP: dict[str, bool] = {}
+
+
+def setup_jax(x64: bool | None = None) -> None:
+    """Set JAX's global options for stabjax, once per process (later calls do nothing).
+
+    * float64 (``jax_enable_x64``): on, unless ``x64=False`` or the environment variable
+      ``STABJAX_X64=0`` (the monoaxial instability of paper A is algebraic and invisible in float32);
+    * ``EQX_ON_ERROR=nan`` unless set: a solver error becomes NaN and a status code, not an exception;
+    * one JAX CPU device per core (the fused engine runs one loop per device), only if the user has
+      not chosen (``jax_num_cpu_devices``, an ``XLA_FLAGS`` host device count, or
+      ``STABJAX_CPU_DEVICES``, where 1 switches it off) and JAX has not started its backends.
+    """
+    if _SETUP.get("done"):
+        return
+    _SETUP["done"] = True
+    os.environ.setdefault("EQX_ON_ERROR", "nan")
+    import jax
+
+    jax.config.update("jax_enable_x64", x64_wanted() if x64 is None else bool(x64))
+    _host_devices(jax)
+
+
+def x64_wanted() -> bool:
+    """float64 unless the environment variable ``STABJAX_X64`` is 0, false, no or off."""
+    return os.environ.get("STABJAX_X64", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def _host_devices(jax) -> None:
+    want = os.environ.get("STABJAX_CPU_DEVICES")
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return
+    try:
+        if jax.config.jax_num_cpu_devices not in (-1, None) and want is None:
+            return
+        n = int(want) if want else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        n = max(1, min(n, 64))
+        if n > 1 or want:
+            jax.config.update("jax_num_cpu_devices", n)
+    except Exception:  # backends already initialised, or an older JAX without the option
+        pass
+
+
+__all__ = ["IntegrateConfig", "VerdictConfig", "verdict_config", "escape_radius", "setup_jax", "ENGINES", "SOLVERS",
+           "STATUS_OK", "STATUS_MAX_STEPS", "STATUS_ESCAPED"]

@@ -1,0 +1,269 @@
+"""Native CPU engine: the model's jaxprs translated to C, one SIMD Tsit5 loop per core.
+
+Why (docs/performance.md): the fused XLA engine (:mod:`stabjax.engines.fused`) reached ~5% of
+the CPU's float64 peak because XLA:CPU splits one Runge-Kutta step into ~400 fusions that pass
+every intermediate through memory, and calls scalar libm for sin, cos, log, pow and atan2. Here
+the same per-trajectory functions are compiled by a C compiler into one loop that keeps a whole
+step in registers. Three parts:
+
+* :mod:`.emit`: the system's rhs, observables and the classifier update as C functions;
+* :mod:`.kernel`: the C template of the integration loop (SIMD over trajectories, Tsit5 with
+  diffrax's method and controller, checkpoints from the dense output, a queue of trajectories);
+* :mod:`.build`: the C compiler, its flags and the on-disk cache of compiled libraries.
+
+This module runs the compiled loop: one call per core from Python threads (ctypes releases the
+GIL); the calls share the queue, a progress counter and a stop flag (Ctrl-C stops every thread
+after its current step). Without a working C compiler, or for a system whose right-hand side
+uses a primitive without a C rule, :func:`solve` raises :class:`Unsupported` and the sweep runs
+on the next engine (:func:`stabjax.engines.resolve`).
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import os
+import threading
+import time
+from typing import Callable, Iterable, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ... import verdict as V
+from ...config import STATUS_OK, STATUS_MAX_STEPS, escape_radius
+from ..base import Engine, Unsupported, queued_bytes_per_trajectory
+from ..static import StaticParams, split_static
+from ..tsit5 import SOLVER, t1_clip_floor
+from .build import available, compile_library, compiler
+from .emit import NativeModel
+from .kernel import Job, eval_only as _eval_only_source, kernel_source
+
+DEFAULT_WIDTH = 16  # trajectories per SIMD block (two AVX-512 vectors of doubles; docs/performance.md)
+
+
+def _build(source: str) -> ctypes.CDLL:
+    lib = compile_library(source)
+    lib.stabjax_run.argtypes = [ctypes.POINTER(Job)]
+    lib.stabjax_run.restype = ctypes.c_int64
+    dp = ctypes.POINTER(ctypes.c_double)
+    if hasattr(lib, "stabjax_eval"):
+        lib.stabjax_eval.argtypes = [ctypes.c_double, dp, dp, dp, dp]
+        lib.stabjax_update.argtypes = [dp, ctypes.c_double, dp, dp]
+        lib.stabjax_eval_split.argtypes = [ctypes.c_double, dp, dp, dp]
+    return lib
+
+
+
+class _Kernel:
+    def __init__(self, system, icfg, vcfg, static, dyn_shapes, width, eval_only=False):
+        ts = icfg.checkpoints()
+        self.ts = np.ascontiguousarray(ts, np.float64)
+        t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
+        self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late)
+        self.width = width
+        self.source = kernel_source(self.model, width, escape_radius(system, icfg))
+        if eval_only:
+            self.source = _eval_only_source(self.source)
+        self.lib = _build(self.source)
+        self.vcfg = vcfg
+        self.icfg = icfg
+        self._finalize = jax.jit(jax.vmap(lambda c, ok: V.finalize(c, ok, vcfg)))
+
+
+@functools.lru_cache(maxsize=32)
+def _kernel(system, icfg, vcfg, static: StaticParams, dyn_shapes: tuple, width: int, eval_only=False) -> _Kernel:
+    return _Kernel(system, icfg, vcfg, static.values, dict(dyn_shapes), width, eval_only)
+
+
+def clear_cache() -> None:
+    """Forget the kernels loaded in this process (the next solve builds, or loads from disk, anew)."""
+    _kernel.cache_clear()
+
+
+def evaluate(kern: _Kernel, t: float, y: np.ndarray, a: np.ndarray, *,
+             split: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled rhs and observables of one trajectory (prepared args ``a`` as from host_inputs).
+
+    ``split=True`` computes the rhs as the loop's sixth and seventh stages do: its t-only part
+    first (:func:`split_t`), then the rest.
+    """
+    m = kern.model
+    y = np.ascontiguousarray(y, np.float64)
+    a = np.ascontiguousarray(a if m.n_args else np.zeros(1), np.float64)
+    dy, obs = np.empty(m.n_state), np.empty(max(m.n_obs, 1))
+    dp = ctypes.POINTER(ctypes.c_double)
+    kern.lib.stabjax_eval(float(t), y.ctypes.data_as(dp), a.ctypes.data_as(dp), dy.ctypes.data_as(dp),
+                          obs.ctypes.data_as(dp))
+    if split:
+        kern.lib.stabjax_eval_split(float(t), y.ctypes.data_as(dp), a.ctypes.data_as(dp), dy.ctypes.data_as(dp))
+    return dy, obs[: m.n_obs]
+
+
+def update(kern: _Kernel, c: np.ndarray, t: float, obs: np.ndarray) -> np.ndarray:
+    """The compiled classifier update of one trajectory (``c`` flat, as ``model.c0``)."""
+    c = np.ascontiguousarray(c, np.float64)
+    o = np.ascontiguousarray(obs, np.float64)
+    out = np.empty(kern.model.n_c)
+    dp = ctypes.POINTER(ctypes.c_double)
+    kern.lib.stabjax_update(c.ctypes.data_as(dp), float(t), o.ctypes.data_as(dp), out.ctypes.data_as(dp))
+    return out
+
+
+
+
+def warm(system, icfg, vcfg, params, *, static=None) -> float:
+    """Build everything a :func:`solve` of these shapes needs (C kernel, host-side JAX functions);
+    returns the seconds taken (the benchmark's compile time)."""
+    t = time.perf_counter()
+    n = int(next(iter(params.values())).shape[0])
+    kern, dyn = kernel_for(system, icfg, vcfg, params, static=static)
+    kern.model.host_inputs(dyn, n)
+    c = kern.model.c_tree_from(np.zeros((n, kern.model.n_c)))
+    jax.block_until_ready(kern._finalize(c, jnp.zeros((n,), bool)))
+    return time.perf_counter() - t
+
+
+def default_threads() -> int:
+    """``$STABJAX_THREADS`` if set (Dask workers get their share of the cores this way), else one
+    thread per core available to this process. ``[integrate] threads`` overrides both."""
+    env = os.environ.get("STABJAX_THREADS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = None, check: bool = True,
+               eval_only: bool = False):
+    """The compiled kernel for this batch's shapes and constants, and the dynamic parameters.
+
+    ``check=False`` builds it even for a system with its own ``classify``, ``eval_only=True``
+    without the integration loop (both for tests of the translation: :func:`evaluate`, :func:`update`).
+    """
+    if icfg.solver != SOLVER:
+        raise Unsupported(f"solver {icfg.solver!r} (the native engine runs {SOLVER} only)")
+    if check and system.classify is not None:
+        raise Unsupported(f"{system.name} has its own classify()")
+    st, dyn = split_static(params, static)
+    shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items()))
+    # the kernel does not depend on how many threads run it: one cache entry for any ``threads``
+    key_cfg = icfg.replace(threads=0) if icfg.threads else icfg
+    width = int(width or icfg.width or DEFAULT_WIDTH)
+    return _kernel(system, key_cfg, vcfg, StaticParams(st), shapes, width, eval_only), dyn
+
+
+def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Iterable[str] | None = None,
+          with_state: bool = False, threads: int | None = None, width: int | None = None,
+          progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Integrate and classify ``params`` (every parameter, leading dim N) natively. Returns summaries (N,).
+
+    Same contract as :func:`stabjax.engines.fused.solve`. ``progress(done, n)`` is called from the
+    calling thread about twice a second while the threads run. ``threads`` and ``width`` default
+    to ``icfg.threads`` and ``icfg.width`` (0: one thread per core, 16 lanes per block).
+    Raises :class:`Unsupported` when the system cannot be translated or no C compiler works.
+    """
+    n = int(next(iter(params.values())).shape[0])
+    kern, dyn = kernel_for(system, icfg, vcfg, params, static=static, width=width)
+    model = kern.model
+    ain, y0 = model.host_inputs(dyn, n)
+    raw = run_raw(kern, ain, y0, threads=threads or icfg.threads or None, progress=progress)
+    c = model.c_tree_from(raw["c"])
+    summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
+    summ["n_steps"] = raw["nacc"]
+    summ["n_rejected"] = raw["nrej"]
+    summ["solver_status"] = raw["status"]
+    if with_state:
+        summ["state_t1"] = raw["y"]
+        summ["t_stop"] = raw["t"]
+    return summ
+
+
+def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | None = None,
+            progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Run the compiled loop on prepared inputs; returns the raw per-trajectory outputs."""
+    model, icfg = kern.model, kern.icfg
+    n = int(y0.shape[0])
+    NA = max(model.n_args, 1)
+    if ain.shape[1] != NA:
+        ain = np.ascontiguousarray(np.zeros((n, NA)) if model.n_args == 0 else ain)
+    cout = np.empty((n, model.n_c), np.float64)
+    yout = np.empty((n, model.n_state), np.float64)
+    tout = np.empty(n, np.float64)
+    nacc = np.zeros(n, np.int32)
+    nrej = np.zeros(n, np.int32)
+    status = np.full(n, STATUS_MAX_STEPS, np.int32)
+    nxt = np.zeros(1, np.int64)
+    ndone = np.zeros(1, np.int64)
+    stop = np.zeros(1, np.int32)
+    c0 = np.ascontiguousarray(model.c0, np.float64)
+
+    def ptr(a):
+        return a.ctypes.data_as(ctypes.c_void_p)
+
+    job = Job(n=n, K=len(kern.ts), max_steps=int(icfg.max_steps), t0=float(icfg.t0), t1=float(icfg.t1),
+              t1_floor=t1_clip_floor(float(icfg.t1)), rtol=float(icfg.rtol), atol=float(icfg.atol),
+              dt0=float(icfg.dt0) if icfg.dt0 is not None else -1.0,
+              ain=ptr(ain), y0in=ptr(y0), c0=ptr(c0), ts=ptr(kern.ts), cout=ptr(cout), yout=ptr(yout),
+              nacc_out=ptr(nacc), nrej_out=ptr(nrej), status_out=ptr(status), next=ptr(nxt), ndone=ptr(ndone),
+              stop=ptr(stop), tout=ptr(tout))
+    n_threads = max(1, min(int(threads or default_threads()), -(-n // kern.width)))
+    workers = [threading.Thread(target=kern.lib.stabjax_run, args=(ctypes.byref(job),), daemon=True)
+               for _ in range(n_threads)]
+    for w in workers:
+        w.start()
+    try:
+        while any(w.is_alive() for w in workers):
+            workers[0].join(0.5)
+            if progress is not None:
+                progress(int(ndone[0]), n)
+    except BaseException:
+        stop[0] = 1  # every thread stops after its current step; nothing of this call is kept
+        for w in workers:
+            w.join()
+        raise
+    for w in workers:
+        w.join()
+    if int(ndone[0]) != n:
+        raise RuntimeError(f"native engine finished {int(ndone[0])} of {n} trajectories")
+    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status}
+
+
+class NativeEngine(Engine):
+    """The native C engine (CPU with a working C compiler)."""
+
+    name = "native"
+
+    def supports(self, system, icfg) -> str | None:
+        if icfg.solver != SOLVER:
+            return f"solver {icfg.solver!r} (the native engine runs {SOLVER} only)"
+        if system.classify is not None:
+            return f"{system.name} has its own classify()"
+        if jax.default_backend() != "cpu":
+            return f"the JAX backend is {jax.default_backend()}, not cpu"
+        if not available():
+            return "no working C compiler (set CC)" if compiler() else "no C compiler on PATH (set CC)"
+        return None
+
+    def prepare(self, system, params, icfg, vcfg, static=None) -> None:
+        super().prepare(system, params, icfg, vcfg, static)
+        kernel_for(system, icfg, vcfg, params, static=static)
+
+    def default_chunk(self, plan) -> int:
+        """Lanes are refilled from a queue: longer chunks waste less at the tail; progress is
+        still reported within a chunk."""
+        return 65536
+
+    def bytes_per_trajectory(self, plan) -> int:
+        return queued_bytes_per_trajectory(plan)
+
+    def solve(self, system, params, icfg, vcfg, static=None, progress=None):
+        return solve(system, params, icfg, vcfg, static=static, progress=progress)
+
+
+ENGINE = NativeEngine()
+
+__all__ = ["ENGINE", "NativeEngine", "solve", "available", "Unsupported", "compiler", "kernel_for", "run_raw", "evaluate",
+           "update", "warm", "clear_cache", "default_threads", "DEFAULT_WIDTH"]
