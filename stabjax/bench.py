@@ -298,6 +298,26 @@ def run_scipy(n: int, t1: float, k: int) -> dict:
 # ---- agreement -------------------------------------------------------------------------------------
 
 
+def run_numba(n: int, t1: float, k: int) -> dict | None:
+    """The compiled one-trajectory-at-a-time baseline (:mod:`stabjax.numba_baseline`); None without numba."""
+    try:
+        from . import numba_baseline as mod
+    except ImportError:
+        return None
+    c = paper_constants()
+    idx = _scipy_subset(n, k)
+    y0 = np.concatenate([c["w0"], c["s0"]])
+    with _Timer() as tc:
+        mod.solve_many(np.tile(y0, (1, 1)), alphas(n)[:1], c, 1.0, RTOL, ATOL)  # compile
+    _reset_peak_rss()
+    with _Timer() as tr:
+        ys, acc = mod.solve_many(np.tile(y0, (len(idx), 1)), alphas(n)[idx], c, t1, RTOL, ATOL)
+    return {"n_measured": int(len(idx)), "compile_s": tc.wall, "wall_s_measured": tr.wall,
+            "wall_s_per_trajectory": tr.wall / len(idx), "wall_s_extrapolated": tr.wall / len(idx) * n,
+            "accepted_steps_measured": int(acc.sum()), "traj_steps_per_s": float(acc.sum() / tr.wall),
+            "peak_rss_mb": _peak_rss_mb(), "_state": ys}
+
+
 def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, k_verdict: int) -> dict:
     """Final states of the native engine vs the diffrax baseline and SciPy; its verdicts (and those of
     run_spec and of the fused engine) vs the diffrax engine path."""
@@ -374,6 +394,10 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
             row["diffrax_vmap"] = run_diffrax(n, t1)
         print(f"[bench] N={n}: scipy DOP853 subset ...", flush=True)
         row["scipy_dop853"] = run_scipy(n, t1, scipy_k)
+        nb = run_numba(n, t1, scipy_k)
+        if nb is not None:
+            print(f"[bench] N={n}: numba Dopri5 subset ...", flush=True)
+            row["numba_dopri5"] = nb
         print(f"[bench] N={n}: agreement checks ...", flush=True)
         row["agreement"] = agreement(n, t1, row["stabjax"], row.get("diffrax_vmap"), row["scipy_dop853"],
                                      k_verdict=min(n, 64 if quick else 256))
@@ -384,6 +408,8 @@ def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/b
             ratios["speedup_wall_vs_diffrax"] = d["wall_s"] / st["wall_s"]
             ratios["speedup_traj_steps_vs_diffrax"] = st["traj_steps_per_s"] / d["traj_steps_per_s"]
         ratios["speedup_per_trajectory_vs_scipy"] = row["scipy_dop853"]["wall_s_per_trajectory"] / (st["wall_s"] / n)
+        if "numba_dopri5" in row:
+            ratios["speedup_per_trajectory_vs_numba"] = row["numba_dopri5"]["wall_s_per_trajectory"] / (st["wall_s"] / n)
         if "stabjax_fused" in row:
             f = row["stabjax_fused"]
             ratios["speedup_wall_vs_fused"] = f["wall_s"] / st["wall_s"]
@@ -444,6 +470,11 @@ def markdown(r: dict) -> str:
         lines.append(f"| {n} | SciPy DOP853 loop | {sp['wall_s_extrapolated']:.1f} (extrap.) | - | "
                      f"{sp['accepted_steps_measured']:,} ({sp['n_measured']} traj) | {sp['traj_steps_per_s']:.3g} | "
                      f"{sp['peak_rss_mb']:.0f} | {sp['wall_s_per_trajectory'] * 1e3:.0f} ms/trajectory |")
+        if "numba_dopri5" in row:
+            nb = row["numba_dopri5"]
+            lines.append(f"| {n} | numba Dopri5 loop | {nb['wall_s_extrapolated']:.1f} (extrap.) | {nb['compile_s']:.1f} | "
+                         f"{nb['accepted_steps_measured']:,} ({nb['n_measured']} traj) | {nb['traj_steps_per_s']:.3g} | "
+                         f"{nb['peak_rss_mb']:.0f} | {nb['wall_s_per_trajectory'] * 1e3:.1f} ms/trajectory |")
     lines += ["", "Ratios and agreement:", ""]
     for n, row in r["sizes"].items():
         lines.append(f"- N = {n}: " + ", ".join(f"{k} {v:.3g}" for k, v in row["ratios"].items()) + "; "

@@ -382,11 +382,32 @@ def bench(
     out: Path = typer.Option(Path("results/bench.json")),
     quick: bool = typer.Option(False, help="tiny sizes (smoke test)"),
     fused: bool = typer.Option(True, help="also run the fused (XLA) engine as a named contender"),
+    suite: str = typer.Option("engines", help="engines: the sweep engine vs diffrax, SciPy, numba (paper A); "
+                              "models: a user model (examples/duffing) vs the same baselines, and a built-in "
+                              "through the user-model door; refine: boundary refinement vs the full grid; "
+                              "dask: 1 and 2 local workers and the per-chunk overhead"),
 ):
-    """Benchmark the sweep engine against named baselines in one process."""
-    from .bench import main as bench_main
+    """Benchmark against named baselines in one process (figures in the README and docs/performance.md)."""
+    from .errors import ValidationError
 
-    bench_main(sizes=[int(s) for s in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
+    if suite == "engines":
+        from .bench import main as bench_main
+
+        bench_main(sizes=[int(x) for x in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
+    elif suite == "models":
+        from .bench_models import main as models_main
+
+        models_main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
+    elif suite == "refine":
+        from .refine import main as refine_main
+
+        raise typer.Exit(refine_main(["--bench"] + (["--t1", "200", "--full-rows", "8"] if quick else [])))
+    elif suite == "dask":
+        from .distributed import main as dask_main
+
+        dask_main(["workers"])
+    else:
+        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
 
 
 def main(argv: list[str] | None = None):
