@@ -35,6 +35,77 @@ def _parse_sets(sets: Optional[list[str]]) -> dict[str, str]:
     return out
 
 
+ForceOpt = typer.Option(False, "--force", help="replace an existing output file that is not a previous result of "
+                                                 "the same command (a result of the same spec is replaced anyway)")
+RESULT_SUFFIXES = (".nc",)
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def _check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: tuple[Path, ...] = (),
+                  force: bool = False, same=None, what: str = "a previous result of this command") -> bool:
+    """Refuse an output path that would lose something; True when an existing file will be replaced.
+
+    Never the command's input (a spec, a result being plotted), never a directory, only the
+    extensions the command writes. An existing file is replaced when ``same(out)`` says it is a
+    previous result of the same computation (re-running a command is normal) or with ``--force``;
+    anything else is refused with the way to allow it.
+    """
+    from .errors import ValidationError
+
+    if out.is_dir():
+        raise ValidationError(field, f"{out} is a directory; give a file name ending in {suffixes[0]}")
+    if out.suffix.lower() not in suffixes:
+        raise ValidationError(field, f"{out}: this command writes {' or '.join(suffixes)} files; "
+                                     f"got {out.suffix or 'no extension'!r}")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ValidationError(field, f"{out.parent} is not a directory")
+    for inp in inputs:
+        if inp.exists() and out.exists() and out.resolve() == inp.resolve():
+            raise ValidationError(field, f"{out} is this command's input; it is never overwritten")
+    if not out.exists():
+        return False
+    if force or (same is not None and same(out)):
+        return True
+    raise ValidationError(field, f"{out} exists and is not {what}; pass --force to replace it, "
+                                 "or choose another --out")
+
+
+def _result_spec(path: Path):
+    """The spec (parsed ``spec_json``) stored in a stabjax sweep result, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
+    except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
+        return None
+
+
+def _trajectory_system(path: Path) -> str | None:
+    """The system of a trajectory written by ``stabjax simulate``, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return str(ds.attrs["system"]) if "solver_ok" in ds.attrs and "system" in ds.attrs else None
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def _open_result_file(file: Path):
+    from .errors import ValidationError
+    from .sweep import open_result
+
+    if file.is_dir():
+        raise ValidationError("file", f"{file} is a directory, not a sweep result")
+    try:
+        return open_result(file)
+    except ValidationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - netCDF/HDF5 raise several types for a foreign file
+        raise ValidationError("file", f"{file} is not a netCDF sweep result ({type(exc).__name__})") from None
+
+
 def _jsonable(x: Any):
     if isinstance(x, dict):
         return {k: _jsonable(v) for k, v in x.items()}
@@ -95,6 +166,7 @@ def simulate(
     rtol: float = typer.Option(1e-10),
     atol: float = typer.Option(1e-12),
     as_json: bool = typer.Option(False, "--json", help="print the final state as JSON"),
+    force: bool = ForceOpt,
 ):
     """Integrate one trajectory; save the state and observables at the requested times."""
     from .engine import simulate as sim
@@ -102,6 +174,11 @@ def simulate(
     from .registry import get_system
 
     sysm = get_system(system)
+    replacing = False
+    if out is not None:
+        replacing = _check_output(out, "--out", RESULT_SUFFIXES, force=force,
+                                  same=lambda p: _trajectory_system(p) == sysm.name,
+                                  what=f"a trajectory of {sysm.name} written by stabjax simulate")
     times = None
     if ts:
         try:
@@ -130,7 +207,7 @@ def simulate(
             t.add_row(k, np.array2string(np.asarray(v), precision=8) if not isinstance(v, bool) else str(v))
         console.print(t)
         if out is not None:
-            console.print(f"wrote {out}")
+            console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""))
     if not final["solver_ok"]:
         err_console.print(f"[red]solver failed (diffrax status {ds.attrs['solver_status']})[/red]")
         raise typer.Exit(1)
@@ -183,16 +260,29 @@ def sweep(
     plot: bool = typer.Option(True, "--plot/--no-plot", help="also write <out>.png"),
     restart: bool = typer.Option(False, help="discard finished chunks of an earlier run of this output"),
     progress: bool = typer.Option(True, "--progress/--no-progress"),
+    force: bool = ForceOpt,
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
     from .plotting import format_confusion, plot_sweep
-    from .spec import load_spec
-    from .sweep import run_spec
+    from .spec import load_spec, make_plan
+    from .sweep import run_plan
 
     s = load_spec(spec)
-    out = out or Path("results") / f"{s['name']}.nc"
+    plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
+    out = out or Path("results") / f"{plan.name}.nc"
+    from .spec import _jsonable as spec_jsonable
+
+    this_spec = json.loads(json.dumps(spec_jsonable(plan.spec)))  # as the result stores it (spec_json)
+    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=(spec,), force=force,
+                              same=lambda p: _result_spec(p) == this_spec,
+                              what="a result of this spec (with this --t1)")
+    if plot:  # the map follows its result: replaced with it, else only with --force
+        png = out.with_suffix(".png")
+        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing)
+    if replacing:
+        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"))
     try:
-        ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1)
+        ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart)
     except KeyboardInterrupt:
         err_console.print(f"[yellow]interrupted: finished chunks are kept in {out}.partial; "
                           "run the same command to resume[/yellow]")
@@ -209,21 +299,25 @@ def sweep(
 @app.command("plot")
 def plot_cmd(
     file: Path = typer.Argument(..., help="sweep result (netCDF)"),
-    out: Optional[Path] = typer.Option(None, help="PNG (default: FILE with .png)"),
+    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with .png)"),
+    force: bool = ForceOpt,
 ):
     """Draw the verdict map with the theoretical boundary; print theory x simulation counts."""
     from .plotting import format_confusion, plot_sweep
-    from .sweep import open_result
 
-    ds = open_result(file)
+    ds = _open_result_file(file)
     if "verdict" not in ds:
         from .errors import ValidationError
 
         raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
     out = out or file.with_suffix(".png")
+    # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
+    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=(file,), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
+                              what=f"the map of {file}")
     plot_sweep(ds, out)
     console.print(format_confusion(ds), highlight=False)
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""))
 
 
 @app.command("horizon-check")
@@ -235,10 +329,14 @@ def horizon_check_cmd(
     as_json: bool = typer.Option(False, "--json"),
 ):
     """Re-run a random subset at a longer horizon and report how many verdicts change."""
+    from . import validate
     from . import verdict as V
-    from .sweep import horizon_check, open_result
+    from .sweep import horizon_check
 
-    hc = horizon_check(open_result(file), factor=factor, n=n, seed=seed)
+    validate.number(factor, "--factor", lo=1.0, lo_open=True)
+    validate.integer(n, "--n", lo=1)
+    validate.integer(seed, "--seed", lo=0)
+    hc = horizon_check(_open_result_file(file), factor=factor, n=n, seed=seed)
     if as_json:
         console.print_json(json.dumps(_jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
                                                   "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],
@@ -284,27 +382,46 @@ def bench(
     bench_main(sizes=[int(s) for s in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
 
 
+def _click_exception() -> type[Exception]:
+    """click's ClickException, from whichever click typer runs on (typer 0.29 vendors it as ``typer._click``
+    and no longer installs ``click``): found through the public ``typer.BadParameter``."""
+    return next((c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"), typer.BadParameter)
+
+
 def main(argv: list[str] | None = None):
+    """Entry point: runs the app and turns every outcome into an exit status that tells the truth.
+
+    0 success; 1 a run that failed (a solver failure reported by ``simulate``, an I/O error);
+    2 bad input (a usage error -- unknown option or command, extra argument, a value of the wrong
+    type -- printed with the usage, or a :class:`~stabjax.errors.StabjaxError` naming the field);
+    130 interrupted (Ctrl-C).
+    """
     from .errors import StabjaxError
 
+    click_exception = _click_exception()
     try:
-        app(args=argv, standalone_mode=False)
+        # standalone_mode=False: errors come back to this function instead of exiting inside typer;
+        # typer then *returns* the status of a ``typer.Exit`` (and 130 for Ctrl-C) instead of raising it
+        rv = app(args=argv, standalone_mode=False)
     except StabjaxError as exc:
         err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
         sys.exit(2)
+    except KeyboardInterrupt:
+        err_console.print("[yellow]interrupted[/yellow]")
+        sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except SystemExit:
-        raise
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
-            sys.exit(130)
-        raise
+    except typer.Abort:  # Ctrl-C or end of input at a prompt
+        err_console.print("[yellow]aborted[/yellow]")
+        sys.exit(130)
+    except click_exception as exc:  # usage errors: the usage line, the error, status 2
+        exc.show()
+        sys.exit(exc.exit_code)
+    except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        err_console.print(f"[bold red]error:[/bold red] {exc.filename}: {exc.strerror}", highlight=False)
+        sys.exit(1)
+    if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
+        sys.exit(rv)
 
 
 if __name__ == "__main__":

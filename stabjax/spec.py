@@ -375,7 +375,11 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
 
     icfg = IntegrateConfig.from_dict(spec.get("integrate"), default_t1=system.default_t1)
     if t1 is not None:
-        icfg = IntegrateConfig(**{**icfg.__dict__, "t1": V.number(t1, "--t1")})
+        t1 = V.number(t1, "--t1")
+        icfg = IntegrateConfig(**{**icfg.__dict__, "t1": t1})
+        # the override is part of what runs: recorded in the spec, hence in the fingerprint (a resume
+        # or a replaced result at another horizon is then a different sweep, not mixed in)
+        spec["integrate"] = {**dict(spec.get("integrate") or {}), "t1": t1}
         try:
             icfg.validate()
         except ValidationError as exc:
