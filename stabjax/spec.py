@@ -354,7 +354,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
         grid.append(Axis(key, name, prm, index, vals, log))
 
     sample = {}
-    if sample_spec:
+    if n_sample:
         seed = V.integer(sample_spec.pop("seed", 0), "sample.seed", lo=0, hi=2**128 - 1)
         if not sample_spec:
             raise ValidationError("sample", "no parameter to sample (add e.g. s0 = {dist = \"sphere\"})")
