@@ -264,21 +264,21 @@ def sweep(
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
     from .plotting import format_confusion, plot_sweep
+    from .spec import _jsonable as spec_jsonable
     from .spec import load_spec, make_plan
     from .sweep import run_plan
 
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
-    from .spec import _jsonable as spec_jsonable
-
     this_spec = json.loads(json.dumps(spec_jsonable(plan.spec)))  # as the result stores it (spec_json)
     replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=(spec,), force=force,
                               same=lambda p: _result_spec(p) == this_spec,
                               what="a result of this spec (with this --t1)")
     if plot:  # the map follows its result: replaced with it, else only with --force
         png = out.with_suffix(".png")
-        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing)
+        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing,
+                      what="the map of a previous result of this spec")
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"))
     try:
