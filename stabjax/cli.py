@@ -30,9 +30,28 @@ def _parse_sets(sets: Optional[list[str]]) -> dict[str, str]:
     for item in sets or []:
         if "=" not in item:
             raise ValidationError("--set", f"expected NAME=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = v.strip()
+        k, v = (x.strip() for x in item.split("=", 1))
+        if not k:
+            raise ValidationError("--set", f"expected NAME=VALUE, got {item!r} (no name)")
+        if k in out:
+            raise ValidationError("--set", f"{k} is given twice ({out[k]!r} and {v!r})")
+        out[k] = v
     return out
+
+
+def _int_list(text: str, field: str, lo: int = 1) -> list[int]:
+    """A comma list of integers >= lo (``--sizes``)."""
+    from . import validate
+    from .errors import ValidationError
+
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}")
+    try:
+        values = [int(x) for x in items]
+    except ValueError:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}") from None
+    return [validate.integer(v, field, lo=lo) for v in values]
 
 
 ForceOpt = typer.Option(False, "--force", help="replace an existing output file that is not a previous result of "
@@ -180,11 +199,13 @@ def simulate(
                                   same=lambda p: _trajectory_system(p) == sysm.name,
                                   what=f"a trajectory of {sysm.name} written by stabjax simulate")
     times = None
-    if ts:
-        try:
-            times = np.array([float(x) for x in ts.split(",") if x.strip()])
-        except ValueError:
-            raise ValidationError("--ts", f"expected a comma list of numbers, got {ts!r}") from None
+    if ts is not None:
+        from . import validate
+
+        items = [x for x in ts.split(",") if x.strip()]
+        if not items:
+            raise ValidationError("--ts", f"expected a comma list of numbers, got {ts!r}")
+        times = np.array([validate.number(x, "--ts") for x in items])
     ds = sim(sysm, _parse_sets(sets), t1=t1, ts=times, solver=solver, rtol=rtol, atol=atol)
     if out is not None:
         from .sweep import write
@@ -363,6 +384,10 @@ def reproduce(
 
     fn = get_reproducer(name)
     out_dir = out_dir or Path("results") / name
+    if out_dir.exists() and not out_dir.is_dir():
+        from .errors import ValidationError
+
+        raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
     files = fn(out_dir, quick=quick)
     for f in files:
         console.print(f"wrote {f}")
@@ -375,11 +400,24 @@ def bench(
     out: Path = typer.Option(Path("results/bench.json")),
     quick: bool = typer.Option(False, help="tiny sizes (smoke test)"),
     fused: bool = typer.Option(True, help="also run the fused (XLA) engine as a named contender"),
+    force: bool = ForceOpt,
 ):
     """Benchmark the sweep engine against named baselines in one process."""
+    from . import validate
     from .bench import main as bench_main
 
-    bench_main(sizes=[int(s) for s in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
+    n = _int_list(sizes, "--sizes")
+    validate.number(t1, "--t1", lo=0.0, lo_open=True)
+    _check_output(out, "--out", (".json",), force=force, same=_is_bench_record, what="a previous benchmark record")
+    bench_main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
+
+
+def _is_bench_record(path: Path) -> bool:
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(rec, dict) and "machine" in rec and "versions" in rec
 
 
 def _click_exception() -> type[Exception]:

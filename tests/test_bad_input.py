@@ -314,6 +314,20 @@ def test_cli_bad_options_exit_2(tmp_path, capsys):
         (["plot", spec], "file"),
         (["plot", tmp_path], "file"),
         (["horizon-check", spec], "file"),
+        (["simulate", "monoaxial", "--ts", "1,nan"], "--ts"),
+        (["simulate", "monoaxial", "--ts", ","], "--ts"),
+        (["simulate", "monoaxial", "--ts", "1,9**9**9"], "--ts"),
+        (["theory", "monoaxial", "--set", "=5"], "--set"),
+        (["theory", "monoaxial", "--set", "mu=1.5", "--set", "mu=2"], "--set"),
+        (["reproduce", "nosuch"], "name"),
+        (["reproduce", "at2019", "--out-dir", spec, "--quick"], "--out-dir"),
+        (["bench", "--sizes", "x"], "--sizes"),
+        (["bench", "--sizes", "0", "--quick"], "--sizes"),
+        (["bench", "--t1", "nan", "--quick"], "--t1"),
+        (["bench", "--out", tmp_path, "--quick"], "--out"),
+        (["bench", "--out", spec, "--quick"], "--out"),
+        (["horizon-check", spec, "--factor", "nan"], "--factor"),
+        (["horizon-check", spec, "--n", "0"], "--n"),
     ]:
         code, out, err = cli(capsys, *args)
         assert code == 2 and f"error: {field}:" in err, (args, err)
@@ -434,3 +448,15 @@ def test_interrupt_exits_130(tmp_path, capsys, monkeypatch):
     code, out, err = cli(capsys, "theory", "monoaxial")
     assert code == 130
     assert_clean(out, err)
+
+
+def test_console_usage_error_without_click():
+    """The issue's example, as a user runs it: `python -m stabjax sweep --bogus` prints the usage, exits 2."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "stabjax", "sweep", "--bogus"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2
+    assert "Usage:" in r.stderr and "No such option: --bogus" in r.stderr
+    assert "Traceback" not in r.stderr + r.stdout
