@@ -141,6 +141,7 @@ def load_spec(path: str | Path) -> dict:
 
 MAX_AXIS_POINTS = 10**8  # one grid axis or sample: beyond this the values alone take gigabytes
 MAX_TRAJECTORIES = 2**53  # a plan's flat index must be exact in a double and in int64
+RESULT_BYTES_PER_TRAJECTORY = 8 * 24  # = 8 * sweep.N_SUMMARY_FIELDS: summaries + theory per trajectory
 
 
 def _axis_size(key: str, raw: Any) -> int:
@@ -327,9 +328,13 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
         n_sample = V.integer(sample_spec.pop("n"), "sample.n", lo=1, hi=MAX_AXIS_POINTS)
         sizes.append(n_sample)
     total = math.prod(sizes)
+    where = "grid" if grid_spec else "sample.n"
     if total > MAX_TRAJECTORIES:
-        raise ValidationError("grid", f"{' x '.join(map(str, sizes))} = {total:.3g} trajectories: too many to index "
-                                      f"(at most 2^53 = {MAX_TRAJECTORIES:.3g}); split the sweep")
+        raise ValidationError(where, f"{' x '.join(map(str, sizes))} = {total:.3g} trajectories: too many to index "
+                                     f"(at most 2^53 = {MAX_TRAJECTORIES:.3g}); split the sweep")
+    # the results of every trajectory are held at the end (sweep.choose_batch_size repeats this check
+    # against its own memory limit); refused here too, so that no sample of that size is drawn first
+    V.check_allocation(where, total * RESULT_BYTES_PER_TRAJECTORY, f"the results of {total:,} trajectories")
 
     grid: list[Axis] = []
     seen: dict[str, list] = {}  # parameter name -> [(entry index or None, key)] of the axes sweeping it
