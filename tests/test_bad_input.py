@@ -167,8 +167,9 @@ BAD_SPECS = [
     ({**M, "grid": {"nope": [1.0, 2.0]}}, "grid.nope"),
     ({**M, "grid": {"alpha": {"start": -1, "stop": 1, "num": 4, "log": True}}}, "grid.alpha"),
     ({**M, "grid": {a: {"start": 1, "stop": 2, "num": 10**7} for a in ("alpha", "sigma", "b")}}, "grid"),
-    ({**M, "grid": {"use_mu": {"start": 0, "stop": 1, "num": 3}}}, "grid.use_mu") if False else
     ({**M, "grid": {"omega0": {"start": 1, "stop": 2, "num": "x"}}}, "grid.omega0.num"),
+    ({**M, "grid": {"normalize": {"start": 0, "stop": 1, "num": 3}}}, "grid.normalize"),  # 0.5: not a choice
+    ({**M, "grid": {"normalize": [0, 0.5]}}, "grid.normalize[1]"),
     # [sample]
     ({**M, "sample": {"n": 2.5, "s0": {"dist": "sphere"}}}, "sample.n"),
     ({**M, "sample": {"n": True, "s0": {"dist": "sphere"}}}, "sample.n"),
@@ -200,6 +201,10 @@ BAD_SPECS = [
     ({**M, "sample": {"n": 4, "alpha": {"dist": "sphere"}}}, "sample.alpha.dist"),
     ({**M, "sample": {"n": 4, "J": {"dist": "so3"}}}, "sample.J.dist"),
     ({**M, "sample": {"n": 4, "nope": {"dist": "sphere"}}}, "sample.nope"),
+    # 10^12 trajectories: their results alone need 192 TB; refused from the sizes, before any draw
+    ({**M, "grid": {"alpha": {"start": 0.1, "stop": 1, "num": 10**6}},
+      "sample": {"n": 10**6, "s0": {"dist": "sphere"}}}, "grid"),
+    ({**M, "sample": {"n": 10**8 + 1, "s0": {"dist": "sphere"}}}, "sample.n"),
     ({**M, "grid": {"alpha": [0.5]}, "sample": {"n": 4, "alpha": {"dist": "uniform", "low": 0, "high": 1}}},
      "sample.alpha"),
     # [integrate]
