@@ -285,14 +285,13 @@ def sweep(
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset."""
     from .plotting import format_confusion, plot_sweep
-    from .spec import _jsonable as spec_jsonable
-    from .spec import load_spec, make_plan
+    from .spec import load_spec, make_plan, spec_json
     from .sweep import run_plan
 
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
-    this_spec = json.loads(json.dumps(spec_jsonable(plan.spec)))  # as the result stores it (spec_json)
+    this_spec = json.loads(spec_json(plan.spec))
     replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=(spec,), force=force,
                               same=lambda p: _result_spec(p) == this_spec,
                               what="a result of this spec (with this --t1)")

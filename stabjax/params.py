@@ -46,7 +46,7 @@ def _to_array(value: Any, name: str) -> np.ndarray:
     if isinstance(value, str):
         parts = [p for p in value.replace(";", ",").split(",") if p.strip()]
         try:
-            arr = np.array([_eval_number(p, name) for p in parts], dtype=float)
+            arr = np.array([eval_number(p, name) for p in parts], dtype=float)
         except ValueError as exc:
             raise ValidationError(name, f"cannot parse {value!r} as numbers ({exc})") from None
         if arr.size == 0:
@@ -64,7 +64,7 @@ def _to_array(value: Any, name: str) -> np.ndarray:
                 raise ValidationError(name, f"{v!r} is too large") from None
         if isinstance(v, str):
             try:
-                return _eval_number(v, name)
+                return eval_number(v, name)
             except ValueError as exc:
                 raise ValidationError(name, f"cannot parse {v!r} as a number ({exc})") from None
         if isinstance(v, (list, tuple, np.ndarray)) and depth < 3:
@@ -87,7 +87,7 @@ _FUNCTIONS = {
 }
 
 
-def _eval_number(text: str, name: str) -> float:
+def eval_number(text: str, name: str) -> float:
     """Numbers, or small arithmetic such as ``7/9``, ``1/sqrt(3)``, ``2*pi``, ``1e-3*cos(pi/7)``.
 
     Evaluated by walking the syntax tree (no ``eval``): number literals (as doubles, so no unbounded

@@ -122,6 +122,11 @@ def _jsonable(x):
     return x
 
 
+def spec_json(spec: Mapping[str, Any]) -> str:
+    """The spec as results store it (attribute ``spec_json``): used to tell a result of the same spec."""
+    return json.dumps(_jsonable(spec))
+
+
 def load_spec(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():

@@ -44,10 +44,10 @@ def number(value: Any, field: str, *, lo: float | None = None, hi: float | None 
     if isinstance(value, (bool, np.bool_)):
         raise ValidationError(field, f"must be a number, got a boolean ({value!r})")
     if isinstance(value, str):
-        from .params import _eval_number
+        from .params import eval_number
 
         try:
-            x = _eval_number(value, field)
+            x = eval_number(value, field)
         except ValueError as exc:
             raise ValidationError(field, str(exc)) from None
     elif isinstance(value, (int, float, np.integer, np.floating)):

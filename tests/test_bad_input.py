@@ -13,7 +13,7 @@ import pytest
 import stabjax  # noqa: F401  (float64)
 from stabjax.cli import main
 from stabjax.errors import ValidationError
-from stabjax.params import _eval_number
+from stabjax.params import eval_number
 from stabjax.spec import make_plan
 
 TINY = """
@@ -101,7 +101,7 @@ def test_no_import_of_click():
 def test_bad_expressions_are_refused_quickly(text):
     t = time.perf_counter()
     with time_limit(5), pytest.raises(ValueError):
-        _eval_number(text, "x")
+        eval_number(text, "x")
     assert time.perf_counter() - t < 1.0
 
 
@@ -110,7 +110,7 @@ def test_bad_expressions_are_refused_quickly(text):
     ("1e-3*cos(pi/7)", 1e-3 * math.cos(math.pi / 7)), ("+(1.5)", 1.5), ("exp(log(2))", 2.0), ("1e308", 1e308),
 ])
 def test_good_expressions_still_work(text, value):
-    assert _eval_number(text, "x") == pytest.approx(value, rel=1e-15)
+    assert eval_number(text, "x") == pytest.approx(value, rel=1e-15)
 
 
 def test_set_expression_that_would_hang_exits_2(capsys):
