@@ -159,7 +159,12 @@ def record_from_dict(cls, d: Mapping[str, Any] | None, section: str, *, base=Non
         if k not in known:
             raise ValidationError(f"{section}.{k}", f"unknown {what}; known: {', '.join(sorted(known))}")
         out[k] = coerce_field(cls, k, v, f"{section}.{k}")
-    return replace(base, **out) if base is not None else cls(**out)
+    try:
+        return replace(base, **out) if base is not None else cls(**out)
+    except (TypeError, ValueError) as exc:  # a record's own __post_init__ check
+        if isinstance(exc, ValidationError):
+            raise
+        raise ValidationError(section, str(exc)) from None
 
 
 # ---- memory ---------------------------------------------------------------------------------------
