@@ -3,6 +3,7 @@ no hang, nothing on disk lost; usage errors print the usage; the exit status tel
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import signal
 import time
@@ -465,3 +466,39 @@ def test_console_usage_error_without_click():
     assert r.returncode == 2
     assert "Usage:" in r.stderr and "No such option: --bogus" in r.stderr
     assert "Traceback" not in r.stderr + r.stdout
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+
+
+def to_toml(spec: dict) -> str:
+    """Just enough TOML for the cases above (top-level values, then one [table] per dict)."""
+    lines = [f"{json.dumps(k)} = {_toml_value(v)}" for k, v in spec.items() if not isinstance(v, dict)]
+    for k, v in spec.items():
+        if isinstance(v, dict):
+            lines += [f"[{json.dumps(k)}]"] + [f"{json.dumps(kk)} = {_toml_value(x)}" for kk, x in v.items()]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("spec, field", BAD_SPECS, ids=[f"{i}-{f}" for i, (_, f) in enumerate(BAD_SPECS)])
+def test_bad_spec_through_the_cli(tmp_path, capsys, spec, field):
+    """The same fuzz as a user meets it: a TOML file, `stabjax sweep`: exit 2, the field named, no
+    traceback, the spec untouched and nothing written."""
+    body = to_toml(spec)
+    path = tmp_path / "bad.toml"
+    path.write_text(body)
+    code, out, err = cli(capsys, "sweep", path, "--out", tmp_path / "bad.nc", "--no-progress")
+    assert code == 2 and f"error: {field}:" in err, (body, err)
+    assert_clean(out, err)
+    assert path.read_text() == body and sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
