@@ -228,6 +228,7 @@ BAD_SPECS = [
     ({**M, "integrate": {"engine": "gpu9"}}, "integrate.engine"),
     ({**M, "integrate": {"lanes": -1}}, "integrate.lanes"),
     ({**M, "integrate": {"lanes": 2.5}}, "integrate.lanes"),
+    ({**M, "integrate": {"lanes": 10**12}}, "integrate.lanes"),
     ({**M, "integrate": {"foo": 1}}, "integrate.foo"),
     # [verdict]
     ({**M, "verdict": 3}, "verdict"),
