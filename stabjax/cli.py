@@ -31,9 +31,99 @@ def _parse_sets(sets: Optional[list[str]]) -> dict[str, str]:
     for item in sets or []:
         if "=" not in item:
             raise ValidationError("--set", f"expected NAME=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = v.strip()
+        k, v = (x.strip() for x in item.split("=", 1))
+        if not k:
+            raise ValidationError("--set", f"expected NAME=VALUE, got {item!r} (no name)")
+        if k in out:
+            raise ValidationError("--set", f"{k} is given twice ({out[k]!r} and {v!r})")
+        out[k] = v
     return out
+
+
+def _int_list(text: str, field: str, lo: int = 1) -> list[int]:
+    """A comma list of integers >= lo (``--sizes``)."""
+    from . import validate
+    from .errors import ValidationError
+
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}")
+    try:
+        values = [int(x) for x in items]
+    except ValueError:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}") from None
+    return [validate.integer(v, field, lo=lo) for v in values]
+
+
+ForceOpt = typer.Option(False, "--force", help="replace an existing output file that is not a previous result of "
+                                                 "the same command (a result of the same spec is replaced anyway)")
+RESULT_SUFFIXES = (".nc",)
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def _check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: tuple[Path, ...] = (),
+                  force: bool = False, same=None, what: str = "a previous result of this command") -> bool:
+    """Refuse an output path that would lose something; True when an existing file will be replaced.
+
+    Never the command's input (a spec, a result being plotted), never a directory, only the
+    extensions the command writes. An existing file is replaced when ``same(out)`` says it is a
+    previous result of the same computation (re-running a command is normal) or with ``--force``;
+    anything else is refused with the way to allow it.
+    """
+    from .errors import ValidationError
+
+    if out.is_dir():
+        raise ValidationError(field, f"{out} is a directory; give a file name ending in {suffixes[0]}")
+    if out.suffix.lower() not in suffixes:
+        raise ValidationError(field, f"{out}: this command writes {' or '.join(suffixes)} files; "
+                                     f"got {out.suffix or 'no extension'!r}")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ValidationError(field, f"{out.parent} is not a directory")
+    for inp in inputs:
+        if inp.exists() and out.exists() and out.resolve() == inp.resolve():
+            raise ValidationError(field, f"{out} is this command's input; it is never overwritten")
+    if not out.exists():
+        return False
+    if force or (same is not None and same(out)):
+        return True
+    raise ValidationError(field, f"{out} exists and is not {what}; pass --force to replace it, "
+                                 "or choose another --out")
+
+
+def _result_spec(path: Path):
+    """The spec (parsed ``spec_json``) stored in a stabjax sweep result, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
+    except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
+        return None
+
+
+def _trajectory_system(path: Path) -> str | None:
+    """The system of a trajectory written by ``stabjax simulate``, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return str(ds.attrs["system"]) if "solver_ok" in ds.attrs and "system" in ds.attrs else None
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def _open_result_file(file: Path):
+    from .errors import ValidationError
+    from .sweep import open_result
+
+    if file.is_dir():
+        raise ValidationError("file", f"{file} is a directory, not a sweep result")
+    try:
+        return open_result(file)
+    except ValidationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - netCDF/HDF5 raise several types for a foreign file
+        raise ValidationError("file", f"{file} is not a netCDF sweep result ({type(exc).__name__})") from None
 
 
 def _jsonable(x: Any):
@@ -125,6 +215,7 @@ def simulate(
     rtol: float = typer.Option(1e-10),
     atol: float = typer.Option(1e-12),
     as_json: bool = typer.Option(False, "--json", help="print the final state as JSON"),
+    force: bool = ForceOpt,
 ):
     """Integrate one trajectory; save the state and observables at the requested times."""
     from .engine import simulate as sim
@@ -132,12 +223,19 @@ def simulate(
     from .models import resolve
 
     sysm = resolve(system, base_dir=Path.cwd())
+    replacing = False
+    if out is not None:
+        replacing = _check_output(out, "--out", RESULT_SUFFIXES, force=force,
+                                  same=lambda p: _trajectory_system(p) == sysm.name,
+                                  what=f"a trajectory of {sysm.name} written by stabjax simulate")
     times = None
-    if ts:
-        try:
-            times = np.array([float(x) for x in ts.split(",") if x.strip()])
-        except ValueError:
-            raise ValidationError("--ts", f"expected a comma list of numbers, got {ts!r}") from None
+    if ts is not None:
+        from . import validate
+
+        items = [x for x in ts.split(",") if x.strip()]
+        if not items:
+            raise ValidationError("--ts", f"expected a comma list of numbers, got {ts!r}")
+        times = np.array([validate.number(x, "--ts") for x in items])
     ds = sim(sysm, _parse_sets(sets), t1=t1, ts=times, solver=solver, rtol=rtol, atol=atol)
     if out is not None:
         from .sweep import write
@@ -160,7 +258,7 @@ def simulate(
             t.add_row(k, np.array2string(np.asarray(v), precision=8) if not isinstance(v, bool) else str(v))
         console.print(t)
         if out is not None:
-            console.print(f"wrote {out}")
+            console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""))
     if not final["solver_ok"]:
         err_console.print(f"[red]solver failed (diffrax status {ds.attrs['solver_status']})[/red]")
         raise typer.Exit(1)
@@ -222,12 +320,13 @@ def sweep(
                                           "(default: cores // workers locally)"),
     oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
                                        "(or more local workers than GPUs)"),
+    force: bool = ForceOpt,
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
 
     A spec with a [refine] section brackets the boundary between outcomes adaptively instead."""
-    from .spec import load_spec
-    from .sweep import default_store, run_spec
+    from .spec import load_spec, make_plan, spec_json
+    from .sweep import default_store, run_plan
 
     if threads is not None and scheduler is None and workers is None:
         from .errors import ValidationError
@@ -235,7 +334,18 @@ def sweep(
         raise ValidationError("--threads", "applies to Dask workers: give --workers N or --scheduler ADDRESS "
                               "(a local run uses $STABJAX_THREADS)")
     s = load_spec(spec)
-    out = out or Path("results") / f"{s['name']}.nc"
+    plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
+    out = out or Path("results") / f"{plan.name}.nc"
+    this_spec = json.loads(spec_json(plan.spec))
+    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=(spec,), force=force,
+                              same=lambda p: _result_spec(p) == this_spec,
+                              what="a result of this spec (with this --t1)")
+    if plot:  # the map follows its result: replaced with it, else only with --force
+        png = out.with_suffix(".png")
+        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing,
+                      what="the map of a previous result of this spec")
+    if replacing:
+        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"))
     store = store or default_store(out)
     executor = None
     if scheduler is not None or workers is not None:
@@ -254,8 +364,8 @@ def sweep(
 
             return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console,
                            executor=executor)
-        ds = run_spec(s, out, batch_size=batch_size, progress=progress, restart=restart, t1=t1, store=store,
-                      keep_partial=keep_store, executor=executor)
+        ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
+                      keep_partial=keep_store, executor=executor, overrides={"t1": t1})
     except KeyboardInterrupt:
         err_console.print(f"[yellow]interrupted: finished chunks are kept in {store}; "
                           "run the same command to resume[/yellow]")
@@ -268,7 +378,7 @@ def sweep(
     _report(ds, out.with_suffix(".png") if plot else None)
 
 
-def _report(ds, png: Optional[Path]):
+def _report(ds, png: Optional[Path], replaced: bool = False):
     """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory."""
     from .plotting import format_confusion, plot_sweep
 
@@ -287,7 +397,7 @@ def _report(ds, png: Optional[Path]):
         if png is not None:
             plot_sweep(ds, png)
     if png is not None:
-        console.print(f"wrote {png}")
+        console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""))
 
 
 @app.command()
@@ -305,18 +415,22 @@ def export(
 @app.command("plot")
 def plot_cmd(
     file: Path = typer.Argument(..., help="sweep result (netCDF)"),
-    out: Optional[Path] = typer.Option(None, help="PNG (default: FILE with .png)"),
+    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with .png)"),
+    force: bool = ForceOpt,
 ):
-    """Draw the verdict map with the theoretical boundary; print theory x simulation counts."""
-    from .sweep import open_result
-
-    ds = open_result(file)
+    """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
+    ds = _open_result_file(file)
     if "verdict" not in ds:
         from .errors import ValidationError
 
         raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
     _warn_changed_model(ds)
-    _report(ds, out or file.with_suffix(".png"))
+    out = out or file.with_suffix(".png")
+    # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
+    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=(file,), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
+                              what=f"the map of {file}")
+    _report(ds, out, replaced=replacing)
 
 
 def _warn_changed_model(ds):
@@ -340,10 +454,14 @@ def horizon_check_cmd(
     as_json: bool = typer.Option(False, "--json"),
 ):
     """Re-run a random subset at a longer horizon and report how many verdicts change."""
+    from . import validate
     from . import verdict as V
-    from .sweep import horizon_check, open_result
+    from .sweep import horizon_check
 
-    hc = horizon_check(open_result(file), factor=factor, n=n, seed=seed)
+    validate.number(factor, "--factor", lo=1.0, lo_open=True)
+    validate.integer(n, "--n", lo=1)
+    validate.integer(seed, "--seed", lo=0)
+    hc = horizon_check(_open_result_file(file), factor=factor, n=n, seed=seed)
     if as_json:
         console.print_json(json.dumps(_jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
                                                   "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],
@@ -370,6 +488,10 @@ def reproduce(
 
     fn = get_reproducer(name)
     out_dir = out_dir or Path("results") / name
+    if out_dir.exists() and not out_dir.is_dir():
+        from .errors import ValidationError
+
+        raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
     files = fn(out_dir, quick=quick)
     for f in files:
         console.print(f"wrote {f}")
@@ -386,14 +508,19 @@ def bench(
                               "models: a user model (examples/duffing) vs the same baselines, and a built-in "
                               "through the user-model door; refine: boundary refinement vs the full grid; "
                               "dask: 1 and 2 local workers and the per-chunk overhead"),
+    force: bool = ForceOpt,
 ):
     """Benchmark against named baselines in one process (figures in the README and docs/performance.md)."""
+    from . import validate
     from .errors import ValidationError
 
     if suite == "engines":
         from .bench import main as bench_main
 
-        bench_main(sizes=[int(x) for x in sizes.split(",")], t1=t1, out=out, quick=quick, with_fused=fused)
+        n = _int_list(sizes, "--sizes")
+        validate.number(t1, "--t1", lo=0.0, lo_open=True)
+        _check_output(out, "--out", (".json",), force=force, same=_is_bench_record, what="a previous benchmark record")
+        bench_main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
     elif suite == "models":
         from .bench_models import main as models_main
 
@@ -410,30 +537,56 @@ def bench(
         raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
 
 
+def _is_bench_record(path: Path) -> bool:
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(rec, dict) and "machine" in rec and "versions" in rec
+
+
+def _click_exception() -> type[Exception]:
+    """click's ClickException, from whichever click typer runs on (typer 0.29 vendors it as ``typer._click``
+    and no longer installs ``click``): found through the public ``typer.BadParameter``."""
+    return next((c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"), typer.BadParameter)
+
+
 def main(argv: list[str] | None = None):
+    """Entry point: runs the app and turns every outcome into an exit status that tells the truth.
+
+    0 success; 1 a run that failed (a solver failure reported by ``simulate``, an I/O error);
+    2 bad input (a usage error -- unknown option or command, extra argument, a value of the wrong
+    type -- printed with the usage, or a :class:`~stabjax.errors.StabjaxError` naming the field);
+    130 interrupted (Ctrl-C).
+    """
     from .config import setup_jax
     from .errors import StabjaxError
 
     setup_jax()
-
+    click_exception = _click_exception()
     try:
-        app(args=argv, standalone_mode=False)
+        # standalone_mode=False: errors come back to this function instead of exiting inside typer;
+        # typer then *returns* the status of a ``typer.Exit`` (and 130 for Ctrl-C) instead of raising it
+        rv = app(args=argv, standalone_mode=False)
     except StabjaxError as exc:
         err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
         sys.exit(getattr(exc, "exit_code", 2))  # 2: bad input / refused; 1: I/O failure (store.StoreIOError)
+    except KeyboardInterrupt:
+        err_console.print("[yellow]interrupted[/yellow]")
+        sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except SystemExit:
-        raise
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
-            sys.exit(130)
-        raise
+    except typer.Abort:  # Ctrl-C or end of input at a prompt
+        err_console.print("[yellow]aborted[/yellow]")
+        sys.exit(130)
+    except click_exception as exc:  # usage errors: the usage line, the error, status 2
+        exc.show()
+        sys.exit(exc.exit_code)
+    except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        err_console.print(f"[bold red]error:[/bold red] {exc.filename}: {exc.strerror}", highlight=False)
+        sys.exit(1)
+    if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
+        sys.exit(rv)
 
 
 if __name__ == "__main__":

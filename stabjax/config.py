@@ -92,41 +92,48 @@ class IntegrateConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None, *, section: str = "integrate", default_t1: float | None = None):
+        """From a spec table: every field checked for its type (``section.field`` named), then :meth:`validate`."""
+        from .validate import record_from_dict
+
         d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        for k in d:
-            if k not in known:
-                raise ValidationError(f"{section}.{k}", f"unknown field; known: {', '.join(sorted(known))}")
         if "t1" not in d and default_t1 is not None:
             d["t1"] = default_t1
-        try:
-            cfg = cls(**{k: (type(getattr(cls, k))(v) if getattr(cls, k) is not None else (None if v is None else float(v)))
-                         for k, v in d.items()})
-        except (TypeError, ValueError) as exc:
-            raise ValidationError(section, f"bad value ({exc})") from None
+        cfg = record_from_dict(cls, d, section)
         cfg.validate(section)
         return cfg
 
     def validate(self, section: str = "integrate"):
+        from .validate import integer, number
+
+        # types first (the dataclass itself is also built from Python code, not only from specs)
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name in ("solver", "engine") or (v is None and f.default is None):
+                continue
+            if isinstance(f.default, int) and not isinstance(f.default, bool):
+                integer(v, f"{section}.{f.name}")
+            elif isinstance(f.default, float) or f.default is None:
+                number(v, f"{section}.{f.name}")
+        number(self.t0, f"{section}.t0")
         if not np.isfinite(self.t1) or not self.t1 > self.t0:
             raise ValidationError(f"{section}.t1", f"must be finite and > t0 = {self.t0}, got {self.t1}")
-        if self.solver not in SOLVERS:
+        if not isinstance(self.solver, str) or self.solver not in SOLVERS:
             raise ValidationError(f"{section}.solver", f"unknown solver {self.solver!r}; choose from {', '.join(SOLVERS)}")
         for name in ("rtol", "atol"):
             v = getattr(self, name)
             if not (v > 0 and v < 1):
                 raise ValidationError(f"{section}.{name}", f"must be in (0, 1), got {v}")
-        if self.max_steps < 1:
-            raise ValidationError(f"{section}.max_steps", f"must be >= 1, got {self.max_steps}")
-        if not 8 <= self.n_checkpoints <= 200_000:
-            raise ValidationError(f"{section}.n_checkpoints", f"must be in [8, 200000], got {self.n_checkpoints}")
-        if self.dt0 is not None and not self.dt0 > 0:
-            raise ValidationError(f"{section}.dt0", f"must be > 0, got {self.dt0}")
-        if self.engine not in ENGINES:
+        # 2^31 - 1: more than any trajectory can take in a run that finishes, and within every engine's counters
+        integer(self.max_steps, f"{section}.max_steps", lo=1, hi=2**31 - 1)
+        integer(self.n_checkpoints, f"{section}.n_checkpoints", lo=8, hi=200_000)
+        if self.dt0 is not None and not (self.dt0 > 0 and self.dt0 <= self.t1 - self.t0):
+            raise ValidationError(f"{section}.dt0", f"must be in (0, t1 - t0], got {self.dt0}")
+        if not isinstance(self.engine, str) or self.engine not in ENGINES:
             raise ValidationError(f"{section}.engine", f"unknown engine {self.engine!r}; choose from {', '.join(ENGINES)}")
-        for name in ("lanes", "width", "threads"):
-            if getattr(self, name) < 0:
-                raise ValidationError(f"{section}.{name}", f"must be >= 0 (0: automatic), got {getattr(self, name)}")
+        # 0: automatic; at most 2^24 lanes (a GPU keeps 2^18 busy): the lane state is allocated up front
+        integer(self.lanes, f"{section}.lanes", lo=0, hi=2**24)
+        integer(self.width, f"{section}.width", lo=0, hi=1024)
+        integer(self.threads, f"{section}.threads", lo=0, hi=4096)
         if self.escape_radius is not None and not (np.isfinite(self.escape_radius) and self.escape_radius > 0):
             raise ValidationError(f"{section}.escape_radius", f"must be a finite number > 0, got {self.escape_radius}")
 
@@ -151,18 +158,12 @@ def escape_radius(system, icfg: IntegrateConfig) -> float | None:
 
 
 def verdict_config(system, overrides: Mapping[str, Any] | None = None, section: str = "verdict") -> VerdictConfig:
-    """The system's classifier thresholds with the ``[verdict]`` table's overrides."""
-    cfg = system.verdict
-    overrides = dict(overrides or {})
-    known = {f.name for f in fields(VerdictConfig)}
-    for k, v in overrides.items():
-        if k not in known:
-            raise ValidationError(f"{section}.{k}", f"unknown threshold; known: {', '.join(sorted(known))}")
-        try:
-            overrides[k] = float(v)
-        except (TypeError, ValueError):
-            raise ValidationError(f"{section}.{k}", f"must be a number, got {v!r}") from None
-    return cfg.replace(**overrides)
+    """The system's thresholds with the spec's ``[verdict]`` overrides, each checked (``verdict.<name>``)."""
+    from .validate import check_verdict, record_from_dict
+
+    cfg = record_from_dict(VerdictConfig, overrides, section, base=system.verdict, what="threshold")
+    check_verdict(cfg, section)
+    return cfg
 
 
 _SETUP: dict[str, bool] = {}

@@ -73,7 +73,7 @@ def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t
     if ts is None:
         ts = np.linspace(t0, t1, 1001)
     ts = np.asarray(ts, dtype=float).ravel()
-    if np.any(ts < t0) or np.any(ts > t1):
+    if not np.all(np.isfinite(ts)) or np.any(ts < t0) or np.any(ts > t1):
         raise ValidationError("ts", f"save times must lie in [t0, t1] = [{t0}, {t1}]")
     ts = np.unique(np.append(ts, t1))
     p = system.params.resolve(params)

@@ -41,35 +41,134 @@ class Param:
 
 
 def _to_array(value: Any, name: str) -> np.ndarray:
+    if isinstance(value, np.ndarray) and value.dtype.kind in "fiu":
+        return np.asarray(value, dtype=float)
     if isinstance(value, str):
         parts = [p for p in value.replace(";", ",").split(",") if p.strip()]
         try:
-            arr = np.array([_eval_number(p, name) for p in parts], dtype=float)
+            arr = np.array([eval_number(p, name) for p in parts], dtype=float)
         except ValueError as exc:
             raise ValidationError(name, f"cannot parse {value!r} as numbers ({exc})") from None
+        if arr.size == 0:
+            raise ValidationError(name, f"cannot parse {value!r} as numbers (empty)")
         return arr[0] if arr.size == 1 else arr
+
+    def conv(v, depth=0):
+        # booleans are ints in Python (True == 1): a switch where a number belongs is refused, not read as 1
+        if isinstance(v, (bool, np.bool_)):
+            raise ValidationError(name, f"expected numbers, got a boolean ({value!r})")
+        if isinstance(v, (int, float, np.integer, np.floating)):
+            try:
+                return float(v)
+            except OverflowError:
+                raise ValidationError(name, f"{v!r} is too large") from None
+        if isinstance(v, str):
+            try:
+                return eval_number(v, name)
+            except ValueError as exc:
+                raise ValidationError(name, f"cannot parse {v!r} as a number ({exc})") from None
+        if isinstance(v, (list, tuple, np.ndarray)) and depth < 3:
+            return [conv(x, depth + 1) for x in v]
+        raise ValidationError(name, f"cannot parse {value!r} as numbers")
+
     try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValidationError(name, f"cannot parse {value!r} as numbers") from None
+        return np.asarray(conv(value), dtype=float)
+    except ValueError:  # ragged nesting
+        raise ValidationError(name, f"cannot parse {value!r} as numbers (ragged list)") from None
 
 
-_SAFE = {"pi": math.pi, "sqrt": math.sqrt, "e": math.e}
+MAX_EXPRESSION_LENGTH = 200  # characters of one arithmetic expression
+MAX_EXPONENT = 1024.0  # |b| in a ** b: beyond it a double over/underflows whatever a is
+_CONSTANTS = {"pi": math.pi, "e": math.e, "tau": math.tau}
+_FUNCTIONS = {
+    "sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "tan": math.tan, "asin": math.asin, "acos": math.acos,
+    "atan": math.atan, "exp": math.exp, "log": math.log, "log10": math.log10, "abs": abs,
+    "radians": math.radians, "degrees": math.degrees,
+}
 
 
-def _eval_number(text: str, name: str) -> float:
-    """Numbers, or tiny arithmetic such as ``7/9``, ``1/sqrt(3)``, ``2*pi``."""
+def eval_number(text: str, name: str) -> float:
+    """Numbers, or small arithmetic such as ``7/9``, ``1/sqrt(3)``, ``2*pi``, ``1e-3*cos(pi/7)``.
+
+    Evaluated by walking the syntax tree (no ``eval``): number literals (as doubles, so no unbounded
+    integer arithmetic), ``+ - * / **``, unary signs, parentheses, the constants pi, e, tau and the
+    one-argument functions in ``_FUNCTIONS``. Bounded in size (``MAX_EXPRESSION_LENGTH`` characters)
+    and in every intermediate (finite doubles, exponents ``|b| <= MAX_EXPONENT``), hence in time:
+    ``9**9**9`` is refused at once instead of computed.
+    """
+    import ast
+
     text = text.strip()
+    shown = text if len(text) <= 40 else text[:37] + "..."
+    if len(text) > MAX_EXPRESSION_LENGTH:
+        raise ValueError(f"expression longer than {MAX_EXPRESSION_LENGTH} characters")
     try:
-        return float(text)
+        x = float(text)
     except ValueError:
         pass
-    if not all(c in "0123456789.+-*/() eEpisqrt_" for c in text):
-        raise ValueError(f"{text!r} is not a number")
+    else:
+        if not math.isfinite(x):
+            raise ValueError(f"{shown!r} is not finite")
+        return x
+    if not text:
+        raise ValueError("empty value")
     try:
-        return float(eval(text, {"__builtins__": {}}, _SAFE))  # noqa: S307 - whitelisted characters only
-    except Exception as exc:  # noqa: BLE001
-        raise ValueError(f"{text!r} is not a number") from exc
+        tree = ast.parse(text, mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        raise ValueError(f"{shown!r} is not a number or an arithmetic expression") from None
+
+    def finite(x: float) -> float:
+        if not math.isfinite(x):
+            raise ValueError(f"{shown!r} overflows")
+        return x
+
+    def walk(node) -> float:
+        if isinstance(node, ast.Expression):
+            return walk(node.body)
+        if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+            try:
+                return finite(float(node.value))
+            except OverflowError:
+                raise ValueError(f"{shown!r}: literal too large") from None
+        if isinstance(node, ast.Name) and node.id in _CONSTANTS:
+            return _CONSTANTS[node.id]
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.UAdd, ast.USub)):
+            v = walk(node.operand)
+            return v if isinstance(node.op, ast.UAdd) else -v
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)):
+            a, b = walk(node.left), walk(node.right)
+            if isinstance(node.op, ast.Add):
+                return finite(a + b)
+            if isinstance(node.op, ast.Sub):
+                return finite(a - b)
+            if isinstance(node.op, ast.Mult):
+                return finite(a * b)
+            if isinstance(node.op, ast.Div):
+                if b == 0:
+                    raise ValueError(f"{shown!r}: division by zero")
+                return finite(a / b)
+            if abs(b) > MAX_EXPONENT:
+                raise ValueError(f"{shown!r}: exponent {b:g} too large (|exponent| <= {MAX_EXPONENT:g})")
+            try:
+                r = a**b
+            except (OverflowError, ZeroDivisionError):
+                raise ValueError(f"{shown!r} overflows") from None
+            if isinstance(r, complex):
+                raise ValueError(f"{shown!r} is not real")
+            return finite(r)
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCTIONS
+                and len(node.args) == 1 and not node.keywords):
+            try:
+                return finite(float(_FUNCTIONS[node.func.id](walk(node.args[0]))))
+            except (OverflowError, ValueError) as exc:
+                raise ValueError(f"{shown!r}: {node.func.id}: {exc}") from None
+        raise ValueError(f"{shown!r}: only numbers, + - * / **, parentheses, {', '.join(_CONSTANTS)} and "
+                         f"{', '.join(_FUNCTIONS)}(x) are allowed")
+
+    try:
+        return walk(tree)
+    except RecursionError:
+        raise ValueError(f"{shown!r} is nested too deeply") from None
 
 
 def parse_value(param: Param, value: Any) -> np.ndarray:

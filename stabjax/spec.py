@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .config import IntegrateConfig, VerdictConfig, verdict_config
+from . import validate as V
 from .errors import ValidationError
 from .params import Param, parse_value
 from .models import model_fingerprint, resolve as resolve_system
@@ -34,6 +36,7 @@ from .system import System
 
 TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run",
             "refine"}
+_NAME = re.compile(r"^(?![.\-\s])[^/\\\x00-\x1f]{1,128}$")  # a file stem: no path, no hidden file
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
 
@@ -151,19 +154,45 @@ def system_ref(ref: Any) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
+def spec_json(spec: Mapping[str, Any]) -> str:
+    """The spec as results store it (attribute ``spec_json``): used to tell a result of the same spec."""
+    return json.dumps(_jsonable(spec))
+
+
 def load_spec(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
         raise ValidationError("spec", f"file not found: {path}")
+    if path.is_dir():
+        raise ValidationError("spec", f"{path} is a directory, not a TOML file")
     try:
         with open(path, "rb") as f:
             spec = tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise ValidationError("spec", f"{path}: invalid TOML ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValidationError("spec", f"{path}: cannot read ({exc})") from None
     spec.setdefault("name", path.stem)
     # a model file named in the spec is found relative to the spec's folder
     spec["__base_dir__"] = str(path.resolve().parent)
     return spec
+
+
+MAX_AXIS_POINTS = 10**8  # one grid axis or sample: beyond this the values alone take gigabytes
+MAX_TRAJECTORIES = 2**53  # a plan's flat index must be exact in a double and in int64
+RESULT_BYTES_PER_TRAJECTORY = 8 * 24  # = 8 * sweep.N_SUMMARY_FIELDS: summaries + theory per trajectory
+
+
+def _axis_size(key: str, raw: Any) -> int:
+    """Number of points of a grid axis, checked before any array is built."""
+    field_name = f"grid.{key}"
+    if isinstance(raw, Mapping):
+        if "num" not in raw:
+            raise ValidationError(f"{field_name}.num", "required: number of points of the range")
+        return V.integer(raw["num"], f"{field_name}.num", lo=1, hi=MAX_AXIS_POINTS)
+    if not isinstance(raw, list) or not raw:
+        raise ValidationError(field_name, f"must be a non-empty list or a {{start, stop, num}} table, got {V.kind_of(raw)}")
+    return len(raw)
 
 
 def _axis_values(key: str, raw: Any, prm: Param, index) -> tuple[np.ndarray, bool]:
@@ -173,118 +202,138 @@ def _axis_values(key: str, raw: Any, prm: Param, index) -> tuple[np.ndarray, boo
     if isinstance(raw, Mapping):
         unknown = set(raw) - {"start", "stop", "num", "log"}
         if unknown:
-            raise ValidationError(field_name, f"unknown key(s) {sorted(unknown)}; use start, stop, num, log")
+            raise ValidationError(f"{field_name}.{sorted(unknown)[0]}", "unknown key; use start, stop, num, log")
         if value_param.shape:
             raise ValidationError(field_name, "a range needs a scalar axis; give a list of vectors, or sweep one entry like \"J[0]\"")
-        try:
-            start, stop, num = float(raw["start"]), float(raw["stop"]), int(raw["num"])
-        except KeyError as exc:
-            raise ValidationError(field_name, f"range needs {exc.args[0]!r}") from None
-        except (TypeError, ValueError) as exc:
-            raise ValidationError(field_name, f"bad range ({exc})") from None
-        if num < 1:
-            raise ValidationError(f"{field_name}.num", f"must be >= 1, got {num}")
-        log = bool(raw.get("log", False))
+        for k in ("start", "stop"):
+            if k not in raw:
+                raise ValidationError(f"{field_name}.{k}", "required")
+        start = V.number(raw["start"], f"{field_name}.start")
+        stop = V.number(raw["stop"], f"{field_name}.stop")
+        num = V.integer(raw["num"], f"{field_name}.num", lo=1, hi=MAX_AXIS_POINTS)
+        log = V.boolean(raw.get("log", False), f"{field_name}.log")
         if log:
             if start <= 0 or stop <= 0:
                 raise ValidationError(field_name, "log axis needs start > 0 and stop > 0")
             vals = np.geomspace(start, stop, num)
         else:
             vals = np.linspace(start, stop, num)
+        if prm.choices is not None and not np.isin(vals, prm.choices).all():
+            raise ValidationError(field_name, f"{prm.name} takes only the values {prm.choices}; give them as a list")
         return vals, log
-    if not isinstance(raw, list) or not raw:
-        raise ValidationError(field_name, "must be a non-empty list or a {start, stop, num} table")
-    vals = np.stack([parse_value(value_param, v) for v in raw])
-    return vals, False
+    vals = []
+    for i, v in enumerate(raw):
+        try:
+            vals.append(parse_value(value_param, v))
+        except ValidationError as exc:
+            raise ValidationError(f"{field_name}[{i}]", exc.message) from None
+    return np.stack(vals), False
 
 
 def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _sample(key: str, raw: Any, prm: Param, n: int, rng: np.random.Generator, fixed: Mapping[str, np.ndarray]) -> np.ndarray:
+_DISTS = {
+    "uniform": {"low", "high"}, "normal": {"mean", "std"}, "sphere": set(), "cap": {"center", "half_angle"},
+    "ball": {"radius", "center"}, "so3": set(),
+}
+_REQUIRED = {"uniform": {"low", "high"}, "normal": {"mean", "std"}, "cap": {"center", "half_angle"}, "ball": {"radius"}}
+
+
+def _sample_args(key: str, raw: Any, prm: Param, fixed: Mapping[str, np.ndarray], varied: set[str]) -> dict:
+    """Check one ``[sample]`` entry field by field (nothing drawn yet); returns its parsed arguments."""
     field_name = f"sample.{key}"
-    if not isinstance(raw, Mapping) or "dist" not in raw:
-        raise ValidationError(field_name, "must be a table with a 'dist' key")
-    dist = raw["dist"]
-    shape = prm.shape
-    allowed = {
-        "uniform": {"low", "high"}, "normal": {"mean", "std"}, "sphere": set(), "cap": {"center", "half_angle"},
-        "ball": {"radius", "center"}, "so3": set(),
-    }
-    if dist not in allowed:
-        raise ValidationError(f"{field_name}.dist", f"unknown distribution {dist!r}; choose from {', '.join(allowed)}")
-    extra = set(raw) - allowed[dist] - {"dist"}
+    V.table(raw, field_name)
+    if "dist" not in raw:
+        raise ValidationError(f"{field_name}.dist", f"required: one of {', '.join(_DISTS)}")
+    dist = V.string(raw["dist"], f"{field_name}.dist", tuple(_DISTS))
+    extra = set(raw) - _DISTS[dist] - {"dist"}
     if extra:
-        raise ValidationError(field_name, f"unknown key(s) {sorted(extra)} for dist={dist!r}")
-
-    def num(k, default=None):
+        raise ValidationError(f"{field_name}.{sorted(extra)[0]}", f"unknown key for dist={dist!r}; "
+                                                                 f"known: {', '.join(sorted(_DISTS[dist])) or 'none'}")
+    for k in sorted(_REQUIRED.get(dist, ())):
         if k not in raw:
-            if default is None:
-                raise ValidationError(f"{field_name}.{k}", "required")
-            return default
-        try:
-            return float(raw[k])
-        except (TypeError, ValueError):
-            raise ValidationError(f"{field_name}.{k}", f"must be a number, got {raw[k]!r}") from None
-
+            raise ValidationError(f"{field_name}.{k}", f"required for dist={dist!r}")
+    shape = prm.shape
+    if dist == "so3" and shape != (3, 3):
+        raise ValidationError(f"{field_name}.dist", f"dist='so3' needs a 3x3 parameter; {prm.name} has shape {shape}")
+    if dist in ("sphere", "ball", "cap") and shape != (3,):
+        raise ValidationError(f"{field_name}.dist", f"dist={dist!r} needs a 3-vector parameter; {prm.name} has shape {shape}")
+    a: dict[str, Any] = {"dist": dist}
     if dist == "uniform":
-        lo, hi = num("low"), num("high")
-        if not hi >= lo:
-            raise ValidationError(field_name, f"high ({hi}) must be >= low ({lo})")
-        return rng.uniform(lo, hi, size=(n, *shape))
+        a["low"] = V.number(raw["low"], f"{field_name}.low")
+        a["high"] = V.number(raw["high"], f"{field_name}.high")
+        if not a["high"] >= a["low"]:
+            raise ValidationError(f"{field_name}.high", f"must be >= low ({a['low']}), got {a['high']}")
+        # the draws are finite only if the width is: high - low overflows for |bounds| near 1.8e308
+        if not np.isfinite(a["high"] - a["low"]):
+            raise ValidationError(f"{field_name}.high", "high - low overflows")
+    elif dist == "normal":
+        a["mean"] = V.number(raw["mean"], f"{field_name}.mean")
+        a["std"] = V.number(raw["std"], f"{field_name}.std", lo=0.0, hi=1e300)
+    elif dist == "ball":
+        a["radius"] = V.number(raw["radius"], f"{field_name}.radius", lo=0.0, hi=1e300)
+        a["center"] = np.array(V.numbers(raw.get("center", [0.0, 0.0, 0.0]), f"{field_name}.center", length=3))
+    elif dist == "cap":
+        a["half_angle"] = V.number(raw["half_angle"], f"{field_name}.half_angle", lo=0.0, hi=float(np.pi))
+        c = raw["center"]
+        if isinstance(c, str):
+            if c not in fixed:
+                raise ValidationError(f"{field_name}.center", f"{c!r} is not a parameter; give a unit 3-vector or "
+                                                              "the name of a fixed 3-vector parameter")
+            if c in varied:
+                raise ValidationError(f"{field_name}.center", f"{c!r} is swept or sampled; the cap needs one fixed center")
+            c = fixed[c]
+        else:
+            c = np.array(V.numbers(c, f"{field_name}.center", length=3))
+        c = np.asarray(c, dtype=float)
+        if c.shape != (3,) or not np.isclose(np.linalg.norm(c), 1, atol=1e-6):
+            raise ValidationError(f"{field_name}.center", "must be a unit 3-vector or the name of one")
+        a["center"] = _unit(c)
+    return a
+
+
+def _sample(a: Mapping[str, Any], prm: Param, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``n`` values of ``prm`` from the checked distribution ``a`` (see :func:`_sample_args`)."""
+    dist, shape = a["dist"], prm.shape
+    if dist == "uniform":
+        return rng.uniform(a["low"], a["high"], size=(n, *shape))
     if dist == "normal":
-        std = num("std")
-        if std < 0:
-            raise ValidationError(f"{field_name}.std", "must be >= 0")
-        return num("mean") + std * rng.standard_normal((n, *shape))
+        return a["mean"] + a["std"] * rng.standard_normal((n, *shape))
     if dist == "so3":
-        if shape != (3, 3):
-            raise ValidationError(field_name, f"dist='so3' needs a 3x3 parameter; {prm.name} has shape {shape}")
         from scipy.spatial.transform import Rotation
 
         return Rotation.random(n, random_state=rng).as_matrix()
-    if shape != (3,):
-        raise ValidationError(field_name, f"dist={dist!r} needs a 3-vector parameter; {prm.name} has shape {shape}")
     if dist == "sphere":
         return _unit(rng.standard_normal((n, 3)))
     if dist == "ball":
-        radius = num("radius")
-        center = np.asarray(raw.get("center", [0, 0, 0]), dtype=float)
-        if center.shape != (3,):
-            raise ValidationError(f"{field_name}.center", "must be 3 numbers")
         d = _unit(rng.standard_normal((n, 3)))
-        rad = radius * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3)
-        return center + rad * d
+        rad = a["radius"] * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3)
+        return a["center"] + rad * d
     # cap: uniform on {x : angle(x, c) <= h}; cos(angle) uniform on [cos h, 1] (Archimedes)
-    h = num("half_angle")
-    if not 0 <= h <= np.pi:
-        raise ValidationError(f"{field_name}.half_angle", f"must be in [0, pi], got {h}")
-    c = raw.get("center")
-    if isinstance(c, str):
-        if c not in fixed:
-            raise ValidationError(f"{field_name}.center", f"{c!r} must name a fixed (not swept) 3-vector parameter")
-        c = fixed[c]
-    c = np.asarray(c, dtype=float)
-    if c.shape != (3,) or not np.isclose(np.linalg.norm(c), 1, atol=1e-6):
-        raise ValidationError(f"{field_name}.center", "must be a unit 3-vector or the name of one")
-    c = _unit(c)
+    h, c = a["half_angle"], a["center"]
     z = rng.uniform(np.cos(h), 1.0, size=n)
     phi = rng.uniform(0, 2 * np.pi, size=n)
-    a = np.array([1.0, 0, 0]) if abs(c[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = _unit(np.cross(c, a))
+    e = np.array([1.0, 0, 0]) if abs(c[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = _unit(np.cross(c, e))
     e2 = np.cross(c, e1)
     rho = np.sqrt(np.maximum(1 - z * z, 0))
     return z[:, None] * c + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
 
 
 def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str | Path | None = None) -> Plan:
-    """Validate a spec dict and resolve it into a :class:`Plan` (nothing is integrated).
+    """Validate a spec dict field by field and resolve it into a :class:`Plan` (nothing is integrated).
 
     ``spec["system"]`` may be a name, ``"file.py:Class"`` (relative to ``base_dir``: the spec
     file's folder when loaded by :func:`load_spec`, else the working directory), ``"module:Class"``,
     or a System class/instance (:mod:`stabjax.models`).
+
+    Every check that can fail runs before any array of the plan's size is built: the sizes of the
+    grid axes and of the sample are checked (points per axis, trajectories in all, memory of the
+    values) first.
     """
+    V.table(spec, "spec")
     spec = dict(spec)
     base_dir = spec.pop("__base_dir__", None) if base_dir is None else base_dir
     spec.pop("__base_dir__", None)
@@ -293,64 +342,103 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         raise ValidationError(sorted(unknown)[0], f"unknown top-level key; known: {', '.join(sorted(TOP_KEYS))}")
     if "system" not in spec:
         raise ValidationError("system", "missing (e.g. system = \"monoaxial\")")
-    system = resolve_system(spec["system"], base_dir)
-    spec["system"] = system_ref(spec["system"])
+    ref = spec["system"] if not isinstance(spec["system"], str) else V.string(spec["system"], "system")
+    system = resolve_system(ref, base_dir)
+    spec["system"] = system_ref(ref)
     src = getattr(type(system), "_stabjax_source", None)
     if src is not None:  # a model file: record where it was found, so the plan can be rebuilt anywhere
         spec["system"] = f"{src}:{type(system).__name__}"
-    for table in ("params", "grid", "sample", "integrate", "verdict"):
-        if table in spec and not isinstance(spec[table], Mapping):
-            raise ValidationError(table, "must be a table")
-    fixed = system.params.resolve(spec.get("params", {}))
-    # validate fixed values alone first: errors point at [params] rather than at a grid point
-    fixed = {k: np.asarray(v) for k, v in system.check({k: v.copy() for k, v in fixed.items()}).items()}
+    name = V.string(spec.get("name", "sweep"), "name")
+    if not _NAME.match(name):
+        raise ValidationError("name", f"{name!r}: must be a file stem (it names the output results/<name>.nc): "
+                                      "no '/' or '\\', not starting with '.', '-' or a space, at most 128 characters")
+    if "description" in spec:
+        V.string(spec["description"], "description")
+    for table in ("params", "grid", "sample", "integrate", "verdict", "run"):
+        if table in spec:
+            V.table(spec[table], table)
+    given = dict(spec.get("params") or {})
+    try:
+        fixed = system.params.resolve(given)
+        # validate fixed values alone first: errors point at [params] rather than at a grid point
+        fixed = {k: np.asarray(v) for k, v in system.check({k: v.copy() for k, v in fixed.items()}).items()}
+    except ValidationError as exc:
+        if exc.field in given or exc.field not in system.params.by_name:
+            raise ValidationError(f"params.{exc.field}", exc.message) from None
+        raise
+
+    # sizes first, from the spec alone: nothing of the plan's size is allocated before they pass
+    grid_spec = dict(spec.get("grid") or {})
+    sample_spec = dict(spec.get("sample") or {})
+    sizes = [_axis_size(key, raw) for key, raw in grid_spec.items()]
+    n_sample = 0
+    if sample_spec:
+        if "n" not in sample_spec:
+            raise ValidationError("sample.n", "required: number of random draws")
+        n_sample = V.integer(sample_spec.pop("n"), "sample.n", lo=1, hi=MAX_AXIS_POINTS)
+        sizes.append(n_sample)
+    total = math.prod(sizes)
+    where = "grid" if grid_spec else "sample.n"
+    if total > MAX_TRAJECTORIES:
+        raise ValidationError(where, f"{' x '.join(map(str, sizes))} = {total:.3g} trajectories: too many to index "
+                                     f"(at most 2^53 = {MAX_TRAJECTORIES:.3g}); split the sweep")
+    # the results of every trajectory are held at the end (sweep.choose_batch_size repeats this check
+    # against its own memory limit); refused here too, so that no sample of that size is drawn first
+    V.check_allocation(where, total * RESULT_BYTES_PER_TRAJECTORY, f"the results of {total:,} trajectories")
 
     grid: list[Axis] = []
-    seen = set()
-    for key, raw in (spec.get("grid") or {}).items():
+    seen: dict[str, list] = {}  # parameter name -> [(entry index or None, key)] of the axes sweeping it
+    for (key, raw), size in zip(grid_spec.items(), sizes):
         m = _ENTRY.match(key)
         pname, index = (m.group(1), tuple(int(i) for i in m.group(2).split(","))) if m else (key, None)
-        try:
-            prm = system.params[pname]
-        except ValidationError:
+        if pname not in system.params.by_name:
             raise ValidationError(f"grid.{key}", f"unknown parameter {pname!r} of {system.name}; known: "
-                                  f"{', '.join(p.name for p in system.params)}") from None
+                                  f"{', '.join(p.name for p in system.params)}")
+        prm = system.params[pname]
         if index is not None:
             if len(index) != len(prm.shape) or any(i >= s for i, s in zip(index, prm.shape)):
                 raise ValidationError(f"grid.{key}", f"index {index} out of range for shape {prm.shape}")
-        if (pname, index) in seen or (pname, None) in seen:
-            raise ValidationError(f"grid.{key}", "parameter swept twice")
-        seen.add((pname, index))
+        prev = seen.setdefault(pname, [])
+        for pidx, pkey in prev:  # whole parameter and one entry (either order), or one entry twice
+            if index is None or pidx is None or pidx == index:
+                raise ValidationError(f"grid.{key}", f"parameter {pname!r} is already swept by grid.{pkey}")
+        prev.append((index, key))
+        V.check_allocation(f"grid.{key}", size * 8 * (1 if index is not None else prm.size), "the axis values")
         vals, log = _axis_values(key, raw, prm, index)
         name = pname if index is None else pname + "_" + "_".join(map(str, index))
         grid.append(Axis(key, name, prm, index, vals, log))
 
-    sample_spec = dict(spec.get("sample") or {})
-    n_sample, sample = 0, {}
-    if sample_spec:
-        try:
-            n_sample = int(sample_spec.pop("n"))
-        except KeyError:
-            raise ValidationError("sample.n", "required: number of random draws") from None
-        if n_sample < 1:
-            raise ValidationError("sample.n", f"must be >= 1, got {n_sample}")
-        seed = int(sample_spec.pop("seed", 0))
-        rng = np.random.default_rng(seed)
+    sample = {}
+    if n_sample:
+        seed = V.integer(sample_spec.pop("seed", 0), "sample.seed", lo=0, hi=2**128 - 1)
+        if not sample_spec:
+            raise ValidationError("sample", "no parameter to sample (add e.g. s0 = {dist = \"sphere\"})")
+        varied = {a.param.name for a in grid} | set(sample_spec)
+        checked = {}
         for key, raw in sample_spec.items():
-            try:
-                prm = system.params[key]
-            except ValidationError:
-                raise ValidationError(f"sample.{key}", f"unknown parameter of {system.name}") from None
+            if key not in system.params.by_name:
+                raise ValidationError(f"sample.{key}", f"unknown parameter of {system.name}; known: "
+                                                       f"{', '.join(p.name for p in system.params)}")
+            prm = system.params[key]
             if any(a.param.name == key for a in grid):
                 raise ValidationError(f"sample.{key}", "is also a grid axis")
-            sample[key] = _sample(key, raw, prm, n_sample, rng, fixed)
-        if not sample:
-            raise ValidationError("sample", "no parameter to sample (add e.g. s0 = {dist = \"sphere\"})")
+            checked[key] = _sample_args(key, raw, prm, fixed, varied - {key})
+            V.check_allocation(f"sample.{key}", n_sample * 8 * prm.size, "the sampled values")
+        rng = np.random.default_rng(seed)
+        for key, a in checked.items():
+            sample[key] = _sample(a, system.params[key], n_sample, rng)
 
     icfg = IntegrateConfig.from_dict(spec.get("integrate"), default_t1=system.default_t1)
     if t1 is not None:
-        icfg = icfg.replace(t1=float(t1))
-        icfg.validate()
+        t1 = V.number(t1, "--t1")
+        icfg = icfg.replace(t1=t1)
+        # the override is part of what runs: recorded in the spec, hence in the fingerprint (a resume
+        # or a replaced result at another horizon is then a different sweep, not mixed in)
+        spec["integrate"] = {**dict(spec.get("integrate") or {}), "t1": t1}
+        try:
+            icfg.validate()
+        except ValidationError as exc:
+            raise ValidationError("--t1", exc.message) from None
     vcfg = verdict_config(system, spec.get("verdict"))
     decl = system.outcomes
     if "outcomes" in spec:
@@ -361,7 +449,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         decl.check(system, where="outcomes", escape=escape)
         outcomes = scheme(system, decl, escape)
         vcfg = vcfg.replace(features=True, feature_from=icfg.t0 + (1.0 - decl.window) * (icfg.t1 - icfg.t0))
-    plan = Plan(system=system, name=str(spec.get("name", "sweep")), spec=spec, fixed=fixed, grid=grid,
+    plan = Plan(system=system, name=name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
                 model_sha256=model_fingerprint(system))
     return plan

@@ -7,6 +7,7 @@ diffrax through ``stabjax.engine.simulate``.
 """
 from __future__ import annotations
 
+import math
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -250,8 +251,41 @@ def test_equilibrium_is_the_target_motion(name):
 
 
 def test_target_motion_stays_put():
-    ds = simulate("saakyan_gravity", dict(init=1.0, rho=0.0, w_ratio=0.0), t1=50.0, ts=np.linspace(0, 50, 11))
-    assert ds["error"].values.max() < 1e-10
+    """Started on the target motion (rho = 0), the error metric stays within what the solver's
+    tolerances allow -- a bound derived in tests/tolerances.py, not a machine's rounding:
+
+    The start is the equilibrium y* up to rounding of a few flops (|dy0| <= 10 eps |y*|). Every
+    accepted step adds a local error of norm <= sqrt(6) (atol + rtol max|y|); both are carried to
+    t by the linearised flow exp(A t), A = d rhs/dy at y* (autonomous: no program), whose growth
+    kappa = max_t ||exp(A t)||_2 is computed here. The metric angle(S, H0) + |w1|/lam is, to first
+    order in the deviation, |dS_perp| + |dw|/lam <= sqrt(1 + 1/lam^2) |dy| (factor 1.01 for the
+    second-order terms at deviations < 1e-6). On the exact equilibrium every stage derivative is
+    rounding noise, so the controller grows the step until the explicit method's instability at
+    large h lam_max(A) amplifies that noise up to the tolerance: the metric then sits at tolerance
+    level, with a size set by the rounding seed (1.1e-11 in 5 steps with AVX-512, 1.4e-10 in 17
+    steps with XLA_FLAGS=--xla_cpu_max_isa=AVX2). n_steps is the run's own count, so the bound
+    holds on either.
+    """
+    import jax
+    import jax.numpy as jnp
+    from tolerances import flow_growth, global_error_bound
+
+    t1, rtol, atol = 50.0, 1e-10, 1e-12
+    ds = simulate("saakyan_gravity", dict(init=1.0, rho=0.0, w_ratio=0.0), t1=t1, ts=np.linspace(0, t1, 11),
+                  rtol=rtol, atol=atol)
+    s = get_system("saakyan_gravity")
+    pj = {k: jnp.asarray(v) for k, v in s.check(s.params.resolve(dict(init=1.0, rho=0.0, w_ratio=0.0))).items()}
+    a = s.prepare(pj)
+    y_star = s.equilibrium(pj)
+    A = np.asarray(jax.jacfwd(s.rhs, argnums=1)(0.0, y_star, a))
+    kappa = flow_growth(A, t1)
+    y_max = float(np.abs(np.asarray(y_star)).max())
+    lam = float(a["lam"])
+    state_err = (global_error_bound(int(ds.attrs["n_steps"]), 6, rtol, atol, y_max, kappa)
+                 + kappa * 10 * np.finfo(float).eps * np.linalg.norm(np.asarray(y_star)))
+    bound = 1.01 * math.sqrt(1 + 1 / lam**2) * state_err
+    assert bound < 1e-7  # still a sharp test: any error in the closed loop moves it by O(1)
+    assert ds["error"].values.max() <= bound
 
 
 def test_shell_initial_condition_has_the_requested_size():
