@@ -55,7 +55,7 @@ import xarray as xr
 
 from . import verdict as V
 from .errors import StabjaxError, ValidationError
-from .params import _eval_number
+from .params import eval_number as _eval_number
 from .spec import Plan, load_spec, make_plan
 
 REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "max_points")
