@@ -803,7 +803,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
             jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64)), jnp.ones((1,), bool)))
-        out = {k: jnp.zeros((M,), s.dtype) for k, s in summ_shape.items()}
+        out = {k: jnp.zeros((M, *s.shape[1:]), s.dtype) for k, s in summ_shape.items()}  # trailing dims (INTERFACES 2)
         for k in ("n_steps", "n_rejected", "solver_status"):
             out[k] = jnp.zeros((M,), jnp.int32)
         if with_state:

@@ -25,6 +25,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from . import verdict as V
 from .engine import IntegrateConfig, verdict_config
 from .errors import ValidationError
 from .params import Param, parse_value
@@ -306,7 +307,16 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None) -> Plan:
     if t1 is not None:
         icfg = IntegrateConfig(**{**icfg.__dict__, "t1": float(t1)})
         icfg.validate()
-    vcfg = verdict_config(system, spec.get("verdict"))
+    vtab = dict(spec.get("verdict") or {})
+    for k in ("t0", "t1", "n_obs"):
+        if k in vtab:
+            raise ValidationError(f"verdict.{k}", "is set from [integrate] and the system, not in [verdict]")
+    horizons = vtab.pop("horizons", None)
+    if horizons is not None and not isinstance(horizons, (list, tuple)):
+        raise ValidationError("verdict.horizons", f"must be a list of times, got {horizons!r}")
+    vcfg = verdict_config(system, vtab)
+    # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
+    vcfg = V.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=len(system.observables))
     plan = Plan(system=system, name=str(spec.get("name", "sweep")), spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg)
     return plan
