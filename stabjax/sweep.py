@@ -386,7 +386,7 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
          "transition": (("short", "long"), table),
          **({"verdict_horizons": (("traj", "horizon"), new_all)} if new_all.ndim == 2 else {})},
         coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES),
-                **({"horizon": long_v.horizons} if new_all.ndim == 2 else {})},
+                **({"horizon": ("horizon", np.asarray(long_v.horizons))} if new_all.ndim == 2 else {})},
     )
     out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, n_changed=int((old != new).sum()), n_checked=int(n))
     return out
