@@ -31,11 +31,12 @@ def test_single_early_flip_converges_and_recurrent_flips_do_not():
 
 @pytest.mark.slow
 def test_alpha_one_third_is_undecided_once_the_flips_stop():
-    """alpha = 1/3 flips until t ~ 3.4e4 (that excursion peaks at ~1.58 rad, just past pi/2), then
-    makes shrinking sub-pi/2 excursions (~5.8e4, 9.1e4, ..., 1.9e5): flipped at 2e4 and 2e5 (a flip
-    in the last decade each time), undecided at 4e5 with the trend reported."""
-    ds = sweep([1 / 3], 4e5, [2e4, 2e5], n_checkpoints=8000)
+    """alpha = 1/3 flips until t ~ 1.8e4 or 3.4e4 (that excursion peaks at ~1.57-1.58 rad, on pi/2
+    itself, so whether the checkpoints see it past pi/2 depends on the grid), then makes shrinking
+    sub-pi/2 excursions (~5.8e4, 9.1e4, ..., 1.9e5): flipped at 2e4 (a flip in its last decade),
+    undecided at 4e5, with the trend reported."""
+    ds = sweep([1 / 3], 4e5, [2e4], n_checkpoints=8000)
     v = ds.verdict.values[0]
-    assert list(v) == [V.FLIPPED, V.FLIPPED, V.UNDECIDED]
-    assert 3e4 < ds.t_last_flip.values[0, -1] < 4e4
+    assert list(v) == [V.FLIPPED, V.UNDECIDED]
+    assert 1.5e4 < ds.t_last_flip.values[0, -1] < 4e4
     assert ds.peak_ratio.values[0, -1] < 1 and ds.t_last_excursion.values[0, -1] > 1e5
