@@ -105,7 +105,7 @@ def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
             br = horizon_boundaries(full.isel(horizon=[j]), dims[0])[float(T)]
             for i, (a, b) in enumerate(br):
                 mid = np.sqrt(a * b) if log.get(dims[0]) else 0.5 * (a + b)
-                ax.axvline(mid, color=col, lw=1.3, ls="--", ymax=0.92 - 0.06 * j)
+                ax.axvline(mid, color=col, lw=1.3, ls="--", ymax=0.92 - 0.06 * j, label=lab if i == 0 else None)
                 ax.axvspan(a, b, ymin=0.92 - 0.06 * j - 0.03, ymax=0.92 - 0.06 * j, color=col, alpha=0.5, lw=0)
             if br:
                 handles.append(Line2D([], [], color=col, lw=1.3, ls="--", label=lab + " (bracket)"))
@@ -276,7 +276,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 if sel.any():
                     ax.scatter(x[sel], np.maximum(yv[sel], 1e-16), color=V.COLORS[i], label=name, s=36, zorder=3)
             ax.set_yscale("log")
-            ax.set_ylabel(ds[metric].attrs.get("long_name", metric))
+            ax.set_ylabel(f"{metric} at t1" if "horizon" in full.dims else metric)
         if margin is not None:
             for i, xc in enumerate(_zero_crossings(x, margin.values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)

@@ -60,7 +60,8 @@ Paper A's example (monoaxial, mu = 3/2, sigma = 4/3, the paper's initial conditi
 ~0.45 the body flips once at t ~ 70 after settling and then converges; that run is FLIPPED at
 horizons T < ~700 (the flip is in the last decade), UNDECIDED while the error is still above
 converged_tol, and CONVERGED beyond. For alpha = 1/3 flips recur at t ~ 3e2, 2e3, 8e3, 2e4, 3.4e4
-with shrinking peaks: FLIPPED at every horizon up to ~3.4e5, then UNDECIDED while the (shrinking,
+with shrinking peaks (the one at 3.4e4 peaks on pi/2 itself): FLIPPED at every horizon up to
+~2e5-3.4e5, then UNDECIDED while the (shrinking,
 sub-pi/2) excursions go on.
 
 Engine contract: ``update`` is traced by JAX and evaluated lane-wise by the native (C) and fused
