@@ -179,6 +179,9 @@ def bind(cfg: VerdictConfig, t0: float, t1: float, *, horizons=None, n_obs: int 
     if not 0 < cfg.feature_window <= 1:
         raise ValidationError("verdict.feature_window", f"must be in (0, 1], got {cfg.feature_window}")
     n = int(cfg.n_obs if n_obs is None else n_obs)
+    if cfg.features and n > MAX_FEATURE_OBS:
+        raise ValidationError("verdict.features", f"features of at most {MAX_FEATURE_OBS} observables, "
+                              f"the system has {n}")
     return cfg.replace(t0=t0, t1=t1, horizons=tuple(float(h) for h in hs), n_obs=n,
                        features=bool(cfg.features))
 
