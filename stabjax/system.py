@@ -63,6 +63,9 @@ class VerdictConfig:
                     is noise; not used against convergence, nor in the decay fit
     late_decades    the late window of a horizon T is the last ``late_decades`` decades of it in
                     log-time: t - t0 >= (T - t0) 10^-late_decades (horizon-independent shape)
+    converge_decades  the error must stay below converged_tol (and not grow) over the last this many
+                    decades of the horizon in log-time (after settling); half a decade: a decay crosses
+                    converged_tol once, recurrent bumps are the excursion rules' business (a decade)
     shrink_ratio    two successive excursion peaks with peak_last >= shrink_ratio * peak_prev
                     "do not shrink" (recurrent instability: never converged)
     fit_decades     the decay exponent is fitted over this many decades (log-time, multiple of
@@ -86,6 +89,7 @@ class VerdictConfig:
     growth_tol: float = 0.5
     floor_tol: float = 1e-6
     late_decades: float = 1.0
+    converge_decades: float = 0.5
     shrink_ratio: float = 1.0
     fit_decades: float = 1.0
     fit_min_points: float = 8

@@ -22,8 +22,12 @@ Running statistics (per horizon, over t <= T):
   start time and peak; the peaks of the last two (their ratio is the **trend**), the start times of
   the last two (their ratio q in log-time is the observed **recurrence ratio**), the last time above
   ``excursion_tol``; flips (excursions past ``flip_tol`` = pi/2): count, first and last time;
-* late window ``t - t0 >= (T - t0) 10^-late_decades`` (default: the last decade): largest error and
-  the least-squares log-log slope of the error there (growth test);
+* late window ``t - t0 >= (T - t0) 10^-late_decades`` (default: the last decade): the least-squares
+  log-log slope of the error there (growth test); flips and excursions are judged against it;
+* convergence window ``t - t0 >= (T - t0) 10^-converge_decades`` (default: the last half decade):
+  largest error after settling there (the approach before the first settling is the initial
+  transient). Half a decade because a decay crosses converged_tol once; recurrent bumps are what
+  the excursion rules (a decade, and the recurrence ratio) are for;
 * decay law: sums for a least-squares fit of log e against log(t - t0) in half-decade bins, using
   only settled checkpoints whose error is above the noise floor ``floor_tol`` (and below
   ``settle_tol``). The fit for horizon T uses the last ``fit_decades`` (default 1) decade of bins
@@ -44,14 +48,15 @@ Verdict rules at horizon T (first match wins), thresholds in :class:`stabjax.sys
               last decade** of the horizon (t - t0 > (T - t0)/10), whatever T is; or the last two
               excursion peaks **do not shrink** (peak_last >= shrink_ratio * peak_prev) and one of
               them passed flip_tol -- a recurrent instability, wherever the flips happened.
-4. CONVERGED  settled; excursion peaks shrinking (or fewer than two); **quiet since the last
+4. CONVERGED  settled for at least converge_decades in log-time (T - t0 >= 10^converge_decades
+              (t_settle - t0)); excursion peaks shrinking (or fewer than two); **quiet since the last
               excursion** for at least max(10^late_decades, q^2) times its time in log-time:
               T - t0 >= max(10, q^2) (t_last_excursion_end - t0), q = ratio of the start times of
               the last two excursions (a geometric recurrence with ratio q would have shown its next
               excursion by q (t_last - t0); the square leaves room for the gaps to keep growing);
-              the error below converged_tol throughout the late window and not growing there (slope
-              <= 0) unless the late window is all below floor_tol (the noise floor, where the slope
-              is noise).
+              the error below converged_tol throughout the convergence window and not growing over the
+              late window (slope <= 0) unless the convergence window is all below floor_tol (the
+              noise floor, where the slope is noise).
 5. UNDECIDED  everything else: shrinking excursions still present late (trend in ``peak_ratio``,
               time in ``t_last_excursion``), non-shrinking excursions below pi/2, a single flip
               followed by less than a decade of quiet, or a slow decay above converged_tol at T.
@@ -102,7 +107,7 @@ SUMMARY_DOC = {
     "verdict": "at each horizon T: 0 converged, 1 flipped, 2 diverged, 3 undecided, 4 failed",
     "error_t1": "error metric at the horizon (last checkpoint <= T)",
     "error_max_settled": "largest error after settling, up to T (NaN if never settled)",
-    "error_max_late": "largest error in the late window of T (last late_decades decades in log-time)",
+    "error_max_late": "largest error after settling over the last converge_decades (1/2) of T in log-time",
     "t_settle": "first checkpoint time with error < settle_tol (NaN if never up to T)",
     "t_first_flip": "first time after settling the error passed flip_tol (NaN if never up to T)",
     "t_last_flip": "last time after settling the error was above flip_tol (NaN if never up to T)",
@@ -315,7 +320,10 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
 
     out["passed"] = _put(c["passed"], n_h, c["passed"][:n_h] | ((u >= Uh * (1 - _TOL)) & fin_now))
     late = active & (u >= Uh * 10.0 ** (-cfg.late_decades))
-    out["max_late"] = _put(c["max_late"], n_h, jnp.where(late, jnp.maximum(c["max_late"][:n_h], ek),
+    # converged_tol test: the last converge_decades of T, after settling (the approach before the first
+    # settling is the initial transient; the growth fit below keeps it: never-settled runs are judged by it)
+    late_settled = active & (u >= Uh * 10.0 ** (-cfg.converge_decades)) & new["settled"]
+    out["max_late"] = _put(c["max_late"], n_h, jnp.where(late_settled, jnp.maximum(c["max_late"][:n_h], ek),
                                                           c["max_late"][:n_h]))
     # logs relative to the span keep the least-squares sums well conditioned
     lx = jnp.log(jnp.maximum(u / span, 1e-300))
@@ -390,6 +398,8 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     q = jnp.where(two, (g["t_start_last"] - t0) / u_prev, nan)
     need = jnp.maximum(10.0 ** cfg.late_decades, jnp.where(two, q * q, 1.0)) * (g["t_exc_end"] - t0)
     quiet = (n_exc == 0) | (Uh >= need * (1 - _TOL))
+    # settled for at least half a decade in log-time (the late window excludes the approach before it)
+    long_settled = Uh >= 10.0 ** cfg.converge_decades * (g["t_settle"] - t0) * (1 - _TOL)
     max_late = g["max_late"]
 
     diverged = ~settled & (slope > cfg.growth_tol) & (e1 < cfg.flip_tol)
@@ -399,8 +409,8 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     # the final error alone: in paper A the body returns to ~1e-12 between excursions, so the
     # whole late window must stay below converged_tol.
     not_growing = jnp.isnan(slope) | (slope <= 0.0) | (max_late < cfg.floor_tol)
-    converged = (settled & quiet & ~not_shrinking & (max_late > -jnp.inf) & (max_late < cfg.converged_tol)
-                 & not_growing)
+    converged = (settled & long_settled & quiet & ~not_shrinking & (max_late > -jnp.inf)
+                 & (max_late < cfg.converged_tol) & not_growing)
     rest = jnp.where(diverged, DIVERGED, jnp.where(flipped, FLIPPED, jnp.where(converged, CONVERGED, UNDECIDED)))
     verdict = resolve(rest, failed, g["size_max"], cfg)
 

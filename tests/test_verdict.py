@@ -287,3 +287,14 @@ def test_bad_horizons_are_refused():
         V.bind(CFG, 0.0, 1e4, horizons=[2e4])
     with pytest.raises(ValidationError, match="verdict.horizons"):
         V.bind(CFG, 0.0, 1e4, horizons=list(range(1, 10)))
+
+
+def test_slow_approach_from_inverted_start_is_the_transient():
+    """Leaving the inverted position takes until t ~ 40 of T = 300 (exponential convergence after):
+    the approach is not part of the late window, converged; settling at 0.5 T is too little
+    evidence (less than half a decade settled): undecided."""
+    ts = np.linspace(0.0, 300.0, 400)
+    for t_s, want in ((40.0, V.CONVERGED), (150.0, V.UNDECIDED)):
+        e = np.where(ts < t_s, 3.1 * (1 - ts / (t_s + 1.0)) + 0.09, 0.09 * np.exp(-(ts - t_s) / 5.0))
+        r = run(e, ts=ts)
+        assert r["verdict"] == want and r["n_excursions"] == 0, t_s
