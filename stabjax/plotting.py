@@ -136,7 +136,8 @@ def confusion(ds: xr.Dataset) -> dict:
 
 
 def converged_fraction(ds: xr.Dataset):
-    """Fraction converged over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    """Fraction converged (at t1) over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    ds = at_t1(ds)
     conv = (ds["verdict"] == V.CONVERGED).astype(float)
     n = ds.sizes["sample"]
     p = conv.mean("sample")
