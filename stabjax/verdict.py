@@ -72,9 +72,10 @@ sub-pi/2) excursions go on.
 Engine contract: ``update`` is traced by JAX and evaluated lane-wise by the native (C) and fused
 (XLA) engines, so it uses elementwise operations, comparisons, selects and static slices only;
 the horizons and bin edges are compile-time constants of a bound :class:`VerdictConfig`
-(:func:`bind`, called when a plan is made). The carry has fixed capacities (``MAX_HORIZONS``
-horizons, ``N_BINS`` decay bins, ``MAX_FEATURE_OBS`` observables with features) so that
-``init(dtype)`` needs no configuration; slots beyond the configured horizons are carried unchanged.
+(:func:`bind`, called when a plan is made). ``init(dtype)`` gives a state of fixed capacities
+(``MAX_HORIZONS`` horizons, ``N_BINS`` decay bins, ``MAX_FEATURE_OBS`` observables with features)
+that fits every config (slots beyond the configured horizons are carried unchanged);
+``init(dtype, cfg)`` a state sized to ``cfg``, which costs the engines less per checkpoint.
 An unbound config (``t1 is None``) assumes t0 = 0 and takes t1 from ``t_late`` (which
 :func:`late_start` sets to t1).
 """
@@ -214,8 +215,12 @@ def late_start(cfg: VerdictConfig, t0, t1):
     return t1
 
 
-def _frame(cfg: VerdictConfig, span=None):
-    """(t0, span, U (MAX_HORIZONS,) horizon offsets from t0, n_h, bin lower/upper edges (N_BINS,)).
+def _n_horizons(cfg: VerdictConfig) -> int:
+    return len(cfg.horizons) if cfg.t1 is not None else int(cfg.n_horizon_decades) + 1
+
+
+def _frame(cfg: VerdictConfig, span=None, cap: int = MAX_HORIZONS):
+    """(t0, span, U (cap,) horizon offsets from t0, n_h, bin lower/upper edges (N_BINS,)).
     Constants (NumPy) for a bound config; for an unbound one, from ``span`` (t1 - t0, t0 = 0)."""
     if cfg.t1 is not None:
         t0 = float(cfg.t0)
@@ -228,7 +233,9 @@ def _frame(cfg: VerdictConfig, span=None):
         xp = np if isinstance(span, (float, int, np.floating)) else jnp
         u = span * xp.asarray(10.0 ** (-k))
     n_h = int(u.shape[0])
-    u = xp.concatenate([u, xp.full((MAX_HORIZONS - n_h,), 1.0) * span]) if n_h < MAX_HORIZONS else u
+    if n_h > cap:
+        raise ValueError(f"the classifier state holds {cap} horizons, the config has {n_h}")
+    u = xp.concatenate([u, xp.full((cap - n_h,), 1.0) * span]) if n_h < cap else u
     j = np.arange(N_BINS, dtype=float)
     lo = span * (10.0 ** ((j - N_BINS) / BINS_PER_DECADE))
     hi = span * (10.0 ** ((j + 1 - N_BINS) / BINS_PER_DECADE))
@@ -243,21 +250,30 @@ _RUN = ("settled", "t_settle", "in_exc", "peak", "peak_prev", "peak_last", "n_ex
         "e_last", "size_max")
 
 
-def init(dtype=jnp.float64):
+def init(dtype=jnp.float64, cfg: VerdictConfig | None = None, n_obs: int | None = None):
     """Running state of the classifier before the first checkpoint (one trajectory).
 
     The classifier is a fold over the checkpoints: ``init`` -> ``update`` per checkpoint ->
     ``finalize``. :func:`classify` runs the fold with ``lax.scan`` over saved observables; the
     native and fused engines run the same ``update`` inside their step loops, so every engine
-    applies exactly the same rules. Fixed capacities: see the module docstring.
+    applies exactly the same rules.
+
+    ``init(dtype)``: fixed capacities (``MAX_HORIZONS`` horizons, ``MAX_FEATURE_OBS`` observables
+    with features), right for every config. ``init(dtype, cfg)``: a state sized to ``cfg`` (its
+    horizons; features only if enabled), which ``update``/``finalize`` recognise from its shapes;
+    the engines' per-checkpoint cost grows with the size of this state (it is read and written
+    at every checkpoint), so engines should pass ``cfg``.
     """
-    H = MAX_HORIZONS
+    H = MAX_HORIZONS if cfg is None else _n_horizons(cfg)
+    F = MAX_FEATURE_OBS
+    if cfg is not None:
+        F = min(int(n_obs or cfg.n_obs or MAX_FEATURE_OBS), MAX_FEATURE_OBS) if cfg.features else 0
 
     def f(v):
         return jnp.full((H,), v, dtype)
 
     false, zero = jnp.zeros((H,), bool), jnp.zeros((H,), jnp.int32)
-    feat = jnp.stack([jnp.full((MAX_FEATURE_OBS,), v, dtype) for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])
+    feat = jnp.stack([jnp.full((F,), v, dtype) for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])
     return dict(
         settled=false, t_settle=f(jnp.nan), in_exc=false, peak=f(0.0), peak_prev=f(jnp.nan), peak_last=f(jnp.nan),
         n_exc=zero, exc_flipped=false, n_flips=zero, t_first_flip=f(jnp.nan), t_last_flip=f(jnp.nan),
@@ -305,7 +321,7 @@ def _put(x, n, head):
 
 def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     """Fold one checkpoint ``(t, obs_k)`` (obs_k: (n_obs,); 0 error, 1 size) into the state ``c``."""
-    t0, span, U, n_h, lo, hi = _frame(cfg, t_late)
+    t0, span, U, n_h, lo, hi = _frame(cfg, t_late, c["peak"].shape[0])
     dtype = c["peak"].dtype
     u = t - t0
     ek = obs_k[0]
@@ -339,8 +355,9 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     wb = (in_bin & fit_ok).astype(dtype)
     out["dfit"] = c["dfit"] + wb[:, None] * jnp.stack([jnp.ones_like(lx), lx, ly, lx * lx, lx * ly, ly * ly])[None, :]
 
-    if cfg.features:
-        m = min(int(obs_k.shape[0]), MAX_FEATURE_OBS)
+    F = c["feat"].shape[1]
+    if cfg.features and F > 0:
+        m = min(int(obs_k.shape[0]), F)
         o = obs_k[:m].astype(dtype)
         inw = (u >= span * (1.0 - cfg.feature_window)).astype(dtype)
         fe = c["feat"]
@@ -348,7 +365,7 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
                 jnp.where(inw > 0, jnp.minimum(fe[1, :m], o), fe[1, :m]),
                 fe[2, :m] + inw * o, fe[3, :m] + inw * o * o, fe[4, :m] + inw, o]
         head = jnp.stack(rows)
-        out["feat"] = head if m == MAX_FEATURE_OBS else jnp.concatenate([head, fe[:, m:]], axis=1)
+        out["feat"] = head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
     else:
         out["feat"] = c["feat"]
     out["span"] = jnp.asarray(span, dtype) + jnp.zeros_like(c["span"])
@@ -377,7 +394,7 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
     dtype = c["peak"].dtype
     nan = jnp.asarray(jnp.nan, dtype)
     span_c = c["span"]
-    t0, span, U, n_h, lo, hi = _frame(cfg, None if cfg.t1 is not None else span_c)
+    t0, span, U, n_h, lo, hi = _frame(cfg, None if cfg.t1 is not None else span_c, c["peak"].shape[0])
     Uh = jnp.asarray(U[:n_h], dtype)
     g = {k: c[k][:n_h] for k in (*_RUN, "passed", "max_late")}
     settled, e1, n_exc = g["settled"], g["e_last"], g["n_exc"]
@@ -459,9 +476,9 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
         decay_reason=reason,
         size_max=g["size_max"],
     )
-    if cfg.features:
-        m = int(cfg.n_obs) if cfg.n_obs else MAX_FEATURE_OBS
-        m = min(m, MAX_FEATURE_OBS)
+    F = c["feat"].shape[1]
+    if cfg.features and F > 0:
+        m = min(int(cfg.n_obs) if cfg.n_obs else F, F)
         fe = c["feat"][:, :m]
         cnt = fe[4]
         mean = fe[2] / jnp.where(cnt > 0, cnt, 1.0)
@@ -488,7 +505,7 @@ def classify(ts: jnp.ndarray, obs: jnp.ndarray, solver_ok: jnp.ndarray, cfg: Ver
         t, ok = x
         return update(c, t, ok, cfg, t_late), None
 
-    c, _ = jax.lax.scan(step, init(obs.dtype), (ts, obs))
+    c, _ = jax.lax.scan(step, init(obs.dtype, cfg, int(obs.shape[-1])), (ts, obs))
     return finalize(c, solver_ok, cfg)
 
 
