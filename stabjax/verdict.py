@@ -273,14 +273,16 @@ def init(dtype=jnp.float64, cfg: VerdictConfig | None = None, n_obs: int | None 
         return jnp.full((H,), v, dtype)
 
     false, zero = jnp.zeros((H,), bool), jnp.zeros((H,), jnp.int32)
-    feat = jnp.stack([jnp.full((F,), v, dtype) for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])
+    # no zero-size leaves (the fused engine's row layout has no room for them): no features, no entry
+    feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
+                                                 for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
     return dict(
         settled=false, t_settle=f(jnp.nan), in_exc=false, peak=f(0.0), peak_prev=f(jnp.nan), peak_last=f(jnp.nan),
         n_exc=zero, exc_flipped=false, n_flips=zero, t_first_flip=f(jnp.nan), t_last_flip=f(jnp.nan),
         t_start_last=f(jnp.nan), t_start_prev=f(jnp.nan), t_exc_end=f(jnp.nan), max_settled=f(-jnp.inf),
         finite=jnp.ones((H,), bool), e_last=f(jnp.inf), size_max=f(-jnp.inf),
         passed=false, max_late=f(-jnp.inf), growth=jnp.zeros((H, 5), dtype),
-        dfit=jnp.zeros((N_BINS, 6), dtype), feat=feat, span=jnp.asarray(jnp.nan, dtype),
+        dfit=jnp.zeros((N_BINS, 6), dtype), span=jnp.asarray(jnp.nan, dtype), **feat,
     )
 
 
@@ -355,7 +357,7 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     wb = (in_bin & fit_ok).astype(dtype)
     out["dfit"] = c["dfit"] + wb[:, None] * jnp.stack([jnp.ones_like(lx), lx, ly, lx * lx, lx * ly, ly * ly])[None, :]
 
-    F = c["feat"].shape[1]
+    F = c["feat"].shape[1] if "feat" in c else 0
     if cfg.features and F > 0:
         m = min(int(obs_k.shape[0]), F)
         o = obs_k[:m].astype(dtype)
@@ -366,7 +368,7 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
                 fe[2, :m] + inw * o, fe[3, :m] + inw * o * o, fe[4, :m] + inw, o]
         head = jnp.stack(rows)
         out["feat"] = head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
-    else:
+    elif F > 0:
         out["feat"] = c["feat"]
     out["span"] = jnp.asarray(span, dtype) + jnp.zeros_like(c["span"])
     return out
@@ -476,7 +478,7 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
         decay_reason=reason,
         size_max=g["size_max"],
     )
-    F = c["feat"].shape[1]
+    F = c["feat"].shape[1] if "feat" in c else 0
     if cfg.features and F > 0:
         m = min(int(cfg.n_obs) if cfg.n_obs else F, F)
         fe = c["feat"][:, :m]

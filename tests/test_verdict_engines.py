@@ -47,3 +47,18 @@ def test_native_equals_diffrax_at_every_horizon(ref):
 
 def test_fused_equals_diffrax_at_every_horizon(ref):
     _check(fast.solve(SYS, params(), ICFG, VCFG, lanes=4), ref)
+
+
+def test_observable_features_in_every_engine():
+    """INTERFACES 4: feat_* per observable over the feature window, the same in every engine."""
+    cfg = VCFG.replace(features=True)
+    p = {k: v[:4] for k, v in params().items()}
+    ref = _solve_diffrax(SYS, p, ICFG, cfg)
+    assert ref["feat_max"].shape == (4, len(SYS.observables))
+    assert np.all(ref["feat_min"] <= ref["feat_mean"]) and np.all(ref["feat_mean"] <= ref["feat_max"])
+    runs = [fast.solve(SYS, p, ICFG, cfg, lanes=4)]
+    if native.available():
+        runs.append(native.solve(SYS, p, ICFG, cfg, threads=1))
+    for out in runs:
+        for k in ("feat_max", "feat_min", "feat_mean", "feat_std", "feat_final"):
+            np.testing.assert_allclose(out[k], ref[k], rtol=1e-5, atol=1e-9, err_msg=k)
