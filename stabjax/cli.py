@@ -245,7 +245,7 @@ def horizon_check_cmd(
     if "horizon" in ds.dims and not as_json:
         for j, T in enumerate(ds["horizon"].values):
             c = V.counts(ds["verdict"].isel(horizon=j).values)
-            console.print(f"in the dataset, T = {T:<10.4g} " + "  ".join(f"{k} {v}" for k, v in c.items()))
+            console.print(f"dataset, T = {T:<9.3g}" + " ".join(f"{k[:4]} {v:<6d}" for k, v in c.items()))
     hc = horizon_check(ds, factor=factor, n=n, seed=seed)
     if as_json:
         console.print_json(json.dumps(_jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
