@@ -214,9 +214,17 @@ def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
             "traj_steps_per_s": steps / tr.wall, "peak_rss_mb": _peak_rss_mb(), "batch_size": batch,
             "threads_or_lanes": (native.default_threads() if plan.engine == "native"
                                  else min(fused.default_lanes(), batch)),
-            "verdicts": {k: int((ds["verdict"].values == i).sum()) for i, k in enumerate(
+            "verdicts": {k: int((_at_t1(ds["verdict"]).values == i).sum()) for i, k in enumerate(
                 ("converged", "flipped", "diverged", "undecided", "failed"))},
-            "_verdict": ds["verdict"].values.ravel()}
+            "_verdict": _at_t1(ds["verdict"]).values.ravel()}
+
+
+def _at_t1(v):
+    """Verdicts at t1 (the last horizon) of a DataArray or (N, n_horizons) array."""
+    if hasattr(v, "dims"):
+        return v.isel(horizon=-1) if "horizon" in v.dims else v
+    v = np.asarray(v)
+    return v[:, -1] if v.ndim == 2 else v
 
 
 def _diffrax_baseline_fn(t1: float, solver: str = "Tsit5"):
@@ -336,9 +344,9 @@ def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, 
     nat = native.solve(s, psub, icfg, s.verdict, with_state=True) if native.available() else fused
     ref = diffrax_engine.solve(s, psub, icfg, s.verdict)
     out["verdict_check_n"] = int(len(sub))
-    out["verdicts_equal_native_vs_diffrax_engine"] = int((nat["verdict"] == ref["verdict"]).sum())
-    out["verdicts_equal_fused_vs_diffrax_engine"] = int((fused["verdict"] == ref["verdict"]).sum())
-    out["verdicts_equal_run_spec_vs_diffrax_engine"] = int((stab["_verdict"][sub] == ref["verdict"]).sum())
+    out["verdicts_equal_native_vs_diffrax_engine"] = int((_at_t1(nat["verdict"]) == _at_t1(ref["verdict"])).sum())
+    out["verdicts_equal_fused_vs_diffrax_engine"] = int((_at_t1(fused["verdict"]) == _at_t1(ref["verdict"])).sum())
+    out["verdicts_equal_run_spec_vs_diffrax_engine"] = int((stab["_verdict"][sub] == _at_t1(ref["verdict"])).sum())
     if dfx is not None:
         for name, res in (("native", nat), ("fused", fused)):
             d = np.abs(res["state_t1"] - dfx["_state"][sub]).max(axis=1)

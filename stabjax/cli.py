@@ -453,7 +453,10 @@ def horizon_check_cmd(
     seed: int = typer.Option(0),
     as_json: bool = typer.Option(False, "--json"),
 ):
-    """Re-run a random subset at a longer horizon and report how many verdicts change."""
+    """Re-run a random subset at a longer horizon and report how many verdicts change.
+
+    The sweep's dataset already holds the verdicts at t1 and the decades below it (dim ``horizon``,
+    from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
     from . import validate
     from . import verdict as V
     from .sweep import horizon_check
@@ -461,7 +464,12 @@ def horizon_check_cmd(
     validate.number(factor, "--factor", lo=1.0, lo_open=True)
     validate.integer(n, "--n", lo=1)
     validate.integer(seed, "--seed", lo=0)
-    hc = horizon_check(_open_result_file(file), factor=factor, n=n, seed=seed)
+    ds = _open_result_file(file)
+    if "horizon" in ds.dims and not as_json:
+        for j, T in enumerate(ds["horizon"].values):
+            c = V.counts(ds["verdict"].isel(horizon=j).values)
+            console.print(f"dataset, T = {T:<9.3g}" + " ".join(f"{k[:4]} {v:<6d}" for k, v in c.items()))
+    hc = horizon_check(ds, factor=factor, n=n, seed=seed)
     if as_json:
         console.print_json(json.dumps(_jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
                                                   "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],

@@ -32,18 +32,36 @@ STATUS_ESCAPED = 100  # an accepted state left the ball max_i |y_i| <= escape_ra
 
 @dataclass(frozen=True)
 class VerdictConfig:
-    """Thresholds of the excursion classifier (:mod:`stabjax.verdict`). All angles in radians.
+    """Thresholds and windows of the excursion classifier (:mod:`stabjax.verdict`). Angles in radians.
 
     settle_tol      error below which the trajectory counts as settled near the target
     excursion_tol   after settling, a run of checkpoints with error above this is an excursion
                     (default acos(0.9): the paper-A analysis counts s.r < 0.9)
     flip_tol        an excursion whose peak passes this has flipped (pi/2: closer to -r than to r)
-    converged_tol   error at t1 (and throughout the late window) must be below this to converge
-    late_fraction   the late window is t >= t0 + (1 - late_fraction) (t1 - t0)
+    converged_tol   the error throughout the late window must be below this to converge
+    late_fraction   (unused by the generic classifier since the log-time windows; kept for
+                    system-specific classifiers, e.g. the gyrodyne's linear late window)
     diverge_size    observable 1 (size) above this -> diverged
     growth_tol      late log-log slope of the error above this (error growing) -> diverged
-    floor_tol       late-window errors all below this are at the solver's noise floor (~rtol):
-                    their log-log trend is noise and is not used against convergence
+    floor_tol       errors below this are at the solver's noise floor (~rtol): their log-log trend
+                    is noise; not used against convergence, nor in the decay fit
+    late_decades    the late window of a horizon T is the last ``late_decades`` decades of it in
+                    log-time: t - t0 >= (T - t0) 10^-late_decades (horizon-independent shape)
+    converge_decades  the error must stay below converged_tol (and not grow) over the last this many
+                    decades of the horizon in log-time (after settling); half a decade: a decay crosses
+                    converged_tol once, recurrent bumps are the excursion rules' business (a decade)
+    shrink_ratio    two successive excursion peaks with peak_last >= shrink_ratio * peak_prev
+                    "do not shrink" (recurrent instability: never converged)
+    fit_decades     the decay exponent is fitted over this many decades (log-time, multiple of
+                    1/2) ending at the last checkpoint above floor_tol
+    fit_min_points  fewer points above the noise floor in that tail -> decay exponent NaN
+    horizons        times at which verdicts are also given (prefixes of the same run); () = t1 and
+                    the ``n_horizon_decades`` decades below it. :func:`stabjax.verdict.bind` fixes
+                    them (with t0, t1) when a plan is made; the last horizon is always t1
+    n_horizon_decades  default horizons: t0 + (t1 - t0) 10^-k, k = n_horizon_decades .. 0
+    features        also return feat_max/min/mean/std/final of each observable (INTERFACES 4)
+    feature_window  features over t >= t0 + (1 - feature_window)(t1 - t0)
+    t0, t1, n_obs   bound by :func:`stabjax.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
     """
 
     settle_tol: float = 0.1
@@ -54,8 +72,18 @@ class VerdictConfig:
     diverge_size: float = 1e6
     growth_tol: float = 0.5
     floor_tol: float = 1e-6
-    features: bool = False  # also fold late-window statistics of every observable (named outcomes)
-    feature_from: float = 0.0  # ... over the checkpoints with t >= feature_from (set by the plan)
+    late_decades: float = 1.0
+    converge_decades: float = 0.5
+    shrink_ratio: float = 1.0
+    fit_decades: float = 1.0
+    fit_min_points: float = 8
+    horizons: tuple = ()
+    n_horizon_decades: float = 3
+    features: float = False
+    feature_window: float = 0.5
+    t0: float | None = None
+    t1: float | None = None
+    n_obs: int = 0
 
     def replace(self, **kw) -> "VerdictConfig":
         return replace(self, **kw)

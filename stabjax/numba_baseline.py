@@ -16,7 +16,7 @@ Model (``stabjax/systems/monoaxial.py``): with s_hat = s/|s| if normalize else s
     J w' = -w x Jw - D w - a |s_hat - r|^(mu-1) (s_hat x r) + b cos(omega0 t^alpha) |s_hat x r|^(sigma-1) (s_hat x r)
     s'   = -w x s
 
-Method, the same as diffrax's ``Dopri5`` + ``PIDController`` defaults (and ``stabjax.fast``):
+Method, the same as diffrax's ``Dopri5`` + ``PIDController`` defaults (and ``stabjax.engines.fused``):
 Dormand-Prince tableau with FSAL and diffrax's error weights; error norm RMS of
 err / (atol + rtol max(|y0|, |y1|)); I-controller, safety 0.9, factor in [0.2, 10], error
 order 5 (exponent -1/5), accepted steps never shrink (factor >= 1), rejected ones shrink by at

@@ -2,7 +2,9 @@
 
 The boundary is the zero contour of ``margin_<main>`` (the predicate the system names as
 "theory guarantees stability"); cells where the theory guarantees stability but the
-simulation flipped or diverged are the red flags and are marked with a cross.
+simulation flipped or diverged are the red flags and are marked with a cross. The map and
+the table are the verdicts at t1; a dataset with verdicts at several horizons (dim ``horizon``)
+also gets the empirical boundary of the converged region at each horizon drawn over it.
 """
 from __future__ import annotations
 
@@ -44,7 +46,70 @@ def axis_label(ds: xr.Dataset, dim: str) -> str:
 
 
 def grid_dims(ds: xr.Dataset) -> list[str]:
-    return [d for d in ds["verdict"].dims if d != "sample"]
+    return [d for d in ds["verdict"].dims if d not in ("sample", "horizon")]
+
+
+def at_t1(ds: xr.Dataset) -> xr.Dataset:
+    """The dataset at its last horizon (t1): variables with a ``horizon`` dim lose it."""
+    return ds.isel(horizon=-1) if "horizon" in ds.dims else ds
+
+
+def _converged_indicator(ds: xr.Dataset):
+    conv = (ds["verdict"] == V.CONVERGED).astype(float)
+    return conv.mean("sample") if "sample" in conv.dims else conv
+
+
+def horizon_boundaries(ds: xr.Dataset, dim: str | None = None) -> dict[float, list[tuple[float, float]]]:
+    """Brackets of the empirical boundary of the converged region along a 1-D grid, at each horizon.
+
+    Returns ``{T: [(lo, hi), ...]}``: adjacent grid values between which the verdict changes from
+    converged to not converged or back (with samples: the converged fraction crosses 1/2).
+    """
+    dims = grid_dims(ds)
+    dim = dim or dims[0]
+    hs = ds["horizon"].values if "horizon" in ds.dims else [None]
+    out = {}
+    for j, T in enumerate(hs):
+        sub = ds.isel(horizon=j) if T is not None else ds
+        c = _converged_indicator(sub)
+        other = [d for d in c.dims if d != dim]
+        if other:
+            c = c.mean(other)
+        x, v = sub[dim].values, c.values >= 0.5
+        key = float(T) if T is not None else float(_t1(ds))
+        out[key] = [(float(x[i]), float(x[i + 1])) for i in range(len(x) - 1) if v[i] != v[i + 1]]
+    return out
+
+
+_HCOLORS = ("#1d3557", "#457b9d", "#8338ec", "#ff006e", "#fb5607", "#3a86ff", "#06d6a0", "#000000")
+
+
+def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
+    """Empirical converged-region boundary at each horizon (dashed), over the t1 map."""
+    if "horizon" not in full.dims or full.sizes["horizon"] < 2:
+        return []
+    handles = []
+    hs = full["horizon"].values
+    for j, T in enumerate(hs):
+        col = _HCOLORS[j % len(_HCOLORS)]
+        c = _converged_indicator(full.isel(horizon=j))
+        lab = f"converged boundary at T = {T:.3g}"
+        if len(dims) == 2:
+            xd, yd = dims[1], dims[0]
+            m = c.transpose(yd, xd).values
+            if np.nanmin(m) < 0.5 < np.nanmax(m) and full.sizes[xd] > 1 and full.sizes[yd] > 1:
+                ax.contour(full[xd].values, full[yd].values, m, levels=[0.5], colors=[col], linewidths=1.4,
+                           linestyles="--")
+                handles.append(Line2D([], [], color=col, lw=1.4, ls="--", label=lab))
+        elif len(dims) == 1:
+            br = horizon_boundaries(full.isel(horizon=[j]), dims[0])[float(T)]
+            for i, (a, b) in enumerate(br):
+                mid = np.sqrt(a * b) if log.get(dims[0]) else 0.5 * (a + b)
+                ax.axvline(mid, color=col, lw=1.3, ls="--", ymax=0.92 - 0.06 * j, label=lab if i == 0 else None)
+                ax.axvspan(a, b, ymin=0.92 - 0.06 * j - 0.03, ymax=0.92 - 0.06 * j, color=col, alpha=0.5, lw=0)
+            if br:
+                handles.append(Line2D([], [], color=col, lw=1.3, ls="--", label=lab + " (bracket)"))
+    return handles
 
 
 def main_predicate(ds: xr.Dataset) -> str | None:
@@ -53,7 +118,8 @@ def main_predicate(ds: xr.Dataset) -> str | None:
 
 
 def confusion(ds: xr.Dataset) -> dict:
-    """Counts of (theory guarantees stability?) x (empirical verdict)."""
+    """Counts of (theory guarantees stability?) x (empirical verdict at t1)."""
+    ds = at_t1(ds)
     main = main_predicate(ds)
     v = ds["verdict"].values.ravel()
     out = {"columns": list(V.NAMES), "rows": {}}
@@ -70,7 +136,8 @@ def confusion(ds: xr.Dataset) -> dict:
 
 
 def converged_fraction(ds: xr.Dataset):
-    """Fraction converged over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    """Fraction converged (at t1) over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    ds = at_t1(ds)
     conv = (ds["verdict"] == V.CONVERGED).astype(float)
     n = ds.sizes["sample"]
     p = conv.mean("sample")
@@ -134,10 +201,12 @@ def _zero_crossings(x, m):
 
 
 def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
-    """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions)."""
+    """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions) at t1,
+    with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's."""
     dims = grid_dims(ds)
     if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
         return _facets(ds, dims, out)
+    full, ds = ds, at_t1(ds)
     main = main_predicate(ds)
     sampled = "sample" in ds["verdict"].dims
     own = ax is None
@@ -186,6 +255,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
             handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
                                  label=f"theory guarantees stability ({main})"))
+        handles += _draw_horizons(ax, full, dims, log)
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
         if cats[xd]:
@@ -218,7 +288,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 if sel.any():
                     ax.scatter(x[sel], np.maximum(yv[sel], 1e-16), color=V.COLORS[i], label=name, s=36, zorder=3)
             ax.set_yscale("log")
-            ax.set_ylabel(ds[metric].attrs.get("long_name", metric))
+            ax.set_ylabel(f"{metric} at t1" if "horizon" in full.dims else metric)
         if margin is not None:
             for i, xc in enumerate([] if cats[xd] else _zero_crossings(x, margin.values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
@@ -230,6 +300,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                     ax.axvspan(xi - 0.5, xi + 0.5, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
             elif okx.any():
                 ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
+        _draw_horizons(ax, full, dims, log)
         ax.set_xlabel(axis_label(ds, xd))
         if cats[xd]:
             category_axis(ax, "x", cats[xd], symbol(xd))
@@ -285,6 +356,7 @@ def _facets(ds: xr.Dataset, dims: list[str], out):
 
 def format_confusion(ds: xr.Dataset) -> str:
     """Plain-text table (also used by the CLI through rich)."""
+    full, ds = ds, at_t1(ds)
     c = confusion(ds)
     cols = c["columns"]
     w = max(len(r) for r in c["rows"]) + 2
@@ -305,4 +377,13 @@ def format_confusion(ds: xr.Dataset) -> str:
             for idx in range(flat_p.sizes["point"]):
                 where = ", ".join(f"{d}={flat_p[d].values[idx]:.4g}" for d in p.dims)
                 lines.append(f"  {where}: {float(flat_p[idx]):.3f} ± {float(flat_se[idx]):.3f}")
+    if "horizon" in full.dims:
+        lines.append("verdicts at each horizon T (prefixes of the same runs):")
+        for j, T in enumerate(full["horizon"].values):
+            cnt = V.counts(full["verdict"].isel(horizon=j).values)
+            lines.append(f"  T = {T:<10.4g}" + "".join(f"{cnt[k]:>11d}" for k in cols))
+        if len(grid_dims(full)) == 1:
+            for T, br in horizon_boundaries(full).items():
+                s = ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in br) or "none"
+                lines.append(f"  converged boundary brackets at T = {T:.4g}: {s}")
     return "\n".join(lines)

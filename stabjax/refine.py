@@ -109,30 +109,9 @@ def label_names(plan: Plan, label: str) -> tuple[str, ...]:
     return tuple(plan.outcomes.names)
 
 
-def horizon_times(plan: Plan) -> np.ndarray | None:
-    """The verdict horizons of the plan (ascending, last = t1), if it has several; else None.
-
-    Uses the verdict module's resolver when it has one (``horizon_times(vcfg, t0, t1)``: a default list of
-    horizons is resolved there), else the ``horizons`` field of the verdict config.
-    """
-    fn = getattr(V, "horizon_times", None)
-    hs = None
-    if callable(fn):
-        try:
-            hs = fn(plan.vcfg, plan.icfg.t0, plan.icfg.t1)
-        except TypeError:
-            hs = None
-    if hs is None:
-        hs = getattr(plan.vcfg, "horizons", None)
-    if hs is None:
-        return None
-    try:
-        hs = np.unique(np.asarray(list(hs), dtype=float))
-    except (TypeError, ValueError):
-        return None
-    t1 = plan.icfg.t1
-    hs = hs[hs < t1]
-    return np.append(hs, t1)
+def horizon_times(plan: Plan) -> np.ndarray:
+    """The verdict horizons of the plan (absolute times, ascending, last = t1)."""
+    return np.asarray(V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1), dtype=float)
 
 
 def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineConfig:

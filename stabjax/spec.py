@@ -28,6 +28,7 @@ import numpy as np
 
 from .config import IntegrateConfig, VerdictConfig, verdict_config
 from . import validate as V
+from . import verdict as VD
 from .errors import ValidationError
 from .params import Param, parse_value
 from .models import model_fingerprint, resolve as resolve_system
@@ -439,7 +440,14 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
             icfg.validate()
         except ValidationError as exc:
             raise ValidationError("--t1", exc.message) from None
-    vcfg = verdict_config(system, spec.get("verdict"))
+    vtab = dict(spec.get("verdict") or {})
+    for k in ("t0", "t1", "n_obs"):
+        if k in vtab:
+            raise ValidationError(f"verdict.{k}", "is set from [integrate] and the system, not in [verdict]")
+    horizons = vtab.pop("horizons", None)
+    if horizons is not None and not isinstance(horizons, (list, tuple)):
+        raise ValidationError("verdict.horizons", f"must be a list of times, got {horizons!r}")
+    vcfg = verdict_config(system, vtab)
     decl = system.outcomes
     if "outcomes" in spec:
         decl = Outcomes.from_spec(spec["outcomes"], base=decl)
@@ -448,7 +456,10 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         escape = (icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius) is not None
         decl.check(system, where="outcomes", escape=escape)
         outcomes = scheme(system, decl, escape)
-        vcfg = vcfg.replace(features=True, feature_from=icfg.t0 + (1.0 - decl.window) * (icfg.t1 - icfg.t0))
+        # the fold also keeps late-window statistics of every observable, for the outcome rules
+        vcfg = vcfg.replace(features=True, feature_window=float(decl.window))
+    # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
+    vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=len(system.observables))
     plan = Plan(system=system, name=name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
                 model_sha256=model_fingerprint(system))

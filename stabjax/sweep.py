@@ -345,17 +345,20 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
     results = dict(results)
     if "verdict" in results and "solver_status" in results:
         # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
-        esc = np.asarray(results["solver_status"]) == STATUS_ESCAPED
-        v = np.asarray(results["verdict"])
+        # (array operations only: in a big sweep these are dask arrays read lazily from the store)
+        esc = results["solver_status"] == STATUS_ESCAPED
+        v = results["verdict"]
         results["verdict"] = np.where(esc.reshape(esc.shape + (1,) * (v.ndim - 1)), V.DIVERGED, v).astype(v.dtype)
-    trailing = getattr(V, "TRAILING_DIMS", {})
     for k, v in results.items():
-        v = np.asarray(v)
-        extra = tuple(trailing.get(k, ("observable",) if k.startswith("feat_") else
-                                   tuple(f"{k}_dim{i}" for i in range(v.ndim - 1))))[: v.ndim - 1]
-        data[k] = ((*dims, *extra), v.reshape(*shape, *v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        # trailing dims (INTERFACES 2): e.g. verdicts at each horizon, features per observable
+        extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
+        extra += tuple(f"{k}_dim{i}" for i in range(len(extra), v.ndim - 1))
+        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        if "horizon" in extra and "horizon" not in coords:
+            coords["horizon"] = ("horizon", V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1),
+                                 {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
         if "observable" in extra and "observable" not in coords:
-            coords["observable"] = ("observable", np.array(plan.system.observables, dtype=object))
+            coords["observable"] = ("observable", list(plan.system.observables)[: v.shape[-1]])
     if "verdict" in data:
         data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
     if "solver_status" in results:
@@ -467,8 +470,12 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
                   batch_size: int | None = None) -> xr.Dataset:
     """Re-run a random subset of a finished sweep with ``t1 * factor``; return old/new verdicts.
 
-    The result has dim ``traj`` with the flat indices, ``verdict_short``/``verdict_long``, and
-    attrs ``n_changed`` and a confusion table.
+    A thin use of the multi-horizon classifier: the sweep's own dataset already holds verdicts at
+    t1 and the decades below it (dim ``horizon``); this extends the run *beyond* t1 for a subset,
+    with the old horizons kept (``verdict_horizons``: the re-run's verdicts at every horizon up to
+    t1 * factor). The result has dim ``traj`` with the flat indices, ``verdict_short`` (the
+    dataset's, at t1) / ``verdict_long`` (at t1 * factor), and attrs ``n_changed`` and a
+    confusion table.
     """
     spec = json.loads(ds.attrs["spec_json"])
     plan = make_plan(spec)
@@ -479,17 +486,22 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
     n = min(n, plan.size)
     idx = np.sort(rng.choice(plan.size, size=n, replace=False))
     long_cfg = icfg.replace(t1=icfg.t1 * factor)
-    plan_long = dataclasses.replace(plan, icfg=long_cfg)
+    hs = V.horizon_times(plan.vcfg, icfg.t0, icfg.t1)
+    long_v = V.bind(plan.vcfg, long_cfg.t0, long_cfg.t1, horizons=list(hs[-(V.MAX_HORIZONS - 1):]))
+    plan_long = dataclasses.replace(plan, icfg=long_cfg, vcfg=long_v, engine="")
     p = plan_long.system.check(plan_long.params_at(idx))
-    res = solve_batch(plan.system, p, long_cfg, plan.vcfg)
-    old = np.asarray(ds["verdict"].values).ravel()[idx]
-    new = res["verdict"]
+    res = solve_batch(plan.system, p, long_cfg, long_v)
+    old = np.asarray(V.at_t1(ds["verdict"]).values).ravel()[idx]
+    new_all = np.asarray(res["verdict"])
+    new = new_all[:, -1] if new_all.ndim == 2 else new_all
     table = np.zeros((len(V.NAMES), len(V.NAMES)), dtype=int)
     np.add.at(table, (old.astype(int), new.astype(int)), 1)
     out = xr.Dataset(
         {"verdict_short": ("traj", old), "verdict_long": ("traj", new),
-         "transition": (("short", "long"), table)},
-        coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES)},
+         "transition": (("short", "long"), table),
+         **({"verdict_horizons": (("traj", "horizon"), new_all)} if new_all.ndim == 2 else {})},
+        coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES),
+                **({"horizon": ("horizon", np.asarray(long_v.horizons))} if new_all.ndim == 2 else {})},
     )
     out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, n_changed=int((old != new).sum()), n_checked=int(n))
     return out

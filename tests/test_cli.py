@@ -41,7 +41,8 @@ def test_sweep_4x4_end_to_end(tmp_path, capsys):
     assert out.exists() and out.with_suffix(".png").stat().st_size > 10_000
     assert not Path(str(out) + ".zarr").exists()
     ds = open_result(out)
-    assert ds["verdict"].dims == ("alpha", "sigma") and ds["verdict"].shape == (4, 4)
+    assert ds["verdict"].dims == ("alpha", "sigma", "horizon") and ds["verdict"].shape == (4, 4, 4)
+    assert ds["horizon"].values[-1] == json.loads(ds.attrs["integrate_json"])["t1"]
     for var in ("verdict", "error_t1", "error_max_settled", "t_first_flip", "decay_exponent", "n_steps",
                 "solver_status", "theory_guaranteed", "margin_guaranteed", "theory_theorem1", "derived_alpha_crit"):
         assert var in ds, var

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from stabjax import verdict as V
 from stabjax.outcomes import FAILED_NAME, UNCLASSIFIED, Rule, min_template_spacing
 from stabjax.spec import load_spec, make_plan
 from stabjax.sweep import run_plan
@@ -107,8 +108,8 @@ def test_example_labels_match_scipy(name):
     plan = make_plan(spec)
     ds = run_plan(plan)
     names = ds["outcome"].attrs["flag_meanings"].split()
-    ts = plan.icfg.checkpoints()
-    t_from = plan.vcfg.feature_from
+    ts = V.checkpoint_times(plan.icfg.checkpoints(), plan.vcfg)  # the engines' checkpoints
+    t_from = plan.icfg.t0 + (1 - plan.vcfg.feature_window) * (plan.icfg.t1 - plan.icfg.t0)
     fixed = {k: float(v) for k, v in plan.fixed.items() if np.ndim(v) == 0}
     escape = plan.escape_radius
 

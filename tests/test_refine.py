@@ -90,7 +90,7 @@ def test_closed_form_labels(oscillator):
     plan = make_plan(spec({"k": [0.0, 1.0]}, {}, params={"c": C1}))
     k = np.array([0.0, C1 - 0.01, C1 - 2 * DELTA, C1 + 2 * DELTA, C1 + 0.01, 1.0])
     res = default_solver(plan)(point_params(plan, k[:, None]))
-    np.testing.assert_array_equal(res["verdict"], closed_form(k, C1))
+    np.testing.assert_array_equal(np.asarray(res["verdict"])[:, -1], closed_form(k, C1))  # at t1
 
 
 def test_bisection_1d_brackets_boundary(oscillator):
@@ -228,7 +228,8 @@ def test_dominant_label_and_horizon_column():
 
     cfg = RefineConfig(tol=(0.1,), levels=(1,), label="verdict", names=V.NAMES, pair=None, stable="converged",
                        horizon=100.0, max_points=10)
-    plan = SimpleNamespace(vcfg=SimpleNamespace(horizons=[10.0, 1.0]), icfg=SimpleNamespace(t1=100.0, t0=0.0))
+    plan = SimpleNamespace(vcfg=V.bind(VerdictConfig(), 0.0, 100.0, horizons=[10.0, 1.0]),
+                           icfg=SimpleNamespace(t1=100.0, t0=0.0))
     lab, share = _labels(plan, cfg, {"verdict": np.array([1, 1, 0, 3, 0, 3])}, 2)  # 2 points x 3 samples
     np.testing.assert_array_equal(lab, [1, 3])
     np.testing.assert_allclose(share, [2 / 3, 2 / 3])

@@ -78,7 +78,7 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
 @functools.lru_cache(maxsize=64)
 def _batch_fn(system, icfg: IntegrateConfig, vcfg):
     """Compiled ``params(B, ...) -> summaries(B)``; cached so each spec compiles once, not per chunk."""
-    ts = jnp.asarray(icfg.checkpoints())
+    ts = jnp.asarray(V.checkpoint_times(icfg.checkpoints(), vcfg))  # every horizon exactly
     classify = system.classify or V.classify
 
     def one(p):

@@ -96,7 +96,7 @@ class _Model:
         ex_args = jax.eval_shape(lambda pd: system.prepare(full(pd)), ex_pd)
         ex_t, ex_y = sds((), f64), sds((self.n_state,), f64)
         ex_obs = jax.eval_shape(system.observe, ex_t, ex_y, ex_args)
-        ex_c = jax.eval_shape(lambda: V.init(f64))
+        ex_c = jax.eval_shape(lambda: V.init(f64, vcfg))
         self.n_obs = int(np.prod(ex_obs.shape))
         self.args_spec = RowSpec(ex_args)
         self.c_spec = RowSpec(ex_c)
@@ -185,7 +185,7 @@ def _lincomb(base, h, coeffs, fs):
 def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray], dyn_shapes, with_state=False):
     """``(params (M, ...), one) -> summaries (M,)`` for one device (traced)."""
     slots = CHECKPOINT_SLOTS
-    ts_np = icfg.checkpoints()
+    ts_np = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
     K = len(ts_np)
     t0, t1 = float(icfg.t0), float(icfg.t1)
     t1_floor = t1_clip_floor(t1)
@@ -239,14 +239,14 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             h = initial_step(y, f, model.args_objs(args))
             tn = jnp.minimum(t0 + h, t1)
             tn = jnp.where(tn > t1_floor, t1, tn)
-            c0 = V.init(f64)
+            c0 = V.init(f64, vcfg)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
             return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi)
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
-            jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64)), jnp.ones((1,), bool)))
-        out = {k: jnp.zeros((M,), s.dtype) for k, s in summ_shape.items()}
+            jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64, vcfg)), jnp.ones((1,), bool)))
+        out = {k: jnp.zeros((M, *s.shape[1:]), s.dtype) for k, s in summ_shape.items()}  # trailing dims: horizons, observables
         for k in ("n_steps", "n_rejected", "solver_status"):
             out[k] = jnp.zeros((M,), jnp.int32)
         if with_state:

@@ -57,7 +57,7 @@ def _build(source: str) -> ctypes.CDLL:
 
 class _Kernel:
     def __init__(self, system, icfg, vcfg, static, dyn_shapes, width, eval_only=False):
-        ts = icfg.checkpoints()
+        ts = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
         self.ts = np.ascontiguousarray(ts, np.float64)
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
         self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late)

@@ -356,7 +356,7 @@ class NativeModel:
         ex_t, ex_y = sds((), f64), sds((self.n_state,), f64)
         ex_obs = jax.eval_shape(system.observe, ex_t, ex_y, ex_args)
         self.n_obs = int(np.prod(ex_obs.shape))
-        c0 = V.init(f64)
+        c0 = V.init(f64, vcfg)
         self.c_leaves, self.c_tree = jax.tree.flatten(c0)
         self.c_shapes = [(tuple(x.shape), np.dtype(x.dtype)) for x in self.c_leaves]
         self.n_c = sum(int(np.prod(s)) for s, _ in self.c_shapes)
