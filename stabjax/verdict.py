@@ -96,7 +96,7 @@ COLORS = ("#2a9d8f", "#e76f51", "#8d0801", "#e9c46a", "#6c757d")
 
 MAX_HORIZONS = 8
 BINS_PER_DECADE = 2
-N_BINS = 16  # half-decade bins of t - t0 over the 8 decades below t1 (decay fit)
+N_BINS = 10  # half-decade bins of t - t0 over the 5 decades below t1, where the engines' checkpoints start
 MAX_FEATURE_OBS = 8
 _TOL = 1e-9  # relative slack on horizon and bin edges (checkpoint times computed elsewhere)
 
