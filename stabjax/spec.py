@@ -161,7 +161,16 @@ def spec_json(spec: Mapping[str, Any]) -> str:
 
 
 def load_spec(path: str | Path) -> dict:
+    """A spec file; ``sweeps/NAME.toml`` not found here is the shipped spec NAME (an installed wheel
+    has no sweeps/ folder beside the working directory, so the README's commands still run)."""
     path = Path(path)
+    if not path.exists() and path.parent.name == "sweeps" and path.suffix == ".toml":
+        from importlib.resources import as_file, files
+
+        shipped = files("stabjax") / "sweeps" / path.name
+        if shipped.is_file():
+            with as_file(shipped) as p:
+                return load_spec(p)
     if not path.exists():
         raise ValidationError("spec", f"file not found: {path}")
     if path.is_dir():
