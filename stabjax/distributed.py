@@ -107,7 +107,8 @@ def worker_plan(payload: Mapping[str, Any]):
         # the native engine's threads per worker: an [integrate] setting that changes no result
         threads = {"threads": int(payload["threads"])} if payload.get("threads") else {}
         plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**{**payload["icfg"], **threads}),
-                       "vcfg": replace(plan.vcfg, **payload["vcfg"])})
+                       "vcfg": replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
+                                                     for k, v in payload["vcfg"].items()})})
         if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
             raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
                                f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "

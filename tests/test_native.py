@@ -224,7 +224,7 @@ def test_classifier_update_equals_jax():
     t_late = V.late_start(SYS.verdict, float(ICFG.t0), float(ICFG.t1))
     upd = jax.jit(lambda c, t, o: V.update(c, t, o, SYS.verdict, t_late))
     rng = np.random.default_rng(2)
-    c_tree, c_flat = V.init(jnp.float64), m.c0.copy()
+    c_tree, c_flat = V.init(jnp.float64, SYS.verdict), m.c0.copy()  # the engines' state: sized to the config
     ts = np.sort(rng.uniform(0, ICFG.t1, 200))
     for t in ts:  # a noisy error signal with excursions, flips and NaN-free values
         e = abs(rng.normal(0, 0.6)) if rng.random() < 0.3 else 10 ** rng.uniform(-9, -1)
