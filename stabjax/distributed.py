@@ -53,8 +53,13 @@ def cache_dir() -> Path:
 
 
 def _setup_process():
-    """Once per worker process: JAX's persistent compilation cache."""
+    """Once per worker process: the JAX settings of every entry point (float64) and JAX's persistent
+    compilation cache."""
     import jax
+
+    from .config import setup_jax
+
+    setup_jax()
 
     if not jax.config.jax_compilation_cache_dir:
         d = cache_dir() / "jax"
