@@ -315,6 +315,11 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         ax.bar(V.NAMES, fr, yerr=se, color=V.COLORS, capsize=4)
         ax.set_ylabel(f"fraction of {n} trajectories (± SE)")
     ax.set_title(_title(ds), fontsize=10)
+    return save(fig, out, own)
+
+
+def save(fig, out, own: bool = True):
+    """Write ``fig`` to ``out`` (folders made) if given; close it if this module made it."""
     if out is not None:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)

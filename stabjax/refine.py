@@ -813,13 +813,9 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
     t1 = json.loads(ds.attrs.get("integrate_json", "{}")).get("t1", float("nan"))
     ax.set_title(f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')} refined (horizon {ds.attrs['horizon']:g}"
                  f", t1 = {t1:g}; {ds.attrs['n_points']} of {ds.attrs['full_grid_points']} lattice points)", fontsize=9)
-    if out is not None:
-        out = Path(out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=110)
-        if own:
-            plt.close(fig)
-    return fig
+    from .plotting import save
+
+    return save(fig, out, own)
 
 
 def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot: bool = True, restart: bool = False,

@@ -60,6 +60,16 @@ class Engine:
 N_SUMMARY_FIELDS = 24
 
 
+def lane_engine_declines(engine: str, solver: str, system, icfg) -> str | None:
+    """Why a lane engine (native, fused: one explicit method, the generic classifier) cannot run
+    ``system`` with ``icfg``, or None."""
+    if icfg.solver != solver:
+        return f"solver {icfg.solver!r} (the {engine} engine runs {solver} only)"
+    if system.classify is not None:
+        return f"{system.name} has its own classify()"
+    return None
+
+
 def queued_bytes_per_trajectory(plan) -> int:
     """Native and fused engines: no per-checkpoint storage, only the parameters and the summaries
     of each queued trajectory (lane state lives in cache on CPU, on the device on a GPU)."""

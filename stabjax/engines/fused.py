@@ -50,7 +50,7 @@ from jax import lax
 
 from .. import verdict as V
 from ..config import STATUS_ESCAPED, STATUS_MAX_STEPS, STATUS_OK, escape_radius
-from .base import Engine, Unsupported, queued_bytes_per_trajectory
+from .base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from .lanes import (LaneFn, Lanes, NoRule, RowSpec, flat_rows, is_const, materialize, materializing, obj, obj0,
                     obj1, rows_to_objs)
 from .static import StaticParams, split_static
@@ -462,11 +462,7 @@ class FusedEngine(Engine):
     name = "fused"
 
     def supports(self, system, icfg) -> str | None:
-        if icfg.solver != SOLVER:
-            return f"solver {icfg.solver!r} (the fused engine runs {SOLVER} only)"
-        if system.classify is not None:
-            return f"{system.name} has its own classify()"
-        return None
+        return lane_engine_declines(self.name, SOLVER, system, icfg)
 
     def prepare(self, system, params, icfg, vcfg, static=None) -> None:
         super().prepare(system, params, icfg, vcfg, static)

@@ -32,7 +32,7 @@ import numpy as np
 
 from ... import verdict as V
 from ...config import STATUS_OK, STATUS_MAX_STEPS, escape_radius
-from ..base import Engine, Unsupported, queued_bytes_per_trajectory
+from ..base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from ..static import StaticParams, split_static
 from ..tsit5 import SOLVER, t1_clip_floor
 from .build import available, compile_library, compiler
@@ -237,10 +237,9 @@ class NativeEngine(Engine):
     name = "native"
 
     def supports(self, system, icfg) -> str | None:
-        if icfg.solver != SOLVER:
-            return f"solver {icfg.solver!r} (the native engine runs {SOLVER} only)"
-        if system.classify is not None:
-            return f"{system.name} has its own classify()"
+        reason = lane_engine_declines(self.name, SOLVER, system, icfg)
+        if reason is not None:
+            return reason
         if jax.default_backend() != "cpu":
             return f"the JAX backend is {jax.default_backend()}, not cpu"
         if not available():
