@@ -125,6 +125,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the figures")
     ap.add_argument("--model", type=Path, default=MODEL, help="the Duffing example's model file")
     a = ap.parse_args(argv)
+    from .config import setup_jax
+
+    setup_jax()
     res = {"door": door_cost(a.n, a.t1, a.rounds), "duffing": baselines(a.n, a.t1, model=a.model)}
     d, b = res["door"], res["duffing"]
     print(f"built-in monoaxial by name vs as a user reference module:Class (N = {d['n']}, t1 = {d['t1']:g}, {d['rounds']} rounds): "

@@ -189,8 +189,11 @@ def validate_system(system):
     import jax
     import jax.numpy as jnp
 
+    from .config import setup_jax
     from .params import ParamSet
     from .system import System
+
+    setup_jax()  # the check runs the model's JAX code: with the settings every entry point uses (float64)
 
     where = _where(system)
     if not isinstance(system, System):

@@ -999,6 +999,9 @@ def format_benchmark(r: Mapping[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
+    from .config import setup_jax
+
+    setup_jax()
     ap = argparse.ArgumentParser(prog="python -m stabjax.refine", description=__doc__.split("\n")[0])
     ap.add_argument("--bench", action="store_true", help="refinement vs the full lattice (the issue's benchmark)")
     ap.add_argument("--spec", default=str(BENCH_SPEC), help="spec with a [refine] section (default: %(default)s)")
