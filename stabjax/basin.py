@@ -44,7 +44,7 @@ def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | N
     if sch is None or sch.decl is None or not sch.decl.templates:
         return None
     from .engine import solve_batch
-    from .sweep import static_params
+    from .spec import static_params
 
     decl = sch.decl
     g = len(next(iter(base.values())))

@@ -475,6 +475,12 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     return plan
 
 
+def static_params(plan: Plan) -> list[str]:
+    """Parameters equal in every chunk of the plan (fixed, not swept, not sampled): compiled in as constants."""
+    varied = {ax.param.name for ax in plan.grid} | set(plan.sample)
+    return [k for k in plan.fixed if k not in varied]
+
+
 def check_plan(plan: Plan, chunk: int = 65536) -> None:
     """Validate every trajectory's parameters (vectorised, no integration), naming the axis at fault."""
     for start in range(0, plan.size, chunk):

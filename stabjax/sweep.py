@@ -28,7 +28,7 @@ from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import StabjaxError, ValidationError
 from .outcomes import STATUS_ESCAPED
-from .spec import Plan, check_plan, load_spec, make_plan
+from .spec import Plan, check_plan, load_spec, make_plan, static_params
 
 DEFAULT_MEMORY_FRACTION = 0.25
 
@@ -38,12 +38,6 @@ def _available_memory() -> int:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return 8 << 30
-
-
-def static_params(plan: Plan) -> list[str]:
-    """Parameters equal in every chunk of the plan (fixed, not swept, not sampled)."""
-    varied = {ax.param.name for ax in plan.grid} | set(plan.sample)
-    return [k for k in plan.fixed if k not in varied]
 
 
 def bytes_per_trajectory(plan: Plan) -> int:
