@@ -21,6 +21,9 @@ trajectory-steps per second, peak resident memory during the run, and agreement 
 verdicts of the native and fused engines and of run_spec against the diffrax engine, final
 states against the diffrax baseline and against SciPy. Also the machine, the load average and
 library versions. How the figures in docs/performance.md were measured is described there.
+
+Size (~500 lines): each named baseline (diffrax, SciPy, numba) is written here next to the engine it is
+compared with, so the benchmark reads as one experiment; the other suites are modules of their own.
 """
 from __future__ import annotations
 

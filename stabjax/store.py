@@ -19,6 +19,9 @@ The manifest's identity (spec, model source, command-line overrides, effective i
 verdict settings, stabjax version) is compared on every resume; any difference is refused with a
 message naming what changed. The manifest also records, per finished chunk, the engine that
 computed it, where, how long it took and its accepted step count.
+
+Size (~520 lines): the zarr layout, the manifest, the writer lock and the identity checks are one
+file format; they change together.
 """
 from __future__ import annotations
 

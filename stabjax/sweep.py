@@ -5,6 +5,9 @@ spec. With an output path, each finished chunk is written to a zarr store (``<ou
 :mod:`stabjax.store`) as it finishes; a killed sweep restarted with the same command continues
 from it, and a changed spec, model or command-line override is refused rather than silently
 mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`).
+
+Size (~550 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
+the one path from a plan to a dataset; the store itself and the Dask executor are modules of their own.
 """
 from __future__ import annotations
 

@@ -328,7 +328,7 @@ def _synthetic(inside):
 def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
     """Disk boundary (k - 0.5)^2 + (c - 0.5)^2 = 0.3^2 on a log c axis: the refinement finds exactly the
     boundary edges of the full lattice of the same resolution, and never evaluates a point twice."""
-    from stabjax.refine import Refiner, _fine_values, refine_config
+    from stabjax.refine import Refiner, fine_values, refine_config
     from stabjax.spec import make_plan
 
     inside = lambda p: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < 0.09
@@ -354,7 +354,7 @@ def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
 def test_benchmark_against_full_lattice(oscillator, tmp_path):
     """The benchmark's bookkeeping on the oscillator: the full lattice (1-D, 65 points) holds exactly one
     boundary edge, found by the refinement, with the same labels at the shared points; --full-from re-uses it."""
-    from stabjax.refine import benchmark, format_benchmark
+    from stabjax.refine_bench import benchmark, format_benchmark
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 64, "pair": ["converged", "*"]},
              params={"c": C1})
