@@ -64,7 +64,7 @@ def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | N
     def par(name):
         return np.asarray(params[name], float).reshape(n)
 
-    x = O._feature_matrix(decl, plan.system, feat, par)  # (T * P, F)
+    x = O.feature_matrix(decl, plan.system, feat, par)  # (T * P, F)
     ok = np.asarray(res["solver_status"]) == 0
     x = np.where(ok[:, None], x, np.nan)
     return x.reshape(len(names), g, -1).transpose(1, 0, 2)

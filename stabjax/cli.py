@@ -129,13 +129,13 @@ def _open_result_file(file: Path):
         raise ValidationError("file", f"{file} is not a netCDF sweep result ({type(exc).__name__})") from None
 
 
-def _jsonable(x: Any):
+def jsonable(x: Any):
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
+        return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return jsonable(x.tolist())
     if isinstance(x, (np.floating, float)):
         return None if not np.isfinite(x) else float(x)
     if isinstance(x, (np.integer,)):
@@ -176,7 +176,7 @@ def systems(
                 continue
             everything[nm] = _describe_system(sysm, lookup(nm))
     if as_json:
-        console.print_json(json.dumps(_jsonable(everything)))
+        console.print_json(json.dumps(jsonable(everything)))
         return
     for nm, info in everything.items():
         if not info["available"]:
@@ -252,7 +252,7 @@ def simulate(
     final["solver_ok"] = bool(ds.attrs["solver_ok"])
     final["n_steps"] = int(ds.attrs["n_steps"])
     if as_json:
-        console.print_json(json.dumps(_jsonable(final)))
+        console.print_json(json.dumps(jsonable(final)))
     else:
         t = Table(title=f"{system}: final state at t = {final['t']:g}")
         t.add_column("quantity")
@@ -287,7 +287,7 @@ def theory(
         "derived": {k: {"value": np.asarray(v), "meaning": th.derived_doc.get(k, "")} for k, v in th.derived.items()},
     }
     if as_json:
-        console.print_json(json.dumps(_jsonable(res)))
+        console.print_json(json.dumps(jsonable(res)))
         return
     t = Table(title=f"{system}: theorems at the given parameters")
     for col in ("predicate", "holds", "margin", "statement"):
@@ -474,7 +474,7 @@ def horizon_check_cmd(
             console.print(f"dataset, T = {T:<9.3g}" + " ".join(f"{k[:4]} {v:<6d}" for k, v in c.items()))
     hc = horizon_check(ds, factor=factor, n=n, seed=seed)
     if as_json:
-        console.print_json(json.dumps(_jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
+        console.print_json(json.dumps(jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
                                                   "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],
                                                   "transition": hc["transition"].values})))
         return

@@ -85,9 +85,9 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
     """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data)."""
     from dataclasses import asdict
 
-    from .spec import _jsonable
+    from .spec import jsonable
 
-    return {"spec": _jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
+    return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
             "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
             "model": model_fingerprint(plan.system), "threads": threads}
 

@@ -309,7 +309,7 @@ def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ..
     return feat
 
 
-def _feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
+def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
     obs = tuple(system.observables)
     scalars = tuple(p.name for p in system.params if not p.shape)
     cols = [Rule(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
@@ -343,7 +343,7 @@ def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params
         hit = np.broadcast_to(Rule(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
         code = np.where((code < 0) & hit, i, code)
     if decl.templates and template_features is not None:
-        x = _feature_matrix(decl, system, feat, par)  # (N, F)
+        x = feature_matrix(decl, system, feat, par)  # (N, F)
         d = np.linalg.norm(x[:, None, :] - template_features, axis=-1)  # (N, T)
         d = np.where(np.isfinite(d), d, np.inf)
         j = np.argmin(d, axis=1)

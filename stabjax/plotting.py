@@ -145,11 +145,11 @@ def converged_fraction(ds: xr.Dataset):
     return p, se
 
 
-def _cmap():
+def verdict_cmap():
     return ListedColormap(V.COLORS), BoundaryNorm(np.arange(-0.5, len(V.NAMES) + 0.5), len(V.NAMES))
 
 
-def _edges(x: np.ndarray, log: bool) -> np.ndarray:
+def cell_edges(x: np.ndarray, log: bool) -> np.ndarray:
     x = np.asarray(x, float)
     if len(x) == 1:
         return np.array([x[0] - 0.5, x[0] + 0.5]) if not log else np.array([x[0] / 1.5, x[0] * 1.5])
@@ -189,7 +189,7 @@ def _t1(ds):
         return float("nan")
 
 
-def _zero_crossings(x, m):
+def zero_crossings(x, m):
     x, m = np.asarray(x, float), np.asarray(m, float)
     out = []
     for i in range(len(x) - 1):
@@ -227,14 +227,14 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         x, y = (np.arange(len(x), dtype=float) if cats[xd] else x), (np.arange(len(y), dtype=float) if cats[yd] else y)
         if sampled:
             p, se = converged_fraction(ds)
-            mesh = ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), p.transpose(yd, xd).values, cmap="viridis",
+            mesh = ax.pcolormesh(cell_edges(x, log[xd]), cell_edges(y, log[yd]), p.transpose(yd, xd).values, cmap="viridis",
                                  vmin=0, vmax=1)
             fig.colorbar(mesh, ax=ax, label=f"fraction converged (n = {ds.sizes['sample']}, SE <= {float(se.max()):.2f})")
             handles = []
         else:
-            cmap, norm = _cmap()
+            cmap, norm = verdict_cmap()
             vv = ds["verdict"].transpose(yd, xd).values
-            ax.pcolormesh(_edges(x, log[xd]), _edges(y, log[yd]), vv, cmap=cmap, norm=norm)
+            ax.pcolormesh(cell_edges(x, log[xd]), cell_edges(y, log[yd]), vv, cmap=cmap, norm=norm)
             present = sorted(set(np.unique(vv).tolist()))
             handles = [Patch(color=V.COLORS[i], label=V.NAMES[i]) for i in present]
             if main:
@@ -250,7 +250,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
             ok = ds[f"theory_{main}"]
             ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
-            _hatch_cells(ax, _edges(x, log[xd]), _edges(y, log[yd]), ok)
+            _hatch_cells(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
             if not (cats[xd] or cats[yd]):
                 handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
             handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
@@ -290,7 +290,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ax.set_yscale("log")
             ax.set_ylabel(f"{metric} at t1" if "horizon" in full.dims else metric)
         if margin is not None:
-            for i, xc in enumerate([] if cats[xd] else _zero_crossings(x, margin.values)):
+            for i, xc in enumerate([] if cats[xd] else zero_crossings(x, margin.values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
             okx = ds[f"theory_{main}"].values.astype(bool)
             if sampled:

@@ -444,7 +444,7 @@ class Refiner:
         self.point_share.append(share)
 
     # -- cell geometry --------------------------------------------------------------------------
-    def _edges(self, lo, ext):
+    def cell_edges(self, lo, ext):
         """Label arrays along each edge of a cell (1-D: the interval itself), with their axis and origin."""
         if self.D == 1:
             return [(0, (lo[0],), self.lab[lo[0]: lo[0] + ext[0] + 1])]
@@ -454,7 +454,7 @@ class Refiner:
 
     def _straddles(self, lo, ext) -> bool:
         seen = set()
-        for _, _, e in self._edges(lo, ext):
+        for _, _, e in self.cell_edges(lo, ext):
             c = self.cls[e]
             seen.update(np.unique(c[c >= 0]).tolist())
             if len(seen) > 1:
@@ -520,7 +520,7 @@ class Refiner:
         consecutive evaluated points on a leaf's edge whose labels fall in different classes."""
         out = set()
         for lo, ext in self.leaves:
-            for a, origin, e in self._edges(lo, ext):
+            for a, origin, e in self.cell_edges(lo, ext):
                 known = np.nonzero(e >= 0)[0]
                 for u, w in zip(known[:-1], known[1:]):
                     cu, cw = self.cls[e[u]], self.cls[e[w]]
@@ -806,9 +806,9 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         for i, (lo, hi) in enumerate(zip(ds[f"{xd}_lo"].values, ds[f"{xd}_hi"].values)):
             ax.axvspan(min(lo, hi), max(lo, hi), color="0.6", alpha=0.5, label="bracketed boundary" if i == 0 else None)
         if "theory_margin" in ds:
-            from .plotting import _zero_crossings
+            from .plotting import zero_crossings
 
-            for i, xc in enumerate(_zero_crossings(ds[f"{xd}_theory"].values, ds["theory_margin"].values)):
+            for i, xc in enumerate(zero_crossings(ds[f"{xd}_theory"].values, ds["theory_margin"].values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
         ax.set_yticks(range(len(lnames)), lnames)
         ax.set_xlabel(symbol(xd) + unit(xd))

@@ -109,7 +109,7 @@ class Plan:
         from . import __version__
 
         # the model file's hash: a resumed sweep or re-plot notices an edited model; t1: a --t1 override
-        blob = json.dumps({"spec": _jsonable(self.spec), "system": self.system.name, "version": __version__,
+        blob = json.dumps({"spec": jsonable(self.spec), "system": self.system.name, "version": __version__,
                            "model": self.model_sha256, "t1": self.icfg.t1}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -135,11 +135,11 @@ class Plan:
         return out
 
 
-def _jsonable(x):
+def jsonable(x):
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
+        return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
         return x.tolist()
     return x
@@ -157,7 +157,7 @@ def system_ref(ref: Any) -> str:
 
 def spec_json(spec: Mapping[str, Any]) -> str:
     """The spec as results store it (attribute ``spec_json``): used to tell a result of the same spec."""
-    return json.dumps(_jsonable(spec))
+    return json.dumps(jsonable(spec))
 
 
 def load_spec(path: str | Path) -> dict:

@@ -405,7 +405,7 @@ def provenance(plan: Plan) -> dict[str, Any]:
         "system": plan.system.name,
         "sweep_name": plan.name,
         "paper": plan.system.paper,
-        "spec_json": json.dumps(_jsonable(plan.spec)),
+        "spec_json": json.dumps(jsonable(plan.spec)),
         "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
         "integrate_json": json.dumps(plan.icfg.__dict__),
         "verdict_json": json.dumps(plan.vcfg.__dict__),
@@ -429,8 +429,8 @@ def _model_file(plan) -> str:
     return str(f) if f is not None else ""
 
 
-def _jsonable(x):
-    from .spec import _jsonable as j
+def jsonable(x):
+    from .spec import jsonable as j
 
     return j(x)
 

@@ -10,7 +10,7 @@ import stabjax  # noqa: F401
 from stabjax import get_system
 from stabjax.engine import simulate
 from stabjax.systems import twobody_theory as tt
-from stabjax.systems.twobody import _rot, polar, rotation_angle
+from stabjax.systems.twobody import rotation_matrix, polar, rotation_angle
 
 NAMES = ["twobody_uniaxial", "twobody_triaxial", "twobody_uniaxial_rotating", "twobody_triaxial_rotating"]
 
@@ -56,7 +56,7 @@ def test_triaxial_frame_stays_orthonormal_and_polar_guards_torque():
     assert np.abs(t_exact - t_raw).max() > 1e-5  # without the polar copy the stretch would act as a torque
     # rotation angle of a known rotation, near 0 and near pi
     for ang in (1e-9, 0.3, np.pi - 1e-7):
-        assert abs(float(rotation_angle(jnp.asarray(_rot((1, 2, 3), ang)))) - ang) < 1e-12
+        assert abs(float(rotation_angle(jnp.asarray(rotation_matrix((1, 2, 3), ang)))) - ang) < 1e-12
 
 
 def test_uniaxial_unit_vector_norm_preserved():
@@ -113,7 +113,7 @@ def test_starts_near_unstable_equilibria_leave():
         vkey = "x0" if s.rotating else "w0"
         if s.triaxial:
             eqs = [S for _, S, lab in tt.equilibria_triaxial(np.eye(3)) if lab == "unstable"]
-            starts = [{"S0": (S @ _rot(rng.normal(size=3), 1e-3)).ravel().tolist()} for S in eqs]
+            starts = [{"S0": (S @ rotation_matrix(rng.normal(size=3), 1e-3)).ravel().tolist()} for S in eqs]
         else:
             v = np.array([0, 0, -1.0]) + 1e-3 * rng.normal(size=(2, 3))
             starts = [{"s0": (u / np.linalg.norm(u)).tolist()} for u in v]

@@ -140,11 +140,11 @@ def alpha_horizons(out_dir: Path, quick: bool = False) -> list[Path]:
     axs[0].set_title(r"$\sigma$ = 4/3, $\mu$ = 3/2 (Theorem 1: $\alpha$ > 2/3): verdicts at t1 = "
                      f"{ds.horizon.values[-1]:.0e}" + "\ndashed: converged boundary at each horizon T", fontsize=9)
     axs[0].legend(fontsize=7, loc="center right")
-    from ..plotting import _cmap, _edges
+    from ..plotting import verdict_cmap, cell_edges
 
-    cmap, norm = _cmap()
+    cmap, norm = verdict_cmap()
     a, h = ds.alpha.values, ds.horizon.values
-    axs[1].pcolormesh(_edges(a, False), _edges(h, True), ds.verdict.transpose("horizon", "alpha").values,
+    axs[1].pcolormesh(cell_edges(a, False), cell_edges(h, True), ds.verdict.transpose("horizon", "alpha").values,
                       cmap=cmap, norm=norm)
     axs[1].set_yscale("log")
     axs[1].axvline(2 / 3, color="k", lw=2, label="Theorem 1: alpha = 2/3")

@@ -119,8 +119,8 @@ def _near(system, n, rng):
     p = batch_params(s, {}, n=n)
     if s.triaxial:
         eqs = [S for _, S, claim in tt.equilibria_triaxial(np.eye(3)) if claim == "unstable"]
-        from ..systems.twobody import _rot
-        p["S0"] = np.stack([eqs[i % 3] @ _rot(rng.normal(size=3), 1e-3) for i in range(n)])
+        from ..systems.twobody import rotation_matrix
+        p["S0"] = np.stack([eqs[i % 3] @ rotation_matrix(rng.normal(size=3), 1e-3) for i in range(n)])
     else:
         v = np.array([0.0, 0.0, -1.0]) + 1e-3 * rng.normal(size=(n, 3))
         p["s0"] = v / np.linalg.norm(v, axis=1, keepdims=True)

@@ -62,14 +62,14 @@ _S0_RAW = np.array([0.6, -0.7, -0.2])
 S0_DEFAULT = tuple(_S0_RAW / np.linalg.norm(_S0_RAW))
 
 
-def _rot(axis, angle):
+def rotation_matrix(axis, angle):
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
     K = twobody_theory.hat(axis)
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
 # a generic default initial attitude: 2.5 rad about a skew axis (far from the target, not on a separatrix)
-SMAT_DEFAULT = tuple(_rot((1.0, -2.0, 0.5), 2.5).ravel())
+SMAT_DEFAULT = tuple(rotation_matrix((1.0, -2.0, 0.5), 2.5).ravel())
 
 
 def _common_params(b_default=3.0):
