@@ -11,7 +11,8 @@ __version__ = "0.1.0"
 
 from .config import setup_jax  # noqa: E402
 from .errors import StabjaxError, ValidationError  # noqa: E402
-from .registry import get_system, list_systems, register  # noqa: E402
+from .registry import list_systems  # noqa: E402
+from .models import register, resolve as get_system  # noqa: E402  (names, files, modules, entry points)
 from .params import Param, ParamSet  # noqa: E402
 from .system import System  # noqa: E402
 from .outcomes import Outcomes  # noqa: E402

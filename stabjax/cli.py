@@ -161,7 +161,7 @@ def systems(
     """List the systems (built in, registered, installed by packages), or describe one."""
     from .errors import ValidationError
     from .models import resolve
-    from .registry import all_names, get_system, lookup
+    from .registry import all_names, lookup
 
     everything = {}
     if name is not None:
@@ -170,7 +170,7 @@ def systems(
     else:
         for nm in all_names():
             try:
-                sysm = get_system(nm)
+                sysm = resolve(nm)
             except (ImportError, ValidationError) as exc:
                 everything[nm] = {"available": False, "source": lookup(nm), "reason": str(exc)}
                 continue
@@ -537,9 +537,9 @@ def bench(
 
         models_main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
     elif suite == "refine":
-        from .refine import main as refine_main
+        from .refine_bench import main as refine_main
 
-        raise typer.Exit(refine_main(["--bench"] + (["--t1", "200", "--full-rows", "8"] if quick else [])))
+        raise typer.Exit(refine_main(["--t1", "200", "--full-rows", "8"] if quick else []))
     elif suite == "dask":
         from .distributed import main as dask_main
 

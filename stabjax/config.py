@@ -27,6 +27,8 @@ SOLVERS = ("tsit5", "dopri5", "dopri8", "heun", "bosh3", "kvaerno5", "kvaerno3")
 # and the project's own codes from 100 on
 STATUS_OK = 0
 STATUS_MAX_STEPS = 1  # also: the state or its derivative turned non-finite (stopped at once)
+# the verdicts' names, code = index (stabjax.verdict holds the rules)
+VERDICT_NAMES = ("converged", "flipped", "diverged", "undecided", "failed")
 STATUS_ESCAPED = 100  # an accepted state left the ball max_i |y_i| <= escape_radius (stopped at once)
 
 

@@ -12,7 +12,6 @@ import numpy as np
 from . import engines
 from .config import ENGINES, SOLVERS, IntegrateConfig, VerdictConfig, setup_jax, verdict_config
 from .errors import ValidationError
-from .registry import get_system
 from .system import System
 
 

@@ -138,7 +138,10 @@ def resolve(ref: Any, base_dir: str | Path | None = None):
     if not isinstance(ref, str) or not ref.strip():
         raise ValidationError("system", f"must be a system name, 'file.py:Class' or 'module:Class', got {ref!r}")
     ref = ref.strip()
-    if lookup(ref) is not None:
+    where = lookup(ref)
+    if where == "entry point":
+        return _entry_point_system(ref)
+    if where is not None:
         return get_system(ref)
     m = _REF.match(ref)
     if m is None:
@@ -157,6 +160,37 @@ def resolve(ref: Any, base_dir: str | Path | None = None):
     if cls not in _instances:
         _instances[cls] = validate_system(instantiate(cls))
     return _instances[cls]
+
+
+def _entry_point_system(name: str):
+    """An installed package's system, checked once and named as its entry point."""
+    from .registry import cached, load_entry_point
+
+    obj = cached(name)
+    if obj is None:
+        obj = validate_system(instantiate(load_entry_point(name)))
+        obj.name = name
+        cached(name, obj)
+    return obj
+
+
+def register(name: str, cls, *, replace: bool = False) -> None:
+    """Make ``cls`` (a :class:`~stabjax.system.System` subclass) available as ``name`` in this process.
+
+    The class is checked at once (:func:`validate_system`); a built-in name is refused, and so is an
+    already registered one unless ``replace``.
+    """
+    from .registry import SYSTEMS, add_registered, is_registered
+
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValidationError("name", f"a system name must be an identifier, got {name!r}")
+    if name in SYSTEMS:
+        raise ValidationError("name", f"{name!r} is a built-in system")
+    if is_registered(name) and not replace:
+        raise ValidationError("name", f"{name!r} is already registered (pass replace=True)")
+    obj = validate_system(instantiate(cls))
+    obj.name = name
+    add_registered(name, cls, obj)
 
 
 _loaded: dict[tuple[str, str, str], object] = {}

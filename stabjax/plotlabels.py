@@ -8,10 +8,26 @@ import re
 import numpy as np
 import xarray as xr
 
+GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
+         "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
+
+
+def symbol(name: str) -> str:
+    """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$."""
+    base, _, sub = name.partition("_")
+    digits = ""
+    while base and base[-1].isdigit():
+        digits = base[-1] + digits
+        base = base[:-1]
+    base = {"lam": "lambda", "eps": "epsilon"}.get(base, base)
+    b = "\\" + base if base in GREEK else base
+    subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
+    return f"${b}_{{{subs}}}$" if subs else f"${b}$"
+
 
 def _param(ds: xr.Dataset, dim: str):
     """The system's Param behind grid axis ``dim`` (None when unknown, e.g. a dataset of another version)."""
-    from .registry import get_system
+    from .models import resolve as get_system
 
     key = ds[dim].attrs.get("spec_key", dim) if dim in ds.coords else dim
     try:
@@ -55,7 +71,6 @@ def category_axis(ax, which: str, labels: list[str], name: str):
 def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
     """The fixed scalar parameters that matter: those the theorems mention (e.g. mu on the default map),
     then those the spec sets in [params]; discrete choices by their label ("paper mapping")."""
-    from .plotting import symbol  # plotting imports this module at load; symbol lives there
 
     try:
         fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))

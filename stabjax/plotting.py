@@ -21,23 +21,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from . import verdict as V  # noqa: E402
-from .plotlabels import categories, category_axis, cell_note, fixed_note  # noqa: E402,F401
-
-GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
-         "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
-
-
-def symbol(name: str) -> str:
-    """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$."""
-    base, _, sub = name.partition("_")
-    digits = ""
-    while base and base[-1].isdigit():
-        digits = base[-1] + digits
-        base = base[:-1]
-    base = {"lam": "lambda", "eps": "epsilon"}.get(base, base)
-    b = "\\" + base if base in GREEK else base
-    subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
-    return f"${b}_{{{subs}}}$" if subs else f"${b}$"
+from .plotlabels import GREEK, categories, category_axis, cell_note, fixed_note, symbol  # noqa: E402,F401
 
 
 def axis_label(ds: xr.Dataset, dim: str) -> str:

@@ -847,16 +847,3 @@ def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot
     if plot:
         pr(f"wrote {Path(out).with_suffix('.png')}")
     return ds
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m stabjax.refine --bench``: the benchmark (:mod:`stabjax.refine_bench`)."""
-    from .refine_bench import main as bench_main
-
-    return bench_main(argv)
-
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(main())

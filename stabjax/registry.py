@@ -48,22 +48,19 @@ def _entry_points() -> dict[str, object]:
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
-def register(name: str, cls, *, replace: bool = False) -> None:
-    """Make ``cls`` (a :class:`~stabjax.system.System` subclass) available as ``name`` in this process.
+def cached(name: str, obj=None):
+    """The system object kept for ``name`` (None if none); with ``obj``, keep it."""
+    if obj is not None:
+        _cache[name] = obj
+    return _cache.get(name)
 
-    The class is checked at once (:func:`stabjax.models.validate_system`); a built-in name is
-    refused, and so is an already registered one unless ``replace``.
-    """
-    from .models import instantiate, validate_system
 
-    if not isinstance(name, str) or not name.isidentifier():
-        raise ValidationError("name", f"a system name must be an identifier, got {name!r}")
-    if name in SYSTEMS:
-        raise ValidationError("name", f"{name!r} is a built-in system")
-    if name in _registered and not replace:
-        raise ValidationError("name", f"{name!r} is already registered (pass replace=True)")
-    obj = validate_system(instantiate(cls))
-    obj.name = name
+def is_registered(name: str) -> bool:
+    return name in _registered
+
+
+def add_registered(name: str, cls, obj) -> None:
+    """Record a class checked by :func:`stabjax.models.register` under ``name``."""
     _registered[name] = cls
     _cache[name] = obj
 
@@ -98,27 +95,28 @@ def list_systems(available_only: bool = False) -> list[str]:
     return out
 
 
+def load_entry_point(name: str):
+    """The class an installed package registers as ``name`` (entry-point group ``stabjax.systems``)."""
+    eps = _entry_points()
+    try:
+        return eps[name].load()
+    except Exception as exc:  # noqa: BLE001 - a broken installed package must not take the others down
+        raise ValidationError("system", f"entry point {name!r} ({eps[name].value}) failed to load: "
+                                        f"{type(exc).__name__}: {exc}") from None
+
+
 def get_system(name: str):
-    """Return the (singleton) system object known as ``name``."""
+    """Return the (singleton) system object known as ``name`` (built in or registered; an installed
+    package's system: :func:`stabjax.models.resolve`)."""
     if name in _cache:
         return _cache[name]
     if name in SYSTEMS:
         module, cls = SYSTEMS[name].split(":")
         _cache[name] = getattr(importlib.import_module(module), cls)()
         return _cache[name]
-    eps = _entry_points()
-    if name in eps:
-        from .models import instantiate, validate_system
-
-        try:
-            cls = eps[name].load()
-        except Exception as exc:  # noqa: BLE001 - a broken installed package must not take the others down
-            raise ValidationError("system", f"entry point {name!r} ({eps[name].value}) failed to load: "
-                                            f"{type(exc).__name__}: {exc}") from None
-        obj = validate_system(instantiate(cls))
-        obj.name = name
-        _cache[name] = obj
-        return obj
+    if name in _entry_points():
+        raise ValidationError("system", f"{name!r} is an installed package's system: load it with "
+                                        "stabjax.models.resolve (stabjax.get_system), which checks it first")
     raise ValidationError("system", f"unknown system {name!r}; known: {', '.join(all_names())} "
                                     "(or give 'path/to/model.py:ClassName' / 'module:ClassName')")
 

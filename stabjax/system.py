@@ -104,9 +104,9 @@ class System:
     def describe_outcomes(self) -> list[tuple[str, str]]:
         """(name, how it is assigned) for ``stabjax systems NAME``."""
         if self.outcomes is None:
-            from . import verdict as V
+            from .config import VERDICT_NAMES
 
-            return [(n, "verdict (see README: Verdicts)") for n in V.NAMES]
+            return [(n, "verdict (see README: Verdicts)") for n in VERDICT_NAMES]
         o = self.outcomes
         rows = [(k, f"rule: {v}") for k, v in o.rules.items()]
         rows += [(k, f"nearest template {dict(v)} in features {list(o.features)}") for k, v in o.templates.items()]

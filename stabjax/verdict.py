@@ -81,17 +81,16 @@ An unbound config (``t1 is None``) assumes t0 = 0 and takes t1 from ``t_late`` (
 """
 from __future__ import annotations
 
-import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .errors import ValidationError
-from .system import VerdictConfig
+from .config import VERDICT_NAMES, VerdictConfig
 
 CONVERGED, FLIPPED, DIVERGED, UNDECIDED, FAILED = 0, 1, 2, 3, 4
-NAMES = ("converged", "flipped", "diverged", "undecided", "failed")
+NAMES = VERDICT_NAMES
 COLORS = ("#2a9d8f", "#e76f51", "#8d0801", "#e9c46a", "#6c757d")
 
 MAX_HORIZONS = 8
