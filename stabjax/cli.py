@@ -409,7 +409,7 @@ def export(
     out: Path = typer.Option(..., help="netCDF file to write"),
 ):
     """Write the netCDF file of a finished chunk store (e.g. one kept with --keep-store)."""
-    from .store import export as export_store
+    from .sweep import export_store
 
     ds = export_store(store, out)
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, engine {ds.attrs['engine']})")

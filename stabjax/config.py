@@ -196,6 +196,20 @@ def verdict_config(system, overrides: Mapping[str, Any] | None = None, section: 
     return cfg
 
 
+def versions() -> dict[str, str]:
+    """Library versions recorded with every result (imports diffrax only when called)."""
+    import platform
+
+    import diffrax
+    import jax
+    import xarray as xr
+
+    from . import __version__
+
+    return {"stabjax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
+            "numpy": np.__version__, "xarray": xr.__version__, "python": platform.python_version()}
+
+
 _SETUP: dict[str, bool] = {}
 
 

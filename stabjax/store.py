@@ -291,7 +291,7 @@ class ChunkStore:
 
     def __init__(self, path: str | Path, plan, batch: int, *, overrides: Mapping[str, Any] | None = None,
                  restart: bool = False):
-        from .sweep import versions
+        from .config import versions
 
         self.path = Path(path)
         self.plan = plan
@@ -491,10 +491,9 @@ def _holder(path: Path) -> dict | None:
     return h
 
 
-def export(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22):
-    """Write the netCDF file of a complete store (``stabjax export STORE.zarr --out x.nc``)."""
+def finished_store(store: str | Path):
+    """(manifest, plan) of a complete store that no sweep is writing, for ``stabjax export``."""
     from .errors import ValidationError
-    from .sweep import assemble_store, write
 
     store = Path(store)
     if not store.is_dir():
@@ -509,11 +508,8 @@ def export(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22):
     if done != m["n_chunks"]:
         raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
                          "again to finish it")
-    plan = plan_from_manifest(m)
-    ds = assemble_store(plan, store, m, lazy=plan.size > lazy_above)
-    write(ds, out)
-    return ds
+    return m, plan_from_manifest(m)
 
 
-__all__ = ["ChunkStore", "StoreError", "StoreIOError", "Lock", "export", "identity", "describe_changes",
+__all__ = ["ChunkStore", "StoreError", "StoreIOError", "Lock", "finished_store", "identity", "describe_changes",
            "model_fingerprint", "read_manifest", "load_results", "engines_of", "plan_from_manifest", "stored_batch"]

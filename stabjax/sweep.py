@@ -26,7 +26,7 @@ import xarray as xr
 
 from . import verdict as V
 from . import engines
-from .config import setup_jax
+from .config import setup_jax, versions
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import StabjaxError, ValidationError
@@ -388,16 +388,6 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def versions() -> dict[str, str]:
-    import diffrax
-    import jax
-
-    from . import __version__
-
-    return {"stabjax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
-            "numpy": np.__version__, "xarray": xr.__version__, "python": platform.python_version()}
-
-
 def provenance(plan: Plan) -> dict[str, Any]:
     import jax
 
@@ -538,3 +528,13 @@ class _Bar:
 
 def _progress(enabled: bool, total: int, name: str, chunks: int = 0):
     return _Bar(total, name, chunks) if enabled else None
+
+
+def export_store(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22) -> xr.Dataset:
+    """Write the netCDF file of a complete store (``stabjax export STORE.zarr --out x.nc``)."""
+    from .store import finished_store
+
+    m, plan = finished_store(store)
+    ds = assemble_store(plan, store, m, lazy=plan.size > lazy_above)
+    write(ds, out)
+    return ds

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from stabjax.sweep import export_store
 from stabjax import store as S
 from stabjax.cli import main
 from stabjax.spec import load_spec, make_plan
@@ -136,7 +137,7 @@ def test_second_writer_refused_and_stale_lock_taken_over(spec, tmp_path):
         with pytest.raises(S.StoreError, match=f"in use by pid {os.getpid()}"):
             S.ChunkStore(path, plan, 4)
         with pytest.raises(S.StoreError, match="being written"):
-            S.export(path, tmp_path / "x.nc")
+            export_store(path, tmp_path / "x.nc")
     assert not (path / S.LOCK).exists()
     # a lock left by a process that died (kill -9) on this host is stale: the next writer takes over
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
