@@ -21,6 +21,7 @@ from matplotlib.colors import BoundaryNorm, ListedColormap, to_rgb  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from .outcomes import PALETTE  # noqa: E402
+from .plotting import cell_edges  # noqa: E402
 
 
 def outcome_names(ds: xr.Dataset) -> list[str]:
@@ -37,10 +38,11 @@ def outcome_colors(ds: xr.Dataset) -> list[str]:
     return (list(V.COLORS) + list(PALETTE))[: len(outcome_names(ds))]
 
 
-def _legend(ax, names, colors, present=None, **kw):
-    handles = [Patch(color=c, label=n) for i, (n, c) in enumerate(zip(names, colors))
-               if present is None or present[i]]
-    ax.legend(handles=handles, fontsize=8, **kw)
+def _legend(ax, names, colors, codes=None):
+    """Legend of the outcomes that occur in ``codes`` (all of them without)."""
+    present = [codes is None or bool((np.asarray(codes) == k).any()) for k in range(len(names))]
+    handles = [Patch(color=c, label=n) for n, c, p in zip(names, colors, present) if p]
+    ax.legend(handles=handles, fontsize=8, loc="upper right", framealpha=0.8)
 
 
 def _title(ds, what: str) -> str:
@@ -103,8 +105,7 @@ def _samples_only(ds, names, colors):
     a0.set_xlabel(keys[0])
     a0.set_ylabel(keys[1])
     a0.set_title("sampled starts, coloured by outcome (one dot = one trajectory)", fontsize=9)
-    _legend(a0, names, colors, present=[(code == k).any() for k in range(len(names))], loc="upper right",
-            framealpha=0.8)
+    _legend(a0, names, colors, code)
     _bar(a1, ds, names, colors)
     fig.suptitle(_title(ds, "basin stability"), fontsize=10, y=1.03)
     return fig
@@ -154,11 +155,10 @@ def _dominant_map(ds, dims, names, colors):
     if fr.shape[0] * fr.shape[1] <= 400:
         for i in range(fr.shape[0]):
             for j in range(fr.shape[1]):
-                ax.text(_centre(x, j), _centre(y, i), f"{share[i, j]:.2f}", ha="center", va="center", fontsize=6)
+                ax.text(float(x[j]), float(y[i]), f"{share[i, j]:.2f}", ha="center", va="center", fontsize=6)
     ax.set_xlabel(dims[0])
     ax.set_ylabel(dims[1])
-    _legend(ax, names, colors, present=[(dom == k).any() for k in range(len(names))], loc="upper right",
-            framealpha=0.8)
+    _legend(ax, names, colors, dom)
     fig.suptitle(_title(ds, "dominant outcome per cell (shade and number: its fraction S)"), fontsize=10)
     return fig
 
@@ -179,25 +179,14 @@ def _outcome_map(ds, dims, names, colors):
                   interpolation="nearest")
         ax.set_ylabel(dims[1])
     ax.set_xlabel(dims[0])
-    _legend(ax, names, colors, present=[(code == k).any() for k in range(len(names))], loc="upper right",
-            framealpha=0.8)
+    _legend(ax, names, colors, code)
     fig.suptitle(_title(ds, "outcome (one cell = one trajectory)"), fontsize=10)
     return fig
 
 
 def _extent(x, y):
-    def edges(v):
-        v = np.asarray(v, float)
-        if v.size == 1:
-            return v[0] - 0.5, v[0] + 0.5
-        d = np.diff(v)
-        return v[0] - d[0] / 2, v[-1] + d[-1] / 2
-
-    return (*edges(x), *edges(y))
-
-
-def _centre(v, i):
-    return float(np.asarray(v, float)[i])
+    xe, ye = cell_edges(x, False), cell_edges(y, False)
+    return (xe[0], xe[-1], ye[0], ye[-1])
 
 
 def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:

@@ -81,7 +81,7 @@ class VerdictConfig:
     fit_min_points: float = 8
     horizons: tuple = ()
     n_horizon_decades: float = 3
-    features: float = False
+    features: bool = False
     feature_window: float = 0.5
     t0: float | None = None
     t1: float | None = None

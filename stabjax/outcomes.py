@@ -29,6 +29,7 @@ sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson sc
 from __future__ import annotations
 
 import ast
+import functools
 import math
 import operator
 from dataclasses import dataclass, field
@@ -182,6 +183,17 @@ class Rule:
         raise AssertionError(type(node))
 
 
+@functools.lru_cache(maxsize=256)
+def parse(text: str, observables: tuple[str, ...], params: tuple[str, ...], field: str, boolean: bool = True) -> Rule:
+    """A :class:`Rule`, parsed and checked once per text and system (assignment runs chunk by chunk)."""
+    return Rule(text, observables, params, field, boolean)
+
+
+def _names(system) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(observables, scalar parameters): the names a rule may use."""
+    return tuple(system.observables), tuple(p.name for p in system.params if not p.shape)
+
+
 # ---- declarations ----------------------------------------------------------------------------------
 
 
@@ -241,8 +253,7 @@ class Outcomes:
 
     def check(self, system, where: str = "outcomes", escape: bool = False) -> None:
         """Validate names, rules, templates and features against the system."""
-        obs = tuple(system.observables)
-        scalars = tuple(p.name for p in system.params if not p.shape)
+        obs, scalars = _names(system)
         if not (self.rules or self.templates):
             raise ValidationError(where, "declares no outcome (give rules and/or templates)")
         names = self.names(escape=True)
@@ -255,12 +266,12 @@ class Outcomes:
         if not (isinstance(self.window, (int, float)) and 0 < self.window <= 1):
             raise ValidationError(f"{where}.window", f"must be in (0, 1], got {self.window!r}")
         for name, text in self.rules.items():
-            Rule(text, obs, scalars, f"{where}.rules.{name}")
+            parse(text, obs, scalars, f"{where}.rules.{name}")
         if self.templates:
             if not self.features:
                 raise ValidationError(f"{where}.features", "templates need features, e.g. [\"max(x)\", \"std(x)\"]")
             for i, text in enumerate(self.features):
-                Rule(text, obs, scalars, f"{where}.features[{i}]", boolean=False)
+                parse(text, obs, scalars, f"{where}.features[{i}]", boolean=False)
             for name, over in self.templates.items():
                 if not isinstance(over, Mapping) or not over:
                     raise ValidationError(f"{where}.templates.{name}", "must be a table of parameter overrides")
@@ -299,20 +310,19 @@ def scheme(system, decl: Outcomes | None, escape: bool) -> OutcomeScheme:
     return OutcomeScheme(names, tuple(colors), decl)
 
 
-def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...], sel=slice(None)):
+def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...]):
     """``feat(stat, observable)`` over the engine's ``feat_<stat>`` arrays (N, n_obs)."""
     index = {o: i for i, o in enumerate(observables)}
 
     def feat(stat, obs):
-        return np.asarray(results[f"feat_{stat}"])[sel, index[obs]]
+        return np.asarray(results[f"feat_{stat}"])[:, index[obs]]
 
     return feat
 
 
 def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
-    obs = tuple(system.observables)
-    scalars = tuple(p.name for p in system.params if not p.shape)
-    cols = [Rule(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
+    obs, scalars = _names(system)
+    cols = [parse(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
     return np.stack([np.asarray(c, float) for c in cols], axis=-1)
 
 
@@ -337,10 +347,9 @@ def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params
     def par(name):
         return np.asarray(params[name], float).reshape(n)
 
-    obs = tuple(system.observables)
-    scalars = tuple(p.name for p in system.params if not p.shape)
+    obs, scalars = _names(system)
     for i, (name, text) in enumerate(decl.rules.items()):
-        hit = np.broadcast_to(Rule(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
+        hit = np.broadcast_to(parse(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
         code = np.where((code < 0) & hit, i, code)
     if decl.templates and template_features is not None:
         x = feature_matrix(decl, system, feat, par)  # (N, F)

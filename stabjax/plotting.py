@@ -21,7 +21,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from . import verdict as V  # noqa: E402
-from .plotlabels import GREEK, categories, category_axis, cell_note, fixed_note, symbol  # noqa: E402,F401
+from .plotlabels import categories, category_axis, cell_note, fixed_note, symbol  # noqa: E402,F401
 
 
 def axis_label(ds: xr.Dataset, dim: str) -> str:

@@ -47,7 +47,6 @@ between modules. The benchmark against the full lattice is its own module.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import time
@@ -60,7 +59,7 @@ import xarray as xr
 
 from . import verdict as V
 from .errors import StabjaxError, ValidationError
-from .params import eval_number as _eval_number
+from .validate import number as _number
 from .spec import Plan, load_spec, make_plan
 
 REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "max_points")
@@ -86,23 +85,6 @@ class RefineConfig:
     stable: str | None  # the label whose region is compared with the theorem's
     horizon: float  # the verdict horizon refined
     max_points: int
-
-
-def _number(raw: Any, field: str) -> float:
-    if isinstance(raw, bool):
-        raise ValidationError(field, f"must be a number, got {raw!r}")
-    if isinstance(raw, str):
-        try:
-            v = _eval_number(raw, field)
-        except ValueError as exc:
-            raise ValidationError(field, str(exc)) from None
-    elif isinstance(raw, (int, float)):
-        v = float(raw)
-    else:
-        raise ValidationError(field, f"must be a number, got {raw!r}")
-    if not math.isfinite(v):
-        raise ValidationError(field, f"must be finite, got {raw!r}")
-    return v
 
 
 def label_names(plan: Plan, label: str) -> tuple[str, ...]:

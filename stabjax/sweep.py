@@ -29,9 +29,9 @@ from . import engines
 from .config import setup_jax, versions
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
-from .errors import StabjaxError, ValidationError
+from .errors import ValidationError
 from .outcomes import STATUS_ESCAPED
-from .spec import Plan, check_plan, load_spec, make_plan, static_params
+from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
 DEFAULT_MEMORY_FRACTION = 0.25
 
@@ -417,12 +417,6 @@ def _model_file(plan) -> str:
 
     f = source_file(plan.system)
     return str(f) if f is not None else ""
-
-
-def jsonable(x):
-    from .spec import jsonable as j
-
-    return j(x)
 
 
 def write(ds: xr.Dataset, out: str | Path) -> Path:

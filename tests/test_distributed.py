@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import kill_after_chunks
 
 from stabjax import distributed as D
 from stabjax import store as S
@@ -173,21 +174,7 @@ def test_dask_client_sigkill_then_rerun(tmp_path, reference):
     env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
     p = subprocess.Popen(cmd, env={**env, "_STABJAX_TEST_CHUNK_SLEEP": "1.0"}, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL, cwd=tmp_path)
-    try:
-        deadline = time.time() + 120
-        while time.time() < deadline:
-            try:
-                if len(S.read_manifest(store)["chunks"]) >= 2:
-                    break
-            except (TypeError, S.StoreError):
-                pass
-            time.sleep(0.05)
-        else:
-            pytest.fail("no chunks finished in 120 s")
-        os.kill(p.pid, signal.SIGKILL)
-    finally:
-        p.kill()
-        p.wait(30)
+    kill_after_chunks(p, store, 2, 120)
     done = len(S.read_manifest(store)["chunks"])
     assert 2 <= done < 8 and not out.exists()
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240, cwd=tmp_path)

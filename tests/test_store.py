@@ -3,7 +3,6 @@ at a time, kill -9 of the client, full disk / unwritable store, export, per-chun
 import errno
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -11,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import kill_after_chunks
 import xarray as xr
 
 from stabjax.sweep import export_store
@@ -229,21 +229,7 @@ def test_client_sigkill_then_rerun(spec, tmp_path, reference):
     store = tmp_path / "k.nc.zarr"
     p = subprocess.Popen(_sweep_cmd(spec, out), env=_env(_STABJAX_TEST_CHUNK_SLEEP="0.7"), cwd=tmp_path,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    try:
-        deadline = time.time() + 90
-        while time.time() < deadline:
-            try:
-                if len(S.read_manifest(store)["chunks"]) >= 1:
-                    break
-            except (TypeError, S.StoreError):
-                pass
-            time.sleep(0.05)
-        else:
-            pytest.fail("no chunk finished in 90 s")
-        os.kill(p.pid, signal.SIGKILL)
-    finally:
-        p.kill()
-        p.wait(30)
+    kill_after_chunks(p, store, 1, 90)
     done = len(S.read_manifest(store)["chunks"])
     assert 1 <= done < 4 and not out.exists()
     assert json.loads((store / S.LOCK).read_text())["pid"] == p.pid  # left behind by the killed client
