@@ -358,9 +358,9 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     src = getattr(type(system), "_stabjax_source", None)
     if src is not None:  # a model file: record where it was found, so the plan can be rebuilt anywhere
         spec["system"] = f"{src}:{type(system).__name__}"
-    name = V.string(spec.get("name", "sweep"), "name")
-    if not _NAME.match(name):
-        raise ValidationError("name", f"{name!r}: must be a file stem (it names the output results/<name>.nc): "
+    sweep_name = V.string(spec.get("name", "sweep"), "name")
+    if not _NAME.match(sweep_name):
+        raise ValidationError("name", f"{sweep_name!r}: must be a file stem (it names the output results/<name>.nc): "
                                       "no '/' or '\\', not starting with '.', '-' or a space, at most 128 characters")
     if "description" in spec:
         V.string(spec["description"], "description")
@@ -469,7 +469,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         vcfg = vcfg.replace(features=True, feature_window=float(decl.window))
     # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
     vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=len(system.observables))
-    plan = Plan(system=system, name=name, spec=spec, fixed=fixed, grid=grid,
+    plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
                 model_sha256=model_fingerprint(system))
     return plan

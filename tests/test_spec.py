@@ -1,4 +1,5 @@
 """Spec resolution: axes, entry axes, sampling distributions, plan indexing, horizon check."""
+from pathlib import Path
 import numpy as np
 
 from stabjax.spec import make_plan
@@ -65,3 +66,11 @@ def test_horizon_check_counts_changes():
     assert int(hc["transition"].sum()) == 2
     np.testing.assert_array_equal(hc["verdict_short"].values, [1, 0])
     assert hc["verdict_long"].values[1] == 0
+
+
+def test_the_plan_is_named_by_the_spec_not_by_an_axis():
+    """The output file is results/<name>.nc: the name must survive the grid axes' parsing."""
+    from stabjax.spec import load_spec, make_plan
+
+    plan = make_plan(load_spec(Path(__file__).resolve().parents[1] / "sweeps" / "default.toml"))
+    assert plan.name == "default" and [a.name for a in plan.grid] == ["alpha", "sigma"]
