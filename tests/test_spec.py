@@ -1,5 +1,6 @@
 """Spec resolution: axes, entry axes, sampling distributions, plan indexing, horizon check."""
 from pathlib import Path
+
 import numpy as np
 
 from stabjax.spec import make_plan
