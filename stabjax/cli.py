@@ -104,6 +104,40 @@ def _result_spec(path: Path):
         return None
 
 
+PNG_KEY = "stabjax-spec"  # PNG text chunk: digest of the spec a map was drawn from
+
+
+def _spec_digest(spec_dict) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(spec_dict, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _png_spec(path: Path) -> str | None:
+    """The spec digest stamped into a map by :func:`_stamp_png` (None for any other image)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return im.info.get(PNG_KEY)
+    except Exception:  # noqa: BLE001 - not a readable PNG: not a map of ours
+        return None
+
+
+def _stamp_png(path: Path, ds) -> None:
+    """Record in the map which spec it shows, so a re-run of the same sweep may replace it (a shipped
+    map of the same spec too) while any other image at that path needs --force."""
+    if path.suffix.lower() != ".png" or "spec_json" not in ds.attrs:
+        return
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(PNG_KEY, _spec_digest(json.loads(ds.attrs["spec_json"])))
+    with Image.open(path) as im:
+        im.load()
+        im.save(path, pnginfo=info)
+
+
 def _trajectory_system(path: Path) -> str | None:
     """The system of a trajectory written by ``stabjax simulate``, or None for any other file."""
     try:
@@ -346,6 +380,7 @@ def sweep(
     if plot:  # the map follows its result: replaced with it, else only with --force
         png = out.with_suffix(".png")
         _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing,
+                      same=lambda p: _png_spec(p) == _spec_digest(this_spec),
                       what="the map of a previous result of this spec")
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"))
@@ -400,6 +435,7 @@ def _report(ds, png: Optional[Path], replaced: bool = False):
         if png is not None:
             plot_sweep(ds, png)
     if png is not None:
+        _stamp_png(png, ds)
         console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""))
 
 

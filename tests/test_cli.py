@@ -175,3 +175,20 @@ def test_console_script_exit_code(tmp_path):
     r = subprocess.run([sys.executable, "-m", "stabjax", "theory", "monoaxial", "--set", "mu=0"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "mu" in r.stderr
+
+
+def test_a_map_of_the_same_spec_is_replaced_without_its_result(tmp_path):
+    """A fresh clone holds the README's map (results/default.png) but not its result: the map is stamped
+    with its spec, so the main job may redraw it; an image of another spec, or an unstamped one, is kept."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(SMALL)
+    out = tmp_path / "tiny.nc"
+    assert run_cli("sweep", str(spec), "--out", str(out), "--no-progress") == 0
+    out.unlink()  # as in a clone: the map is there, the result is not
+    assert run_cli("sweep", str(spec), "--out", str(out), "--no-progress") == 0 and out.exists()
+    out.unlink()
+    spec.write_text(SMALL.replace("n_checkpoints = 128", "n_checkpoints = 64"))  # another spec: its map is kept
+    png = out.with_suffix(".png")
+    before = png.read_bytes()
+    assert run_cli("sweep", str(spec), "--out", str(out), "--no-progress") == 2
+    assert png.read_bytes() == before and not out.exists()
