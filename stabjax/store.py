@@ -26,20 +26,19 @@ file format; they change together.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
-import hashlib
-import inspect
 import json
 import os
 import shutil
 import socket
 import time
-from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
+from . import identity as I
 from .errors import StabjaxError
 
 FORMAT = "stabjax-store/1"
@@ -58,97 +57,10 @@ class StoreIOError(StabjaxError):
     exit_code = 1
 
 
-# ---- identity ----------------------------------------------------------------------------------
+# ---- identity: stabjax.identity (the one place a run's identity is computed) --------------------
 
-
-def model_fingerprint(system) -> dict[str, str]:
-    """Hash of the source file that defines the system's class (a user model file included)."""
-    try:
-        src = inspect.getsourcefile(type(system))
-        data = Path(src).read_bytes() if src else b""
-    except (TypeError, OSError):
-        src, data = None, b""
-    return {"file": os.path.basename(src) if src else "?", "sha256": hashlib.sha256(data).hexdigest()[:16]}
-
-
-def _plain(x):
-    if is_dataclass(x) and not isinstance(x, type):
-        return _plain(asdict(x))
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return repr(x)
-    return x
-
-
-def identity(plan, overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """Everything that decides the numbers in the store; any change refuses a resume."""
-    from . import __version__
-
-    return {
-        "spec": _plain(plan.spec),
-        "spec_fingerprint": plan.fingerprint(),
-        "system": plan.system.name,
-        "model": model_fingerprint(plan.system),
-        "overrides": _plain(dict(overrides)),
-        "integrate": _plain(plan.icfg.__dict__),
-        "verdict": _plain(plan.vcfg),
-        "stabjax": __version__,
-        "size": int(plan.size),
-    }
-
-
-def _flat(d, prefix=""):
-    out = {}
-    if isinstance(d, Mapping):
-        for k, v in d.items():
-            out.update(_flat(v, f"{prefix}{k}."))
-    else:
-        out[prefix[:-1]] = d
-    return out
-
-
-def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
-    """Human-readable list of what differs between two identities (most specific first)."""
-    changes = []
-
-    def diff(section, label):
-        a, b = _flat(old.get(section, {})), _flat(new.get(section, {}))
-        for k in sorted(set(a) | set(b)):
-            if a.get(k, "<unset>") != b.get(k, "<unset>"):
-                changes.append(f"{label}{k}: {_short(a.get(k, '<unset>'))} -> {_short(b.get(k, '<unset>'))}")
-
-    diff("spec", "spec ")
-    for k in sorted(set(old.get("overrides", {})) | set(new.get("overrides", {}))):
-        a, b = old.get("overrides", {}).get(k), new.get("overrides", {}).get(k)
-        if a != b:
-            flag = "--" + k.replace("_", "-")
-            changes.append(f"command-line {flag}: {_short(a, 'not given')} -> {_short(b, 'not given')}")
-    if old.get("model") != new.get("model"):
-        o, n = old.get("model", {}), new.get("model", {})
-        changes.append(f"model source {n.get('file')}: sha256 {o.get('sha256')} -> {n.get('sha256')}")
-    if not changes:  # e.g. a programmatic Plan with another IntegrateConfig
-        diff("integrate", "integrate.")
-        diff("verdict", "verdict.")
-    for k in ("system", "stabjax", "size"):
-        if old.get(k) != new.get(k):
-            changes.append(f"{k}: {_short(old.get(k))} -> {_short(new.get(k))}")
-    if not changes and old != new:
-        changes.append("spec fingerprint")
-    return changes
-
-
-def _short(v, none="none"):
-    if v is None:
-        return none
-    s = json.dumps(v) if not isinstance(v, str) else v
-    return s if len(s) <= 60 else s[:57] + "..."
+identity = I.identity
+describe_changes = I.describe_changes
 
 
 # ---- lock --------------------------------------------------------------------------------------
@@ -307,10 +219,10 @@ class ChunkStore:
         self.lock.acquire(self.path)
         try:
             old = None if restart else read_manifest(self.path)
-            if old is not None and old.get("identity") != ident:
-                changes = describe_changes(old.get("identity", {}), ident)
+            refusals, self.version_changes = I.compare(old.get("identity", {}), ident) if old is not None else ([], [])
+            if refusals:
                 raise StoreError(
-                    f"{self.path} holds a run of a different computation ({'; '.join(changes)}); "
+                    f"{self.path} holds a run of a different computation ({'; '.join(refusals)}); "
                     "pass --restart to discard it, or use another --out")
             if old is None:
                 self._clear()
@@ -469,14 +381,13 @@ def _native(b: np.ndarray, t: np.dtype) -> np.ndarray:
 
 def plan_from_manifest(manifest: Mapping[str, Any]):
     """Rebuild the plan a store was computed for (spec + overrides + effective integrate settings)."""
-    from .engine import IntegrateConfig
-    from .spec import Plan, make_plan
+    from .spec import make_plan
 
     ident = manifest["identity"]
     plan = make_plan(ident["spec"], t1=ident["overrides"].get("t1"))
-    icfg = IntegrateConfig(**ident["integrate"])
+    icfg = dataclasses.replace(plan.icfg, **ident["integrate"])
     if icfg != plan.icfg:
-        plan = Plan(**{**plan.__dict__, "icfg": icfg})
+        plan = dataclasses.replace(plan, icfg=icfg)
     return plan
 
 
@@ -512,4 +423,4 @@ def finished_store(store: str | Path):
 
 
 __all__ = ["ChunkStore", "StoreError", "StoreIOError", "Lock", "finished_store", "identity", "describe_changes",
-           "model_fingerprint", "read_manifest", "load_results", "engines_of", "plan_from_manifest", "stored_batch"]
+           "read_manifest", "load_results", "engines_of", "plan_from_manifest", "stored_batch"]

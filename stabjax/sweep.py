@@ -30,6 +30,7 @@ from .config import setup_jax, versions
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import ValidationError
+from .identity import provenance as identity_attrs
 from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
@@ -399,10 +400,8 @@ def provenance(plan: Plan) -> dict[str, Any]:
         "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
         "integrate_json": json.dumps(plan.icfg.__dict__),
         "verdict_json": json.dumps(plan.vcfg.__dict__),
-        "fingerprint": plan.fingerprint(),
         "system_ref": str(plan.spec.get("system", plan.system.name)),
-        "model_file": str(_model_file(plan)),
-        "model_sha256": plan.model_sha256,
+        **identity_attrs(plan),  # fingerprint, model file and every local module it imports, with hashes
         "outcomes_from_verdicts": int(plan.scheme.from_verdicts),
         "versions_json": json.dumps(versions()),
         "git_commit": _git_commit(),
@@ -410,13 +409,6 @@ def provenance(plan: Plan) -> dict[str, Any]:
         "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus".strip(),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-
-
-def _model_file(plan) -> str:
-    from .models import source_file
-
-    f = source_file(plan.system)
-    return str(f) if f is not None else ""
 
 
 def write(ds: xr.Dataset, out: str | Path) -> Path:
