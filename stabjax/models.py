@@ -225,10 +225,14 @@ def _load_file(path: Path, cls_name: str, ref: str):
     if spec is None or spec.loader is None:
         raise ValidationError("system", f"{path}: cannot be loaded as a Python module")
     module = importlib.util.module_from_spec(spec)
-    # the local modules an earlier load of this model imported are imported afresh (an edited helper
-    # must not be served from this process's module cache)
-    for name in _model_imports.pop(str(path), ()):
-        sys.modules.pop(name, None)
+    # local modules are imported afresh for each load: those an earlier model load imported (an
+    # edited helper must not be served from this process's module cache) and any module named like a
+    # file beside this model (another model's ``helpers`` must not stand in for this one's)
+    beside = {p.stem for p in path.parent.glob("*.py")} | {p.parent.name for p in path.parent.glob("*/__init__.py")}
+    stale = set().union(*_model_imports.values()) if _model_imports else set()
+    for name in list(sys.modules):
+        if name in stale or name.split(".")[0] in beside and _local_file(sys.modules[name]):
+            sys.modules.pop(name, None)
     before = set(sys.modules)
     sys.modules[mod_name] = module  # dataclasses and pickling look classes up by module
     folder = str(path.parent)
