@@ -338,6 +338,7 @@ class ChunkStore:
         self.repaired: list[str] = []  # chunks found missing or corrupt on open (recomputed)
         self._group = None
         self._tf: Any = False  # template features: not yet known
+        self._restarted = False
         ident = identity(plan, {"batch_size": self.batch, **(overrides or {})})
         if self.path.is_dir() and not restart and not (self.path / MANIFEST).exists():
             self._refuse_foreign()  # before the lock: nothing is created in a directory that is not ours
@@ -364,7 +365,8 @@ class ChunkStore:
                     self.manifest["resumed_with_versions"].append(v)
                 self._check_chunks()
             else:
-                self._refuse_foreign()
+                if not self._restarted:
+                    self._refuse_foreign()
                 self.manifest = {"format": FORMAT, "identity": ident, "batch_size": self.batch,
                                  "chunking": {"shape": list(self.chunking.shape), "block": list(self.chunking.block)},
                                  "n_chunks": self.n_chunks, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -393,6 +395,7 @@ class ChunkStore:
             old = self._damaged_manifest()
         if old is not None:
             self._remove_entries(old)
+            self._restarted = True  # a store of ours: what else a user put in it stays, and is no reason to refuse
         return None
 
     def _damaged_manifest(self) -> dict:
