@@ -549,6 +549,8 @@ class ChunkStore:
         holders = {k: da.empty(shape + v.shape[1:], chunks=block + v.shape[1:], dtype=v.dtype) for k, v in rec.items()}
         ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan))
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
+        for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
+            ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
         names = [ROOT, *sorted(str(k) for k in ds.variables)]
         # write-ahead: the manifest lists every entry before it exists, so --restart can remove them
         leftovers = [e for e in self.manifest["entries"] if e != MANIFEST]  # of a creation killed midway
