@@ -179,10 +179,10 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
     n = plan.size
-    n_chunks = -(-n // batch)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
         else _Memory(plan, batch)
+    n_chunks = sink.n_chunks  # blocks of the grid of at most `batch` trajectories (store.Chunking)
     t_start = time.perf_counter()
     try:
         pending = sink.pending()

@@ -271,7 +271,10 @@ def test_lazy_assembly_for_big_sweeps(spec, tmp_path, monkeypatch, reference):
 
     monkeypatch.setattr(SW, "LAZY_ABOVE", 0)
     out = tmp_path / "lazy.nc"
-    ds = run_spec(spec, out, batch_size=3)  # chunks that do not align with the grid's rows
+    ds = run_spec(spec, out, batch_size=3, keep_partial=True)  # chunks that do not align with the grid's rows
+    # a requested size of 3 on rows of 4: blocks of 2 (two per row, balanced), 8 chunks
+    m = S.read_manifest(tmp_path / "lazy.nc.zarr")
+    assert m["n_chunks"] == 8 and len(m["chunks"]) == 8 and ds.attrs["chunks_resumed"] == 0
     assert ds["verdict"].chunks is not None  # returned lazily, read from the file
     assert_same(ds, reference)
     assert_same(open_result(out), reference)
