@@ -51,12 +51,17 @@ def model_sources(system) -> dict[str, str]:
     then every local module it imported (recorded by :func:`stabjax.models.load_file` when the
     model was loaded, with the hashes of the bytes that were executed). For a system not loaded
     from a file (built in, ``module:Class``, a class given in Python) the defining file is hashed
-    now; ``{}`` when the class has no file."""
+    now, with the local modules it imports by name (:func:`stabjax.models.local_sources`); ``{}``
+    when the class has no file."""
     cls = type(system)
-    recorded = getattr(cls, "_stabjax_sources", None)
+    recorded = vars(cls).get("_stabjax_sources")  # set on this class, not inherited from a model's base
     if recorded:
         return dict(recorded)
-    from .models import source_file
+    from .models import local_sources, source_file
+
+    local = local_sources(cls)  # a user's class given in Python or as module:Class: its local imports too
+    if local:
+        return local
 
     f = source_file(system)
     if f is None or not f.exists():

@@ -279,7 +279,29 @@ def _sources_unchanged(system) -> bool:
     return True
 
 
+def local_sources(cls, new_modules: set[str] = frozenset()) -> dict[str, str]:
+    """``{path: sha256}`` of a class's defining file and the local modules it imports, when that file
+    is the user's own (outside the installed packages; ``{}`` otherwise: an installed package is
+    identified by its version). For classes not loaded from a model file (``module:Class``, a class
+    given in Python); ``new_modules``: modules that appeared while its module was imported."""
+    module = sys.modules.get(getattr(cls, "__module__", ""), None)
+    f = _local_file(module)
+    if f is None:
+        return {}
+    try:
+        source = Path(f).read_bytes()
+    except OSError:
+        return {}
+    imports = _local_imports(set(new_modules) - {module.__name__}, source)
+    out = {f: hashlib.sha256(source).hexdigest()}
+    for g in sorted(set(imports.values()) - {f}):
+        with contextlib.suppress(OSError):
+            out[g] = hashlib.sha256(Path(g).read_bytes()).hexdigest()
+    return out
+
+
 def _load_module(mod: str, cls_name: str, ref: str):
+    before = set(sys.modules)
     try:
         with time_limit("importing the model", mod):
             module = importlib.import_module(mod)
@@ -292,6 +314,10 @@ def _load_module(mod: str, cls_name: str, ref: str):
     cls = getattr(module, cls_name, None)
     if cls is None:
         raise ValidationError("system", f"module {mod!r} has no attribute {cls_name!r}")
+    if inspect.isclass(cls) and "_stabjax_sources" not in vars(cls):
+        src = local_sources(cls, set(sys.modules) - before)
+        if src:
+            cls._stabjax_sources = src
     return cls
 
 

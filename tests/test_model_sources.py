@@ -189,3 +189,38 @@ def test_bad_model_timeout_setting_is_named(project, capsys, monkeypatch):
                       capsys)
     assert code == 2 and "STABJAX_MODEL_TIMEOUT" in text and "'soon'" in text, text
     np.testing.assert_equal(sorted(p.name for p in project.iterdir()), ["helpers.py", "model.py", "spec.toml"])
+
+
+def test_a_module_class_model_records_its_local_imports(tmp_path, monkeypatch):
+    """``package.module:Class`` from the user's own package (on sys.path, not installed): the identity
+    covers the module, its package and the module it imports. Fails if only the defining file is
+    hashed (an edited helper would then go unnoticed)."""
+    import sys
+
+    from stabjax.identity import changed_sources, model_sources, provenance
+    from stabjax.models import resolve
+    from stabjax.spec import make_plan
+
+    pkg = tmp_path / "stabjax_test_userpkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "helpers.py").write_text(HELPER)
+    (pkg / "osc.py").write_text(MODEL.replace("from helpers import", "from stabjax_test_userpkg.helpers import"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in [m for m in sys.modules if m.startswith("stabjax_test_userpkg")]:
+        monkeypatch.delitem(sys.modules, name)
+    try:
+        system = resolve("stabjax_test_userpkg.osc:Oscillator")
+        src = model_sources(system)
+        assert src == {str((pkg / f).resolve()): _sha(pkg / f) for f in ("osc.py", "__init__.py", "helpers.py")}
+        assert list(src)[0] == str((pkg / "osc.py").resolve())  # the defining file first
+        # this process keeps running the helper it imported, and its identity says so; a result of it
+        # warns once the file on disk differs (a new process would refuse to resume: other hashes)
+        attrs = provenance(make_plan({"system": "stabjax_test_userpkg.osc:Oscillator", "grid": {"k": [0.0]}}))
+        assert changed_sources(attrs) == []
+        (pkg / "helpers.py").write_text(HELPER + "\n# edited\n")
+        changed = changed_sources(attrs)
+        assert len(changed) == 1 and changed[0].startswith(str((pkg / "helpers.py").resolve()))
+    finally:
+        for name in [m for m in sys.modules if m.startswith("stabjax_test_userpkg")]:
+            sys.modules.pop(name, None)
