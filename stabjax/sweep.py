@@ -25,13 +25,13 @@ import xarray as xr
 
 from . import verdict as V
 from . import engines
-from .config import setup_jax, versions
+from .config import setup_jax
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import ValidationError
 from . import dataset as D
 from .store import Chunking
-from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
+from .spec import Plan, check_plan, load_spec, make_plan, static_params
 
 DEFAULT_MEMORY_FRACTION = 0.25
 
