@@ -41,11 +41,24 @@ def trailing_dims(key: str, ndim_trailing: int) -> tuple[str, ...]:
     return extra + tuple(f"{key}_dim{i}" for i in range(len(extra), ndim_trailing))
 
 
-def template_features(plan) -> np.ndarray | None:
-    """(grid points, templates, features) of the plan's templates, or None (no templates)."""
-    from .basin import template_features as tf
+def grid_layout(plan) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """(dims, shape) of the plan's grid points: its dims without ``sample``."""
+    if plan.n_sample:
+        return tuple(plan.dims[:-1]), tuple(plan.shape[:-1])
+    return tuple(plan.dims), tuple(plan.shape)
 
-    return tf(plan)
+
+def template_features(plan) -> np.ndarray | None:
+    """(grid points, templates, features) of the plan's templates, or None (no templates): each
+    template integrated at the parameters of each grid point (its first trajectory)."""
+    from .basin import template_features_at
+
+    sch = plan.outcomes
+    if sch is None or sch.decl is None or not sch.decl.templates:
+        return None
+    ns = max(plan.n_sample, 1)
+    g = plan.size // ns
+    return template_features_at(plan, plan.params_at(np.arange(g) * ns))
 
 
 def derive_chunk(plan, res: Mapping[str, np.ndarray], lo: int, hi: int, tf: np.ndarray | None) -> dict[str, np.ndarray]:
@@ -88,7 +101,7 @@ def basin_vars(plan, codes) -> dict[str, tuple]:
 
 
 def _basin_layout(plan, st: Mapping[str, Any]) -> dict[str, tuple]:
-    gdims = tuple(a.name for a in plan.grid) + ("outcome_name",)
+    gdims = grid_layout(plan)[0] + ("outcome_name",)
     n = plan.n_sample
     return {
         "basin_count": (gdims, st["count"], {"long_name": f"trajectories per outcome (of N = {n})", "units": "1"}),
@@ -106,7 +119,7 @@ def basin_placeholders(plan, chunks: bool = True) -> dict[str, tuple]:
 
     if not plan.n_sample:
         return {}
-    shape = tuple(a.size for a in plan.grid) + (len(plan.scheme.names),)
+    shape = grid_layout(plan)[1] + (len(plan.scheme.names),)
     st = {k: da.zeros(shape, dtype=np.int64 if k == "count" else float, chunks=shape)
           for k in ("count", "fraction", "se", "ci_low", "ci_high")}
     return _basin_layout(plan, st)
@@ -149,9 +162,14 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
     shape, dims = plan.shape, plan.dims
     coords: dict[str, Any] = {}
     data: dict[str, Any] = {}
-    for ax in plan.grid:
+    points = getattr(plan, "points", None)  # explicit grid points (P, n_axes) instead of the axes' product
+    if points is not None:
+        coords["point"] = ("point", np.arange(len(points)), {"long_name": "grid point index", "units": "1"})
+    for a, ax in enumerate(plan.grid):
         attrs = {"long_name": ax.param.doc, "units": ax.param.unit, "spec_key": ax.key, "log_axis": int(ax.log)}
-        if ax.values.ndim == 1:
+        if points is not None:
+            coords[ax.name] = ("point", np.asarray(points)[:, a], attrs)
+        elif ax.values.ndim == 1:
             coords[ax.name] = (ax.name, ax.values, attrs)
         else:  # vector-valued axis: index coordinate + the vectors as a variable
             coords[ax.name] = (ax.name, np.arange(ax.size), attrs)
@@ -182,8 +200,7 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
         coords["outcome_name"] = ("outcome_name", np.array(sch.names, dtype=object),
                                   {"long_name": "outcome name (code = index)"})
         if tf is not None:
-            gdims = tuple(a.name for a in plan.grid)
-            gshape = tuple(a.size for a in plan.grid)
+            gdims, gshape = grid_layout(plan)
             data["template_features"] = ((*gdims, "template", "feature"), tf.reshape(*gshape, *tf.shape[1:]),
                                          {"long_name": "feature vectors of the templates at each grid point"})
             coords["template"] = ("template", np.array(list(sch.decl.templates), dtype=object))

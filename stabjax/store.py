@@ -580,6 +580,27 @@ def engines_of(manifest: Mapping[str, Any]) -> dict[str, list[list[int]]]:
     return by
 
 
+def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool = False) -> dict[str, Any]:
+    """The per-trajectory records of a store, flat over the trajectories (N, *trailing) in the plan's
+    C order: dask arrays reading the store (``lazy``) or numpy."""
+    import zarr
+
+    with _quiet_zarr():
+        g = zarr.open_group(Path(path), mode="r", zarr_format=3)
+    nd = len(manifest["chunking"]["shape"])
+    out = {}
+    for k, meta in (manifest.get("arrays") or {}).items():
+        trailing = tuple(meta["trailing"])
+        if lazy:
+            import dask.array as da
+
+            a = da.from_zarr(g[k])
+        else:
+            a = np.asarray(g[k][...])
+        out[k] = a.reshape((-1, *trailing)) if nd else a.reshape((1, *trailing))
+    return out
+
+
 def open_store(path: str | Path):
     """The dataset a store holds, as xarray reads it (``xr.open_zarr``), lazily; with the zarr
     encodings dropped and text coordinates as Python strings, so that it writes to netCDF exactly
@@ -647,5 +668,5 @@ def finished_store(store: str | Path) -> dict:
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
-           "identity", "describe_changes", "read_manifest", "open_store", "engines_of", "plan_from_manifest",
+           "identity", "describe_changes", "read_manifest", "open_store", "load_results", "engines_of", "plan_from_manifest",
            "stored_batch", "verify", "checksum"]

@@ -308,6 +308,10 @@ def test_trailing_dims_are_chunked_with_the_sweep(spec, tmp_path, monkeypatch):
     ds = S.open_store(path)
     for k, v in full.items():
         np.testing.assert_array_equal(ds[k].values, v.reshape(4, 4, *v.shape[1:]))
+    for lazy in (False, True):  # the flat per-trajectory records, for a runner that reads them back
+        got = S.load_results(path, S.read_manifest(path), lazy=lazy)
+        for k, v in full.items():
+            np.testing.assert_array_equal(np.asarray(got[k]), v)
 
 
 @pytest.mark.parametrize("shape", [(4, 4), (7, 13), (3, 1000), (5, 3, 7), (1, 1), (10,), (2, 9, 1, 5)])
