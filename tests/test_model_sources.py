@@ -224,3 +224,38 @@ def test_a_module_class_model_records_its_local_imports(tmp_path, monkeypatch):
     finally:
         for name in [m for m in sys.modules if m.startswith("stabjax_test_userpkg")]:
             sys.modules.pop(name, None)
+
+
+@pytest.mark.slow  # three CLI processes (~30 s on 2 busy cores)
+def test_helper_edited_between_kill_9_and_resume_in_new_processes(project):
+    """The user's sequence: a sweep killed with SIGKILL, the helper edited, the same command again
+    (a fresh process, which imports the edited helper): refused with status 2 naming the helper and
+    the store untouched; with --restart every chunk is computed with the new helper (all decay)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import kill_after_chunks
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root), JAX_PLATFORMS="cpu", STABJAX_THREADS="1")
+    cmd = [sys.executable, "-m", "stabjax", "sweep", str(project / "spec.toml"), "--out", str(project / "res.nc"),
+           "--batch-size", "4", "--no-progress", "--no-plot"]
+    store = project / "res.nc.zarr"
+    p = subprocess.Popen(cmd, env={**env, "_STABJAX_TEST_CHUNK_SLEEP": "0.7"}, cwd=project,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    kill_after_chunks(p, store, 1, 120)
+    done = len(S.read_manifest(store)["chunks"])
+    assert 1 <= done < 4
+    (project / "helpers.py").write_text(HELPER_NO_FEEDBACK)
+    manifest = (store / "manifest.json").read_bytes()
+    r = subprocess.run(cmd, env=env, cwd=project, capture_output=True, text=True, timeout=180)
+    err = " ".join(r.stderr.split())
+    assert r.returncode == 2 and "model module helpers.py (imported by model.py)" in err, err
+    assert (store / "manifest.json").read_bytes() == manifest
+    r = subprocess.run(cmd + ["--restart"], env=env, cwd=project, capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    ds = xr.load_dataset(project / "res.nc")
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert ds.attrs["chunks_resumed"] == 0 and (ds["outcome"].values == names.index("decays")).all()
