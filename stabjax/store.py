@@ -452,12 +452,20 @@ class ChunkStore:
         nd = len(shape)
         enc = {k: {"chunks": block + tuple(v.shape[nd:])} for k, v in ds.variables.items()
                if nd and v.dims[:nd] == self.plan.dims}
+        if "outcome" in rec and self._basin_per_chunk():  # basin statistics: one zarr chunk per sweep chunk's grid points
+            for k in D.basin_placeholders(self.plan):
+                enc[k] = {"chunks": block[:-1] + tuple(ds[k].shape[nd - 1:])}
         with _quiet_zarr():
             ds.to_zarr(self.path, mode="a", compute=False, zarr_format=3, consolidated=True, encoding=enc)
         self._group = None
         self.manifest["arrays"] = {k: {"dtype": v.dtype.str, "trailing": list(v.shape[1:]),
                                        "dims": list(ds[k].dims[nd:])} for k, v in rec.items()}
         self._save_manifest()
+
+    def _basin_per_chunk(self) -> bool:
+        """Whether each chunk holds every sample of its grid points (the sample axis is not split)."""
+        ax = self.chunking.axis
+        return bool(self.plan.n_sample) and (ax is None or ax < len(self.chunking.shape) - 1)
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         """Store chunk ``i`` (the engine's results, trimmed to the chunk's trajectories): its record
@@ -486,6 +494,11 @@ class ChunkStore:
                     b = np.ascontiguousarray(v.reshape(block + trailing))
                     g[k][region + (slice(None),) * len(trailing)] = b
                     sums[k] = checksum(b)
+                if "outcome" in rec and self._basin_per_chunk():
+                    # a reader of the running store sees the statistics of every finished grid point (the
+                    # chunk holds all its samples); finish() computes them all again from the stored outcomes
+                    for k, (_, values, _) in D.basin_vars(self.plan, rec["outcome"].reshape(block)).items():
+                        g[k][region[:-1] + (slice(None),)] = values
             entry = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else 0}
             entry.update(info or {})
             entry["sha256"] = sums

@@ -185,3 +185,31 @@ def test_open_zarr_on_a_running_sweep_gives_the_datasets_variables(spec, tmp_pat
             np.testing.assert_array_equal(z[k].values[:2], reference[k].values[:2], err_msg=k)
         elif k.startswith(("theory_", "margin_", "derived_")):
             np.testing.assert_array_equal(z[k].values, reference[k].values, err_msg=k)
+
+
+SAMPLED = TINY.replace("sigma = [1.2, 1.3, 1.4, 1.5]\n", "").replace(
+    "[integrate]", "[sample]\nn = 5\nseed = 0\ns0 = {dist = \"cap\", center = \"r\", half_angle = 0.5}\n[integrate]")
+
+
+def test_a_running_sampled_sweep_shows_the_basin_statistics_of_its_finished_grid_points(tmp_path):
+    """Each chunk holds every sample of its grid point (4 alphas x 5 samples, chunks of one alpha): after
+    two chunks the store's basin statistics at those alphas equal the finished reference run's, and the
+    others read as not computed (NaN), not as a fraction of zero."""
+    ref = run_plan(make_plan(tomllib.loads(SAMPLED)), None, batch_size=5)
+    spec = tmp_path / "s.toml"
+    spec.write_text(SAMPLED)
+    out = tmp_path / "s.nc"
+
+    def stop(i, n):
+        if i == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, out, batch_size=5, on_chunk=stop)
+    z = xr.open_zarr(tmp_path / "s.nc.zarr")
+    for k in ("basin_count", "basin_fraction", "basin_ci_low", "basin_ci_high", "outcome"):
+        np.testing.assert_array_equal(z[k].values[:2], ref[k].values[:2], err_msg=k)
+    assert np.isnan(z["basin_fraction"].values[2:]).all()
+    ds = run_spec(spec, out, batch_size=5)
+    assert ds.attrs["chunks_resumed"] == 2
+    assert_same(ds, ref)
