@@ -735,7 +735,11 @@ def reproduce(
         _refuse_foreign(out_dir, [out_dir / rel for rel in mine], mine)
     staging = out_dir / f".staging-{name}"
     staging.mkdir(parents=True, exist_ok=True)
-    files = [Path(f) for f in fn(staging, quick=quick)]
+    made = [Path(f) for f in fn(staging, quick=quick)]
+    for f in made:  # a reproducer that writes elsewhere: said, not moved
+        if not f.resolve().is_relative_to(staging.resolve()):
+            console.print(f"wrote {f}", markup=False)
+    files = [f for f in made if f.resolve().is_relative_to(staging.resolve())]
     rels = [f.resolve().relative_to(staging.resolve()) for f in files]
     if not force:
         _refuse_foreign(out_dir, [out_dir / r for r in rels], mine, staging=staging)
@@ -846,6 +850,11 @@ def _click_exception() -> type[Exception]:
 def _interrupt_status(exc: BaseException) -> tuple[int, str]:
     """(exit status, what) of an interruption: 128 + the signal (SIGTERM 143, SIGHUP 129), Ctrl-C 130.
     click turns a KeyboardInterrupt into ``Abort``: the signal is found on the exception's chain."""
+    from . import signals
+
+    sig = signals.last_raised()
+    if sig is not None:
+        return sig.status, f" by {sig.name}"
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
@@ -874,7 +883,7 @@ def main(argv: list[str] | None = None):
     from .config import setup_jax
     from .errors import StabjaxError
 
-    signals.install()
+    previous = signals.install()
     click_exception = _click_exception()
     try:
         setup_jax()  # validates the environment: a bad variable is an error naming it, not a traceback
@@ -901,8 +910,15 @@ def main(argv: list[str] | None = None):
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         _error(f"{where}{exc.strerror or exc}")
         sys.exit(1)
+    finally:
+        signals.restore(previous)
     if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
-        sys.exit(rv)
+        # typer returns 130 for any KeyboardInterrupt a command did not handle: a SIGTERM/SIGHUP gets its own
+        # status back here (the sweep handles its interruptions itself and returns 128 + signal)
+        sig = signals.last_raised() if rv == 130 else None
+        if sig is not None:
+            err_console.print(f"interrupted by {sig.name}", style="yellow", markup=False)
+        sys.exit(sig.status if sig is not None else rv)
 
 
 if __name__ == "__main__":

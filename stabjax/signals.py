@@ -18,7 +18,7 @@ import threading
 from .errors import Interrupted
 
 SIGNALS = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None)
-_state = {"defer": 0, "pending": None}
+_state = {"defer": 0, "pending": None, "raised": None}
 
 
 def _handler(signum, frame):
@@ -26,15 +26,30 @@ def _handler(signum, frame):
         _state["pending"] = signum  # the chunk in flight finishes and is written first
         return
     _state["pending"] = None
-    raise Interrupted(signum)
+    _state["raised"] = Interrupted(signum)
+    raise _state["raised"]
 
 
-def install() -> None:
-    """Handle SIGTERM and SIGHUP like Ctrl-C (main thread only: elsewhere Python refuses handlers)."""
+def install() -> dict:
+    """Handle SIGTERM and SIGHUP like Ctrl-C (main thread only: elsewhere Python refuses handlers).
+    Returns the previous handlers, for :func:`restore` (the command line restores them when it returns,
+    so a program or test that calls :func:`stabjax.cli.main` in-process keeps its own)."""
+    _state["raised"] = None
     if threading.current_thread() is not threading.main_thread():
-        return
-    for s in SIGNALS:
-        signal.signal(s, _handler)
+        return {}
+    return {s: signal.signal(s, _handler) for s in SIGNALS}
+
+
+def last_raised() -> Interrupted | None:
+    """The :class:`Interrupted` raised since :func:`install`, if any: typer turns every
+    ``KeyboardInterrupt`` into status 130, and the command line restores 128 + signal from this."""
+    return _state["raised"]
+
+
+def restore(previous: dict) -> None:
+    for s, h in previous.items():
+        signal.signal(s, h if h is not None else signal.SIG_DFL)
+    _state["pending"] = None
 
 
 def hold() -> None:
@@ -54,4 +69,5 @@ def checkpoint() -> None:
     s = _state["pending"]
     if s is not None:
         _state["pending"] = None
-        raise Interrupted(s)
+        _state["raised"] = Interrupted(s)
+        raise _state["raised"]

@@ -447,3 +447,20 @@ def test_every_command_help_shows_its_brackets(capsys):
         code, o, err = cli(capsys, name.removesuffix("-cmd"), "--help")
         for w in words:
             assert w in o, (name, w)
+
+
+def test_sigterm_in_any_command_exits_143_and_handlers_are_restored(capsys, monkeypatch):
+    from stabjax import registry
+
+    before = signal.getsignal(signal.SIGTERM)
+
+    def slow(*a, **k):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+        raise AssertionError("SIGTERM did not interrupt")
+
+    monkeypatch.setattr(registry, "get_system", slow)
+    code, o, err = cli(capsys, "theory", "monoaxial")
+    assert code == 143 and "interrupted by SIGTERM" in err, err
+    clean(o, err)
+    assert signal.getsignal(signal.SIGTERM) is before  # an in-process caller keeps its own handler
