@@ -358,7 +358,7 @@ def simulate(
         t.add_column("quantity")
         t.add_column("value")
         for k, v in final.items():
-            t.add_row(escape(k), np.array2string(np.asarray(v), precision=8) if not isinstance(v, bool) else str(v))
+            t.add_row(escape(k), escape(np.array2string(np.asarray(v), precision=8)) if not isinstance(v, bool) else str(v))
         console.print(t)
         if out is not None:
             console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False)
@@ -394,7 +394,7 @@ def theory(
         t.add_column(col, overflow="fold")
     for k, v in res["predicates"].items():
         mark = "[green]yes[/green]" if v["ok"] else "[red]no[/red]"
-        t.add_row(escape(k + (" (main)" if k == th.main else "")), mark, np.array2string(v["margin"], precision=6),
+        t.add_row(escape(k + (" (main)" if k == th.main else "")), mark, escape(np.array2string(v["margin"], precision=6)),
                   escape(str(v["statement"])))
     console.print(t)
     if res["derived"]:
@@ -402,7 +402,7 @@ def theory(
         for col in ("name", "value", "meaning"):
             d.add_column(col, overflow="fold")
         for k, v in res["derived"].items():
-            d.add_row(escape(k), np.array2string(v["value"], precision=6), escape(str(v["meaning"])))
+            d.add_row(escape(k), escape(np.array2string(v["value"], precision=6)), escape(str(v["meaning"])))
         console.print(d)
 
 
@@ -495,8 +495,8 @@ def sweep(
             executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
                   f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})", markup=False)
-    status = _run_status(ds, out)
     _report(ds, out.with_suffix(".png") if plot else None, result=out)
+    status = _run_status(ds, out)  # the last line: how many failed, when any did
     if status:
         raise typer.Exit(status)
 
