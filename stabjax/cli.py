@@ -718,8 +718,9 @@ def reproduce(
 
     The files are made in a staging folder inside --out-dir and moved into it at the end. A file already
     there is replaced only when an earlier `stabjax reproduce NAME` wrote it and it is unchanged since
-    (recorded in --out-dir/.stabjax-reproduce.json); any other existing file (the figures tracked in the
-    repository, a file you edited) needs --force. When refused, the new files stay in the staging folder."""
+    (recorded in --out-dir/.stabjax-reproduce.json); any other figure, table or result there (the figures
+    tracked in the repository, a file you edited) needs --force, and is refused before anything is
+    computed. A conflict found only after the run leaves the new files in the staging folder."""
     from .registry import get_reproducer
 
     fn = get_reproducer(name)
@@ -730,9 +731,19 @@ def reproduce(
         raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
     record = _reproduce_record(out_dir)
     mine = record.get(name, {})
-    # known names first (an earlier run recorded them): refuse before minutes of computing
+    # before minutes of computing: the names an earlier run recorded, and any file of the kinds a
+    # reproduction writes that this command did not write there (the figures tracked in the repository)
     if not force:
         _refuse_foreign(out_dir, [out_dir / rel for rel in mine], mine)
+        foreign = sorted(p.name for p in out_dir.glob("*") if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in REPRODUCE_SUFFIXES
+                         and not _is_mine(p, out_dir, mine)) if out_dir.is_dir() else []
+        if foreign:
+            from .errors import ValidationError
+
+            shown = ", ".join(foreign[:3]) + (f", ... ({len(foreign)} in all)" if len(foreign) > 3 else "")
+            raise ValidationError("--out-dir", f"{out_dir} holds files this command did not write ({shown}); "
+                                               "reproducing may replace them: pass --force to allow it, or choose "
+                                               "another --out-dir")
     staging = out_dir / f".staging-{name}"
     staging.mkdir(parents=True, exist_ok=True)
     made = [Path(f) for f in fn(staging, quick=quick)]
@@ -773,10 +784,21 @@ def _reproduce_record(out_dir: Path) -> dict:
     return rec if isinstance(rec, dict) else {}
 
 
-def _refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Optional[Path] = None) -> None:
-    """Refuse when a destination exists and is not, unchanged, a file an earlier run of this command wrote."""
+REPRODUCE_SUFFIXES = (".png", ".pdf", ".svg", ".nc", ".md", ".txt", ".json", ".csv")  # what reproducers write
+
+
+def _is_mine(path: Path, out_dir: Path, mine: dict) -> bool:
+    """Whether ``path`` is a file an earlier run of this reproduction wrote there, unchanged since."""
     import hashlib
 
+    try:
+        return mine.get(str(path.relative_to(out_dir))) == hashlib.sha256(path.read_bytes()).hexdigest()
+    except (OSError, ValueError):
+        return False
+
+
+def _refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Optional[Path] = None) -> None:
+    """Refuse when a destination exists and is not, unchanged, a file an earlier run of this command wrote."""
     from .errors import ValidationError
 
     for dest in dests:
@@ -784,8 +806,7 @@ def _refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Optio
             continue
         if dest.is_dir():
             raise ValidationError("--out-dir", f"{dest} is a directory where a file would be written")
-        rel = str(dest.relative_to(out_dir))
-        if mine.get(rel) == hashlib.sha256(dest.read_bytes()).hexdigest():
+        if _is_mine(dest, out_dir, mine):
             continue  # our own previous result, unchanged: replaced like a re-run of any command
         kept = f"; the new files are kept in {staging}" if staging is not None else ""
         raise ValidationError("--out-dir", f"{dest} exists and was not written by this command (or was changed "

@@ -102,9 +102,10 @@ def _fake_reproducer(calls):
     return run
 
 
-def test_reproduce_stages_and_refuses_foreign_files(tmp_path, capsys, monkeypatch):
-    """The shipped figures (no record of ours) need --force; our own unchanged files are replaced; a file
-    changed since we wrote it is refused again; refused new files are kept in the staging folder."""
+def test_reproduce_refuses_foreign_files_and_replaces_its_own(tmp_path, capsys, monkeypatch):
+    """The shipped figures (no record of ours) need --force, refused before anything is computed; our own
+    unchanged files are replaced; a file changed since we wrote it is refused again; a file of a kind
+    reproducers do not write (a README) is never in the way."""
     from stabjax import registry
 
     calls = []
@@ -114,11 +115,10 @@ def test_reproduce_stages_and_refuses_foreign_files(tmp_path, capsys, monkeypatc
     (out_dir / "fig.png").write_bytes(b"shipped figure")
     (out_dir / "README").write_text("mine")
     code, o, err = cli(capsys, "reproduce", "fake", "--out-dir", out_dir)
-    assert code == 2 and "error: --out-dir:" in err and "fig.png exists and was not written by this command" in err
-    assert "--force" in err and ".staging-fake" in err
+    assert code == 2 and "error: --out-dir:" in err and "holds files this command did not write (fig.png)" in err
+    assert "--force" in err and not calls
     clean(o, err)
-    assert (out_dir / "fig.png").read_bytes() == b"shipped figure" and not (out_dir / "table.md").exists()
-    assert (out_dir / ".staging-fake" / "fig.png").read_bytes() == b"new figure"  # the work is kept
+    assert sorted(p.name for p in out_dir.iterdir()) == ["README", "fig.png"]
     code, o, err = cli(capsys, "reproduce", "fake", "--out-dir", out_dir, "--force")
     assert code == 0 and "(replaced)" in o
     assert (out_dir / "fig.png").read_bytes() == b"new figure" and (out_dir / "table.md").read_text() == "new table"
@@ -131,8 +131,27 @@ def test_reproduce_stages_and_refuses_foreign_files(tmp_path, capsys, monkeypatc
     n = len(calls)
     code, o, err = cli(capsys, "reproduce", "fake", "--out-dir", out_dir)
     assert code == 2 and "table.md exists" in err
-    assert len(calls) == n  # known names: refused before anything is computed
+    assert len(calls) == n  # refused before anything is computed
     assert (out_dir / "table.md").read_text() == "edited by hand"
+
+
+def test_reproduce_keeps_refused_work_in_staging(tmp_path, capsys, monkeypatch):
+    """A conflict only visible after the run (a file in a subfolder): nothing replaced, the new files kept."""
+    from stabjax import registry
+
+    def run(out_dir: Path, quick: bool = False):
+        (out_dir / "sub").mkdir(parents=True, exist_ok=True)
+        f = out_dir / "sub" / "fig.png"
+        f.write_bytes(b"new")
+        return [f]
+
+    monkeypatch.setattr(registry, "get_reproducer", lambda name: run)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "fig.png").write_bytes(b"old")
+    code, o, err = cli(capsys, "reproduce", "fake", "--out-dir", tmp_path)
+    assert code == 2 and "fig.png exists and was not written by this command" in err and ".staging-fake" in err
+    assert (tmp_path / "sub" / "fig.png").read_bytes() == b"old"
+    assert (tmp_path / ".staging-fake" / "sub" / "fig.png").read_bytes() == b"new"
 
 
 # ---- item 3: outputs never resolve to the spec, the model or a module ------------------------------------
