@@ -483,3 +483,34 @@ def test_sigterm_in_any_command_exits_143_and_handlers_are_restored(capsys, monk
     assert code == 143 and "interrupted by SIGTERM" in err, err
     clean(o, err)
     assert signal.getsignal(signal.SIGTERM) is before  # an in-process caller keeps its own handler
+
+
+# ---- items 7 and 9: what stays accepted ------------------------------------------------------------------
+
+
+def test_one_entry_swept_with_the_vector_fixed_is_accepted():
+    """Item 7 refuses a parameter both fixed and swept; one entry swept with the rest of the vector fixed
+    is a different, meaningful spec and stays accepted."""
+    from stabjax.spec import make_plan
+
+    p = make_plan({"system": "monoaxial", "params": {"J": [4.0, 5.0, 4.0]}, "grid": {"J[0]": [4.0, 5.0]}})
+    assert p.shape == (2,)
+    np.testing.assert_array_equal(p.params_for(0, 2)["J"], [[4.0, 5.0, 4.0], [5.0, 5.0, 4.0]])
+
+
+def test_environment_variables_are_read_through_their_checks(monkeypatch):
+    from stabjax.config import check_environment, setup_jax
+    from stabjax.engines.native import default_threads
+    from stabjax.errors import ValidationError
+
+    monkeypatch.setenv("STABJAX_THREADS", "3")
+    assert default_threads() == 3
+    monkeypatch.setenv("STABJAX_THREADS", "abc")
+    with pytest.raises(ValidationError) as info:
+        default_threads()  # a Dask worker or an API caller reads it too: never silently ignored
+    assert info.value.field == "STABJAX_THREADS"
+    monkeypatch.delenv("STABJAX_THREADS")
+    check_environment()
+    with pytest.raises(ValidationError) as info:
+        setup_jax(x64=False)
+    assert info.value.field == "x64"
