@@ -7,8 +7,9 @@ classified, 1 some failed (or a write failed), 2 usage or input error, 128 + N i
 (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP). Text that is not ours (messages, names, paths, docs) is printed
 without Rich markup, so brackets such as ``[refine]`` or ``grid.J[0]`` survive.
 
-Size (~600 lines): one function per command of the typer app plus the checks they share (usage
+Size (~750 lines): one function per command of the typer app plus the checks they share (usage
 errors, output paths, exit statuses); split by command, those checks would be imported back by each.
+What a command may write over (inputs, stores, reproductions, atomic maps) is :mod:`stabjax.outputs`.
 """
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from .outputs import check_store_path, input_files, same_file_as_any, write_image
 
 # rich_markup_mode=None: the help is plain text, so "[refine]" in a docstring is shown, not eaten as a tag
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
@@ -87,7 +90,7 @@ def _check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: t
                                      f"got {out.suffix or 'no extension'!r}")
     if out.parent.exists() and not out.parent.is_dir():
         raise ValidationError(field, f"{out.parent} is not a directory")
-    if out.exists() and _same_file_as_any(out, inputs):
+    if out.exists() and same_file_as_any(out, inputs):
         raise ValidationError(field, f"{out} is this command's input (the spec, the model or a module it imports, "
                                      "or the file read); it is never overwritten")
     if not out.exists():
@@ -96,62 +99,6 @@ def _check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: t
         return True
     raise ValidationError(field, f"{out} exists and is not {what}; pass --force to replace it, "
                                  "or choose another --out")
-
-
-def _same_file_as_any(path: Path, inputs) -> bool:
-    """Whether ``path`` is one of ``inputs`` (the same file on disk: through a symlink or a hard link too)."""
-    import os
-
-    try:
-        st = path.stat()
-    except OSError:
-        return False
-    for inp in inputs:
-        try:
-            si = os.stat(inp)
-        except (OSError, TypeError, ValueError):
-            continue
-        if (si.st_dev, si.st_ino) == (st.st_dev, st.st_ino):
-            return True
-    return False
-
-
-def _input_files(*paths, system=None) -> tuple[Path, ...]:
-    """What a command must never write over: the files it reads (``paths``), the model file of
-    ``system`` and every Python module loaded in this process (a model's helper modules among them:
-    an output path resolving to any of them would destroy user code)."""
-    files = [Path(p) for p in paths if p is not None]
-    if system is not None:
-        from .models import source_file
-
-        src = source_file(system)
-        if src is not None:
-            files.append(Path(src))
-    for mod in list(sys.modules.values()):
-        f = getattr(mod, "__file__", None)
-        if isinstance(f, str):
-            files.append(Path(f))
-    return tuple(files)
-
-
-def _check_store_path(store: Path, inputs) -> None:
-    """A chunk store is a directory of the sweep's own files: never an input file, never a folder
-    holding the spec or the model (a ``--restart`` there would be one step from deleting them)."""
-    from .errors import ValidationError
-
-    if store.exists() and not store.is_dir():
-        raise ValidationError("--store", f"{store} exists and is not a directory" +
-                              (" (it is this command's input)" if _same_file_as_any(store, inputs) else ""))
-    if store.is_dir():
-        root = store.resolve()
-        for f in inputs:
-            try:
-                inside = Path(f).resolve().is_relative_to(root)
-            except (OSError, ValueError):
-                continue
-            if inside and Path(f).exists():
-                raise ValidationError("--store", f"{store} holds {f}, an input of this command; a store directory "
-                                                 "holds only what the sweep writes: choose another --store")
 
 
 def _result_spec(path: Path):
@@ -328,7 +275,7 @@ def simulate(
     sysm = resolve(system, base_dir=Path.cwd())
     replacing = False
     if out is not None:
-        replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=_input_files(system=sysm), force=force,
+        replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=input_files(system=sysm), force=force,
                                   same=lambda p: _trajectory_system(p) == sysm.name,
                                   what=f"a trajectory of {sysm.name} written by stabjax simulate")
     times = None
@@ -445,7 +392,7 @@ def sweep(
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
-    inputs = _input_files(spec, system=plan.system)
+    inputs = input_files(spec, system=plan.system)
     this_spec = json.loads(spec_json(plan.spec))
     replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
                               same=lambda p: _result_spec(p) == this_spec,
@@ -456,7 +403,7 @@ def sweep(
                       same=lambda p: _png_spec(p) == _spec_digest(this_spec),
                       what="the map of a previous result of this spec")
     store = store or default_store(out)
-    _check_store_path(store, inputs)
+    check_store_path(store, inputs)
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
                           markup=False)
@@ -577,32 +524,8 @@ def _report(ds, png: Optional[Path], replaced: bool = False, result: Optional[Pa
         draw = plot_sweep
     if png is None:
         return
-    _write_image(png, lambda tmp: (draw(ds, tmp), _stamp_png(tmp, ds)), result)
+    write_image(png, lambda tmp: (draw(ds, tmp), _stamp_png(tmp, ds)), result)
     console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)
-
-
-def _write_image(path: Path, draw, result: Optional[Path] = None) -> None:
-    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic)."""
-    import os
-
-    import matplotlib.pyplot as plt
-
-    from .errors import OutputError
-    from .sweep import _write_reason
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
-        draw(tmp)
-        os.replace(tmp, path)
-    except (OSError, RuntimeError) as exc:
-        tmp.unlink(missing_ok=True)
-        plt.close("all")
-        hint = f"{result} is written; draw the map again with: stabjax plot {result} --out {path}" if result else ""
-        raise OutputError(path, _write_reason(exc, path), hint) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 @app.command()
@@ -621,7 +544,7 @@ def export(
 
     _, plan = finished_store(store)
     this_spec = json.loads(spec_json(plan.spec))
-    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=_input_files(system=plan.system), force=force,
+    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=input_files(system=plan.system), force=force,
                               same=lambda p: _result_spec(p) == this_spec,
                               what="a result of the spec of this store")
     if out.resolve().is_relative_to(Path(store).resolve()):
@@ -648,7 +571,7 @@ def plot_cmd(
     _warn_changed_model(ds)
     out = out or file.with_suffix(".png")
     # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
-    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=_input_files(file), force=force,
+    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
                               same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
                               what=f"the map of {file}")
     _report(ds, out, replaced=replacing, result=file)
@@ -721,96 +644,13 @@ def reproduce(
     (recorded in --out-dir/.stabjax-reproduce.json); any other figure, table or result there (the figures
     tracked in the repository, a file you edited) needs --force, and is refused before anything is
     computed. A conflict found only after the run leaves the new files in the staging folder."""
+    from .outputs import reproduce_into
     from .registry import get_reproducer
 
     fn = get_reproducer(name)
     out_dir = out_dir or Path("results") / name
-    if out_dir.exists() and not out_dir.is_dir():
-        from .errors import ValidationError
-
-        raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
-    record = _reproduce_record(out_dir)
-    mine = record.get(name, {})
-    # before minutes of computing: the names an earlier run recorded, and any file of the kinds a
-    # reproduction writes that this command did not write there (the figures tracked in the repository)
-    if not force:
-        _refuse_foreign(out_dir, [out_dir / rel for rel in mine], mine)
-        foreign = sorted(p.name for p in out_dir.glob("*") if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in REPRODUCE_SUFFIXES
-                         and not _is_mine(p, out_dir, mine)) if out_dir.is_dir() else []
-        if foreign:
-            from .errors import ValidationError
-
-            shown = ", ".join(foreign[:3]) + (f", ... ({len(foreign)} in all)" if len(foreign) > 3 else "")
-            raise ValidationError("--out-dir", f"{out_dir} holds files this command did not write ({shown}); "
-                                               "reproducing may replace them: pass --force to allow it, or choose "
-                                               "another --out-dir")
-    staging = out_dir / f".staging-{name}"
-    staging.mkdir(parents=True, exist_ok=True)
-    made = [Path(f) for f in fn(staging, quick=quick)]
-    for f in made:  # a reproducer that writes elsewhere: said, not moved
-        if not f.resolve().is_relative_to(staging.resolve()):
-            console.print(f"wrote {f}", markup=False)
-    files = [f for f in made if f.resolve().is_relative_to(staging.resolve())]
-    rels = [f.resolve().relative_to(staging.resolve()) for f in files]
-    if not force:
-        _refuse_foreign(out_dir, [out_dir / r for r in rels], mine, staging=staging)
-    import hashlib
-    import os
-
-    for f, r in zip(files, rels):
-        dest = out_dir / r
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        replaced = dest.exists()
-        os.replace(f, dest)
-        mine[str(r)] = hashlib.sha256(dest.read_bytes()).hexdigest()
+    for dest, replaced in reproduce_into(out_dir, name, fn, quick=quick, force=force):
         console.print(f"wrote {dest}" + (" (replaced)" if replaced else ""), markup=False)
-    record[name] = mine
-    tmp = out_dir / f".stabjax-reproduce.json.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(record, indent=1, sort_keys=True))
-    os.replace(tmp, out_dir / ".stabjax-reproduce.json")
-    for d in sorted((p for p in staging.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)) + [staging]:
-        try:
-            d.rmdir()  # only empty folders: anything left in staging is kept, never deleted
-        except OSError:
-            pass
-
-
-def _reproduce_record(out_dir: Path) -> dict:
-    """``--out-dir/.stabjax-reproduce.json``: per reproduction, the files it wrote and their sha256."""
-    try:
-        rec = json.loads((out_dir / ".stabjax-reproduce.json").read_text())
-    except (OSError, ValueError):
-        return {}
-    return rec if isinstance(rec, dict) else {}
-
-
-REPRODUCE_SUFFIXES = (".png", ".pdf", ".svg", ".nc", ".md", ".txt", ".json", ".csv")  # what reproducers write
-
-
-def _is_mine(path: Path, out_dir: Path, mine: dict) -> bool:
-    """Whether ``path`` is a file an earlier run of this reproduction wrote there, unchanged since."""
-    import hashlib
-
-    try:
-        return mine.get(str(path.relative_to(out_dir))) == hashlib.sha256(path.read_bytes()).hexdigest()
-    except (OSError, ValueError):
-        return False
-
-
-def _refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Optional[Path] = None) -> None:
-    """Refuse when a destination exists and is not, unchanged, a file an earlier run of this command wrote."""
-    from .errors import ValidationError
-
-    for dest in dests:
-        if not dest.exists():
-            continue
-        if dest.is_dir():
-            raise ValidationError("--out-dir", f"{dest} is a directory where a file would be written")
-        if _is_mine(dest, out_dir, mine):
-            continue  # our own previous result, unchanged: replaced like a re-run of any command
-        kept = f"; the new files are kept in {staging}" if staging is not None else ""
-        raise ValidationError("--out-dir", f"{dest} exists and was not written by this command (or was changed "
-                                           f"since); pass --force to replace it, or choose another --out-dir{kept}")
 
 
 @app.command()
@@ -835,7 +675,7 @@ def bench(
 
         n = _int_list(sizes, "--sizes")
         validate.number(t1, "--t1", lo=0.0, lo_open=True)
-        _check_output(out, "--out", (".json",), inputs=_input_files(), force=force, same=_is_bench_record,
+        _check_output(out, "--out", (".json",), inputs=input_files(), force=force, same=_is_bench_record,
                       what="a previous benchmark record")
         bench_main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
     elif suite == "models":

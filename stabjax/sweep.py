@@ -30,6 +30,7 @@ from .config import setup_jax, versions
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import OutputError, ValidationError
+from .outputs import write_reason
 from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
@@ -468,25 +469,11 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
         tmp.unlink(missing_ok=True)
         if isinstance(exc, OutputError):
             raise
-        raise OutputError(out, _write_reason(exc, out)) from None
+        raise OutputError(out, write_reason(exc, out)) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return out
-
-
-def _write_reason(exc: BaseException, out: Path) -> str:
-    """Why a write failed, in words: the OS error, else the library's message with the free space."""
-    import shutil
-
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    try:
-        free = shutil.disk_usage(out.parent).free
-        space = f"; {free / 2**20:.1f} MiB free on its disk" + (" (the disk is full?)" if free < 2**26 else "")
-    except OSError:
-        space = ""
-    return f"{type(exc).__name__}: {exc}{space}"
 
 
 def open_result(path: str | Path) -> xr.Dataset:
