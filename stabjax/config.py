@@ -234,8 +234,8 @@ def check_environment() -> None:
     """Validate every environment variable stabjax reads, each error naming the variable.
 
     ``STABJAX_X64`` (float64 only: 1/true/yes/on or unset; float32 is refused, see :func:`x64_wanted`),
-    ``STABJAX_THREADS`` and ``STABJAX_CPU_DEVICES`` (positive integers), ``STABJAX_CACHE_DIR`` (a
-    directory, or a path where one can be made), ``CC`` (a program on PATH), ``EQX_ON_ERROR`` (``nan``:
+    ``STABJAX_THREADS`` and ``STABJAX_CPU_DEVICES`` (positive integers; empty: unset),
+    ``STABJAX_CACHE_DIR`` (not an existing file; empty: the default), ``CC`` (a program on PATH), ``EQX_ON_ERROR`` (``nan``:
     a solver error must become a status code, not an exception). Variables read by JAX, XLA and CUDA
     themselves (``XLA_FLAGS``, ``CUDA_VISIBLE_DEVICES``, ``JAX_*``) are theirs to check.
     """
@@ -244,12 +244,10 @@ def check_environment() -> None:
     x64_wanted()
     env_int("STABJAX_THREADS")
     env_int("STABJAX_CPU_DEVICES", hi=64)
-    cache = os.environ.get("STABJAX_CACHE_DIR")
-    if cache is not None:
+    cache = os.environ.get("STABJAX_CACHE_DIR", "").strip()
+    if cache:  # empty: the default, as the native engine and the Dask cache read it
         from pathlib import Path
 
-        if not cache.strip():
-            raise ValidationError("STABJAX_CACHE_DIR", "is set but empty; unset it or give a directory")
         p = Path(cache).expanduser()
         if p.exists() and not p.is_dir():
             raise ValidationError("STABJAX_CACHE_DIR", f"{cache} exists and is not a directory")
