@@ -235,8 +235,8 @@ def check_environment() -> None:
 
     ``STABJAX_X64`` (float64 only: 1/true/yes/on or unset; float32 is refused, see :func:`x64_wanted`),
     ``STABJAX_THREADS`` and ``STABJAX_CPU_DEVICES`` (positive integers; empty: unset),
-    ``STABJAX_CACHE_DIR`` (not an existing file; empty: the default), ``CC`` (a program on PATH), ``EQX_ON_ERROR`` (``nan``:
-    a solver error must become a status code, not an exception). Variables read by JAX, XLA and CUDA
+    ``STABJAX_CACHE_DIR`` (not an existing file; empty: the default), ``CC`` (a program on PATH),
+    ``EQX_ON_ERROR`` (``nan``: a solver error must become a status code, not an exception). Variables read by JAX, XLA and CUDA
     themselves (``XLA_FLAGS``, ``CUDA_VISIBLE_DEVICES``, ``JAX_*``) are theirs to check.
     """
     import shutil
