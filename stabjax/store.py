@@ -212,11 +212,12 @@ class ChunkStore:
 
     ``batch``: the requested chunk size (the chunks are :class:`Chunking` blocks of at most that
     many trajectories); ``overrides``: command-line settings recorded in the identity; ``restart``:
-    remove what a previous run of the store wrote (only that) and start over.
+    remove what a previous run of the store wrote (only that) and start over; ``template_features``:
+    the plan's, when the caller has integrated them already (a new store records them).
     """
 
     def __init__(self, path: str | Path, plan, batch: int, *, overrides: Mapping[str, Any] | None = None,
-                 restart: bool = False):
+                 restart: bool = False, template_features: np.ndarray | None = None):
         from .config import versions
 
         self.path = Path(path)
@@ -229,6 +230,7 @@ class ChunkStore:
         self.repaired: list[str] = []  # chunks found missing or corrupt on open (recomputed)
         self._group = None
         self._tf: Any = False  # template features: not yet known
+        self._tf_given = template_features
         self._restarted = False
         ident = identity(plan, {"batch_size": self.batch, **(overrides or {})})
         if self.path.is_dir() and not restart and not (self.path / MANIFEST).exists():
@@ -424,6 +426,8 @@ class ChunkStore:
             if self.manifest.get("arrays") is not None and "template_features" in self.manifest.get("entries", []):
                 tf = np.asarray(self._data()["template_features"][...])
                 self._tf = tf.reshape(-1, *tf.shape[-2:])
+            elif self._tf_given is not None:
+                self._tf = self._tf_given
             else:
                 self._tf = D.template_features(self.plan)
         return self._tf
@@ -654,8 +658,8 @@ def _holder(path: Path) -> dict | None:
     return h
 
 
-def finished_store(store: str | Path) -> dict:
-    """The manifest of a finished store that no sweep is writing and whose every chunk matches its
+def finished_store(store: str | Path):
+    """(manifest, plan) of a finished store that no sweep is writing and whose every chunk matches its
     checksum, for ``stabjax export``; otherwise an error saying what is wrong and how to go on."""
     from .errors import ValidationError
 
@@ -677,7 +681,7 @@ def finished_store(store: str | Path) -> dict:
         listed = "; ".join(f"chunk {i}: {why}" for i, why in sorted(bad.items())[:5])
         raise StoreError(f"{store}: {len(bad)} chunk(s) are missing or damaged ({listed}{' ...' if len(bad) > 5 else ''}); "
                          "nothing was exported. Run the sweep command again: it recomputes them")
-    return m
+    return m, plan_from_manifest(m)
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",

@@ -23,15 +23,16 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
+from . import dataset as D
+from . import engines, signals
 from . import verdict as V
-from . import engines
 from .config import setup_jax
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
-from .errors import ValidationError
-from . import dataset as D
-from .store import Chunking
+from .errors import OutputError, ValidationError
+from .outputs import write_reason
 from .spec import Plan, check_plan, load_spec, make_plan, static_params
+from .store import Chunking
 
 DEFAULT_MEMORY_FRACTION = 0.25
 
@@ -85,14 +86,15 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
 class _Memory:
     """Chunk records kept in memory (a sweep without an output file); the store's interface."""
 
-    def __init__(self, plan: Plan, batch: int):
+    def __init__(self, plan: Plan, batch: int, template_features: np.ndarray | None = None):
         self.plan = plan
         self.chunking = Chunking(plan.shape, batch)
         self.batch, self.n = batch, plan.size
         self.n_chunks = self.chunking.n_chunks
         self.results: dict[str, np.ndarray] = {}
         self.manifest: dict[str, Any] = {"chunks": {}}
-        self.tf = D.template_features(plan)  # before the first chunk: its outcomes need them
+        # before the first chunk: its outcomes need them
+        self.tf = template_features if template_features is not None else D.template_features(plan)
 
     def pending(self) -> list[int]:
         return [i for i in range(self.n_chunks) if str(i) not in self.manifest["chunks"]]
@@ -178,10 +180,11 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
+    tf = templates_first(plan)  # before the store exists: a refusal leaves nothing behind
     n = plan.size
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
-        else _Memory(plan, batch)
+    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=tf) \
+        if store_path is not None else _Memory(plan, batch, tf)
     n_chunks = sink.n_chunks  # blocks of the grid of at most `batch` trajectories (store.Chunking)
     t_start = time.perf_counter()
     try:
@@ -193,6 +196,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                 bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
                            steps=0, chunks=n_resumed)
             steps_run = 0
+            signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
             if executor is None:
                 for i in pending:
                     lo, hi = sink.bounds(i)
@@ -213,6 +217,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                         bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
                     if on_chunk is not None:
                         on_chunk(i, n_chunks)
+                    signals.checkpoint()
             else:
                 for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
                     lo, hi = sink.bounds(i)
@@ -223,7 +228,9 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                         bar.update(hi - lo, steps=steps_run, chunk_done=True)
                     if on_chunk is not None:
                         on_chunk(i, n_chunks)
+                    signals.checkpoint()
         finally:
+            signals.release()
             if bar is not None:
                 bar.close()
         wall = time.perf_counter() - t_start
@@ -244,6 +251,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         try:
             write(ds, out)
         except OSError as exc:
+            exc = exc.reason if isinstance(exc, OutputError) else exc
             raise S.StoreIOError(f"could not write {out}: {exc}. Every chunk is finished and kept in {store_path}; "
                                  f"write the file with: stabjax export {store_path} --out {out}") from None
         if not keep_partial:
@@ -256,6 +264,29 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
+
+
+def templates_first(plan: Plan) -> np.ndarray | None:
+    """The template feature vectors at every grid point, integrated before any chunk of the sweep, or
+    None without templates. Two templates that coincide somewhere are refused here (naming them, the
+    point and their distance): otherwise the default ``max_distance`` is zero there and every
+    trajectory ends "unclassified" without a word, after the whole run (issue 22, item 6)."""
+    from .outcomes import coinciding_templates
+
+    tf = D.template_features(plan)
+    if tf is None:
+        return None
+    hit = coinciding_templates(plan.outcomes.decl, tf)
+    if hit is not None:
+        p, a, b, d = hit
+        where = ""
+        if plan.grid:
+            idx = np.unravel_index(p, tuple(ax.size for ax in plan.grid))
+            where = " at " + ", ".join(f"{ax.name} = {np.asarray(ax.values[i]).tolist()}" for ax, i in zip(plan.grid, idx))
+        raise ValidationError("outcomes.templates", f"templates {a!r} and {b!r} coincide{where} (feature distance "
+                              f"{d:.3g}): they reach the same attractor, so no trajectory there could be told between "
+                              "them; drop one, or choose initial conditions in different basins")
+    return tf
 
 
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
@@ -275,9 +306,9 @@ provenance = D.provenance
 
 
 def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = float("nan"), steps: int = 0,
-             batch: int = 0, n_resumed: int = 0) -> xr.Dataset:
+             batch: int = 0, n_resumed: int = 0, template_features: np.ndarray | None = None) -> xr.Dataset:
     """The Dataset of a plan from the engines' flat per-trajectory results (every trajectory)."""
-    tf = D.template_features(plan)
+    tf = template_features if template_features is not None else D.template_features(plan)
     rec = D.derive_chunk(plan, results, 0, plan.size, tf)
     ds = D.build(plan, {k: v.reshape(plan.shape + v.shape[1:]) for k, v in rec.items()}, tf)
     ds.attrs.update(D.run_attrs(wall=wall, steps=steps, batch=batch, n_resumed=n_resumed))
@@ -296,6 +327,13 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
         with dask.config.set(scheduler="synchronous"):
             ds.to_netcdf(tmp, engine="netcdf4")
         os.replace(tmp, out)
+    except (OSError, RuntimeError) as exc:
+        # a full disk reaches us from netCDF/HDF5 as ``RuntimeError: NetCDF: HDF error``: say which file
+        # failed and the likely reason, not a traceback (exit 1); ``out`` itself is untouched
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(out, write_reason(exc, out)) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -370,7 +408,10 @@ class _Bar:
         self.task = self.progress.add_task(self._desc(), total=total, rate="")
 
     def _desc(self) -> str:
-        return f"{self.name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else self.name
+        from rich.markup import escape  # the description is read as markup: a name "[x]" must survive
+
+        name = escape(self.name)
+        return f"{name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else name
 
     def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
         """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""
