@@ -1,13 +1,12 @@
 """Run a sweep plan in chunks of bounded memory, resumable, into a labelled xarray Dataset.
 
-Chunks all have the same size (the last is padded) so the vmapped solve compiles once per
-spec. With an output path, each finished chunk is written to a zarr store (``<out>.zarr``,
-:mod:`stabjax.store`) as it finishes; a killed sweep restarted with the same command continues
-from it, and a changed spec, model or command-line override is refused rather than silently
-mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`).
-
-Size (~550 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
-the one path from a plan to a dataset; the store itself and the Dask executor are modules of their own.
+Chunks are blocks of the plan's grid (:class:`stabjax.store.Chunking`), padded to one size so the
+vmapped solve compiles once per spec. With an output path, each finished chunk is written to a
+zarr store (``<out>.zarr``, :mod:`stabjax.store`) as it finishes; a killed sweep restarted with the
+same command continues from it, and a changed spec, model or command-line override is refused
+rather than silently mixed (:mod:`stabjax.identity`). Chunks run in this process or on Dask
+workers (:mod:`stabjax.distributed`). The dataset's variables are defined in :mod:`stabjax.dataset`;
+the netCDF file is a copy of the finished store.
 """
 from __future__ import annotations
 
