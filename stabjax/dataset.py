@@ -61,16 +61,26 @@ def template_features(plan) -> np.ndarray | None:
     return template_features_at(plan, plan.params_at(np.arange(g) * ns))
 
 
+def per_trajectory_outcomes(plan) -> bool:
+    """Whether a trajectory's outcome depends on it alone (rules, templates, verdicts), so that it is
+    computed and stored with its chunk. False for a scheme that groups the whole sweep (attractor
+    discovery, ``[outcomes] discover``): its outcome and basin variables come from
+    :func:`stabjax.basin.dataset_vars` over every trajectory, when the sweep finishes."""
+    decl = getattr(plan.scheme, "decl", None)
+    return not getattr(decl, "discover", False)
+
+
 def derive_chunk(plan, res: Mapping[str, np.ndarray], lo: int, hi: int, tf: np.ndarray | None) -> dict[str, np.ndarray]:
     """The stored record of trajectories [lo, hi): the engine's results with escaped trajectories'
     verdicts set to diverged (they ran away; not a solver failure) and, when the engine reports a
-    solver status, the ``outcome`` code of each trajectory (``tf``: :func:`template_features`)."""
+    solver status and the outcomes are per trajectory (:func:`per_trajectory_outcomes`), the
+    ``outcome`` code of each trajectory (``tf``: :func:`template_features`)."""
     out = {k: np.asarray(v) for k, v in res.items()}
     if "verdict" in out and "solver_status" in out:
         esc = out["solver_status"] == STATUS_ESCAPED
         v = out["verdict"]
         out["verdict"] = np.where(esc.reshape(esc.shape + (1,) * (v.ndim - 1)), V.DIVERGED, v).astype(v.dtype)
-    if "solver_status" in out:
+    if "solver_status" in out and per_trajectory_outcomes(plan):
         from . import outcomes as O
         from .basin import CHUNK
 
@@ -155,10 +165,12 @@ def _theory_vars(plan) -> tuple[dict[str, tuple[np.ndarray, dict]], str]:
 
 
 def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
-          basin: Mapping[str, tuple] | None = None) -> xr.Dataset:
+          basin: Mapping[str, tuple] | None = None, whole: bool = True) -> xr.Dataset:
     """The sweep's Dataset from its per-trajectory records (:func:`derive_chunk` output), each shaped
     ``(*plan.shape, *trailing)`` (numpy, or dask placeholders for the store's layout). ``basin``:
-    the basin variables (default: computed from ``results["outcome"]``)."""
+    the basin variables (default: computed from ``results["outcome"]``). Without a stored outcome
+    (a scheme over the whole sweep), ``whole`` adds :func:`whole_sweep_vars` (the store leaves them
+    out of its layout and adds them when the sweep finishes)."""
     shape, dims = plan.shape, plan.dims
     coords: dict[str, Any] = {}
     data: dict[str, Any] = {}
@@ -206,6 +218,11 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
             coords["template"] = ("template", np.array(list(sch.decl.templates), dtype=object))
             coords["feature"] = ("feature", np.array(list(sch.decl.features), dtype=object))
         data.update(basin if basin is not None else basin_vars(plan, results["outcome"]))
+    elif whole and "solver_status" in results:
+        flat = {k: np.asarray(v).reshape(plan.size, *np.shape(v)[len(shape):]) for k, v in results.items()}
+        wdata, wcoords = whole_sweep_vars(plan, flat, tf)
+        data.update(wdata)
+        coords.update(wcoords)
     th, main = _theory_vars(plan)
     for k, (v, attrs) in th.items():
         data[k] = (dims, v.reshape(shape), attrs)
@@ -274,6 +291,14 @@ def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
     if getattr(plan.system, "paper", ""):
         ds.attrs["references"] = str(plan.system.paper)
     return ds
+
+
+def whole_sweep_vars(plan, results: Mapping[str, Any], tf: np.ndarray | None = None) -> tuple[dict, dict]:
+    """(data variables, coordinates) of a classification over the whole sweep: the outcome and basin
+    variables from :func:`stabjax.basin.dataset_vars` over every trajectory (flat records, (N, ...))."""
+    from .basin import dataset_vars
+
+    return dataset_vars(plan, {k: np.asarray(v) for k, v in results.items()}, tf)
 
 
 def run_attrs(*, wall: float, steps: int, batch: int, n_resumed: int) -> dict[str, Any]:

@@ -442,7 +442,7 @@ class ChunkStore:
 
         shape, block = self.chunking.shape, self.chunking.block
         holders = {k: da.empty(shape + v.shape[1:], chunks=block + v.shape[1:], dtype=v.dtype) for k, v in rec.items()}
-        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan))
+        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan), whole=False)
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
         for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
             ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
@@ -525,11 +525,37 @@ class ChunkStore:
             if "outcome" in self.manifest["arrays"]:
                 for k, (_, values, _) in D.basin_vars(self.plan, g["outcome"][...]).items():
                     g[k][...] = values
+            elif "solver_status" in self.manifest["arrays"]:  # outcomes over the whole sweep: added now
+                self._add_whole_sweep_vars()
             _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
             self.manifest["finished"] = True
             self._save_manifest()
         except OSError as exc:
             raise self._io_error("the dataset's statistics", exc) from None
+
+
+    def _add_whole_sweep_vars(self):
+        """The variables of a classification over the whole sweep (:func:`stabjax.dataset.whole_sweep_vars`),
+        from the stored records, written as new arrays of the group (listed in the manifest first)."""
+        import xarray as xr
+
+        from . import dataset as D
+
+        data, coords = D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
+                                          self.template_features())
+        extra = xr.Dataset(data, coords=coords)
+        D.cf_attributes(extra, self.plan)
+        extra.attrs = {}  # the group's attributes are the dataset's: written by finish()
+        for k in [k for k, v in extra.variables.items() if v.dtype.kind == "U"]:
+            extra[k] = extra[k].astype(object)
+        names = [k for k in extra.variables if k not in self.manifest["entries"]]
+        self.manifest["entries"] = [*self.manifest["entries"], *names]
+        self._save_manifest()
+        existing = set(self._data().array_keys())
+        extra = extra.drop_vars([k for k in extra.variables if k in existing and k not in data])
+        with _quiet_zarr():
+            extra.to_zarr(self.path, mode="a", zarr_format=3, consolidated=True)
+        self._group = None
 
 
 class StoreWarning(UserWarning):

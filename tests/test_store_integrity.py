@@ -213,3 +213,27 @@ def test_a_running_sampled_sweep_shows_the_basin_statistics_of_its_finished_grid
     ds = run_spec(spec, out, batch_size=5)
     assert ds.attrs["chunks_resumed"] == 2
     assert_same(ds, ref)
+
+
+def test_outcomes_over_the_whole_sweep_are_added_when_it_finishes(tmp_path, monkeypatch):
+    """A classification that needs every trajectory (attractor discovery) cannot be stored chunk by
+    chunk: the store then holds the engines' records only, and finishing adds the outcome and basin
+    variables from basin.dataset_vars over all of them. The dataset must equal the one whose outcomes
+    were computed per chunk (the reference, run before the switch), in memory and from the store."""
+    from stabjax import dataset as D
+
+    ref = run_plan(make_plan(tomllib.loads(SAMPLED)), None, batch_size=5)
+    monkeypatch.setattr(D, "per_trajectory_outcomes", lambda plan: False)
+    spec = tmp_path / "s.toml"
+    spec.write_text(SAMPLED)
+    out = tmp_path / "w.nc"
+    ds = run_spec(spec, out, batch_size=5, keep_partial=True)
+    assert_same(ds, ref)
+    assert_same(open_result(out), ref)
+    assert_same(run_plan(make_plan(tomllib.loads(SAMPLED)), None, batch_size=5), ref)  # in memory too
+    m = S.read_manifest(tmp_path / "w.nc.zarr")
+    assert "outcome" not in m["arrays"] and {"outcome", "basin_fraction", "outcome_name"} <= set(m["entries"])
+    z = xr.open_zarr(tmp_path / "w.nc.zarr")
+    assert set(z.data_vars) == set(ref.data_vars)
+    np.testing.assert_array_equal(z["basin_fraction"].values, ref["basin_fraction"].values)
+    assert z["outcome"].attrs["units"] == "1" and z["outcome"].attrs["flag_meanings"] == ref["outcome"].attrs["flag_meanings"]
