@@ -165,10 +165,19 @@ def _atomic_json(path: Path, obj) -> None:
         raise
 
 
-def _ours_transient(name: str) -> bool:
-    """Files the store writes for an instant (the lock, a manifest being replaced)."""
-    return name in (LOCK, LOCK + ".break") or (name.startswith(f".{MANIFEST}.") and name.endswith(".tmp")) \
-        or (name.startswith(f".{ROOT}.") and name.endswith(".tmp"))
+def _ours_transient(p: Path) -> bool:
+    """Files the store writes for an instant (a manifest being replaced) or holds while it runs (the
+    lock: only one in the lock's own format, so that another tool's ``.lock`` counts as foreign)."""
+    name = p.name
+    if name in (LOCK, LOCK + ".break"):
+        if name == LOCK + ".break":
+            return p.is_file() and p.stat().st_size == 0
+        try:
+            held = json.loads(p.read_text() or "{}")
+        except (OSError, ValueError):
+            return False
+        return isinstance(held, dict) and (not held or {"pid", "host", "started"} <= set(held))
+    return (name.startswith(f".{MANIFEST}.") or name.startswith(f".{ROOT}.")) and name.endswith(".tmp")
 
 
 def _safe_entry(name: str) -> bool:
@@ -272,7 +281,7 @@ class ChunkStore:
 
     # -- what is in the directory
     def _refuse_foreign(self):
-        foreign = sorted(p.name for p in self.path.iterdir() if not _ours_transient(p.name))
+        foreign = sorted(p.name for p in self.path.iterdir() if not _ours_transient(p))
         if foreign:
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
             raise StoreError(f"{self.path} exists and is not a stabjax store (it holds {shown}); nothing in it was "
@@ -307,7 +316,7 @@ class ChunkStore:
                              "was removed; use another --store")
         else:
             entries = [MANIFEST] + self._zarr_entries()
-        foreign = sorted(p.name for p in self.path.iterdir() if p.name not in entries and not _ours_transient(p.name))
+        foreign = sorted(p.name for p in self.path.iterdir() if p.name not in entries and not _ours_transient(p))
         if foreign:
             raise StoreError(f"{self.path}: the manifest is unreadable and the directory also holds "
                              f"{', '.join(foreign[:5])}; nothing was removed. Remove the store by hand, or use "

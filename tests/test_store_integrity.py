@@ -90,6 +90,13 @@ def test_store_directory_holding_user_files_is_refused_untouched(spec, tmp_path,
     f.write_text("mine")
     assert sweep(spec, tmp_path / "r.nc", "--store", f) == 2
     assert "is not a directory" in " ".join(capsys.readouterr().err.split()) and f.read_text() == "mine"
+    # another tool's .lock is not the store's lock: refused, not taken over
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    (locked / ".lock").write_text("held by my editor\n")
+    assert sweep(spec, tmp_path / "r.nc", "--store", locked) == 2
+    assert "holds .lock" in " ".join(capsys.readouterr().err.split())
+    assert (locked / ".lock").read_text() == "held by my editor\n"
     # a directory with someone else's manifest.json: not removed by --restart either
     other = tmp_path / "other"
     other.mkdir()
