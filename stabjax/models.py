@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import functools
 import hashlib
 import importlib
 import importlib.util
@@ -139,7 +140,8 @@ def _is_model_error(exc: BaseException) -> bool:
     return not isinstance(exc, (KeyboardInterrupt, _ModelTimeout, ValidationError))
 
 
-def _installed_roots() -> list[Path]:
+@functools.lru_cache(maxsize=1)
+def _installed_roots() -> tuple[Path, ...]:
     """Folders whose modules are not the user's: the standard library, the installed packages and
     stabjax itself (its version is part of the identity)."""
     paths = sysconfig.get_paths()
@@ -149,7 +151,7 @@ def _installed_roots() -> list[Path]:
     with contextlib.suppress(AttributeError):
         roots.add(site.getusersitepackages())
     roots.add(str(Path(__file__).parent))
-    return [Path(os.path.realpath(r)) for r in roots if r]
+    return tuple(Path(os.path.realpath(r)) for r in roots if r)
 
 
 def _local_file(module) -> str | None:
