@@ -48,7 +48,7 @@ def sha256_file(path: str | Path) -> str:
 
 def model_sources(system) -> dict[str, str]:
     """``{path: sha256}`` of the model's source files: the file defining the system's class first,
-    then every local module it imported (recorded by :func:`stabjax.models.load_file` when the
+    then every local module it imported (recorded by ``stabjax.models._load_file`` when the
     model was loaded, with the hashes of the bytes that were executed). For a system not loaded
     from a file (built in, ``module:Class``, a class given in Python) the defining file is hashed
     now, with the local modules it imports by name (:func:`stabjax.models.local_sources`); ``{}``
