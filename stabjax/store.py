@@ -18,7 +18,8 @@ write never touches another chunk's data.
 Writes happen in this order: the chunk's arrays, then the manifest listing the chunk with its
 checksums (write-to-temp + ``os.replace``). The committed chunk record is that file rather than the
 group's attributes: zarr rewrites ``zarr.json`` in place, and a kill midway would leave a group no
-one can open (the group's attributes are written once, atomically, when the sweep finishes). A process killed at any moment leaves a manifest that
+one can open (the group's metadata is written when the arrays are created, and its attributes are
+replaced atomically when the sweep finishes; a store whose metadata cannot be read starts over). A process killed at any moment leaves a manifest that
 lists only chunks whose data are complete; a chunk written but not yet listed is recomputed (to the
 same values) by the next run. Durability is against process death (kill -9, OOM); nothing is
 fsync'ed, so a power cut may lose recent chunks -- and a chunk file lost or damaged afterwards (a
