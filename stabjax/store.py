@@ -595,6 +595,8 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
         return {int(i): "the store has no arrays" for i in manifest["chunks"]}
     ch = Chunking(manifest["chunking"]["shape"], manifest["batch_size"])
     try:
+        for k in arrays:  # each array's own metadata too (readers without consolidated metadata use it)
+            json.loads((Path(path) / k / ROOT).read_text())
         with _quiet_zarr():
             g = zarr.open_group(Path(path), mode="r", zarr_format=3)
             arr = {k: g[k] for k in arrays}

@@ -244,3 +244,16 @@ def test_outcomes_over_the_whole_sweep_are_added_when_it_finishes(tmp_path, monk
     assert set(z.data_vars) == set(ref.data_vars)
     np.testing.assert_array_equal(z["basin_fraction"].values, ref["basin_fraction"].values)
     assert z["outcome"].attrs["units"] == "1" and z["outcome"].attrs["flag_meanings"] == ref["outcome"].attrs["flag_meanings"]
+
+
+def test_a_store_whose_metadata_is_damaged_starts_over(spec, tmp_path, reference):
+    """The zarr metadata of an array cut short (a disk error, an editor): nothing of the store can be
+    trusted, so every chunk is computed again, with a warning, and the result is the reference."""
+    out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
+    assert sweep(spec, out, "--keep-store") == 0
+    (store / "verdict" / "zarr.json").write_text('{"zarr_format": 3, "node_ty')
+    out.unlink()
+    with pytest.warns(S.StoreWarning, match="4 finished chunk"):
+        ds = run_spec(spec, out, batch_size=4)
+    assert ds.attrs["chunks_resumed"] == 0
+    assert_same(ds, reference)
