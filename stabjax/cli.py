@@ -1,4 +1,5 @@
-"""Command-line interface: ``stabjax systems | simulate | theory | sweep | export | plot | horizon-check | reproduce | bench``.
+"""Command-line interface: ``stabjax systems | simulate | theory | sweep | export | plot | report | view |
+horizon-check | reproduce | bench | examples`` (and ``stabjax --version``).
 
 Every user error (:class:`stabjax.errors.StabjaxError`) is printed as ``error: <field>: <message>``
 and exits with status 2 (a failed write of the chunk store or the output, e.g. a full disk: status 1);
@@ -187,12 +188,37 @@ def _describe_system(sysm, source: str) -> dict:
             "params": sysm.describe()}
 
 
+def _version_callback(value: bool):
+    if value:
+        from . import __version__
+
+        console.print(f"stabjax {__version__}", highlight=False)
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                       help="print the version and exit")):
+    """stabjax: batch stability explorer for rigid-body attitude control."""
+
+
+def _system_line(nm: str, info: dict) -> str:
+    """One line of ``stabjax systems``: name, title, source (a system that does not load says why)."""
+    if not info["available"]:
+        return f"{nm}  -  not available: {info['reason']}  ({info['source']})"
+    return f"{nm}  -  {info['title']}  ({info['source']})"
+
+
 @app.command()
 def systems(
     name: Optional[str] = typer.Argument(None, help="describe one system: a name, 'file.py:Class' or 'module:Class'"),
     as_json: bool = typer.Option(False, "--json", help="machine-readable output"),
 ):
-    """List the systems (built in, registered, installed by packages), or describe one."""
+    """List the systems (built in, registered, installed by packages), one line each; describe one with NAME.
+
+    The list stays one line per system so it fits a screen and greps well; the parameters,
+    state, observables and outcomes of one system are shown with ``stabjax systems NAME``
+    (``--json`` gives everything for all of them)."""
     from .errors import ValidationError
     from .models import resolve
     from .registry import all_names, lookup
@@ -211,6 +237,11 @@ def systems(
             everything[nm] = _describe_system(sysm, lookup(nm))
     if as_json:
         console.print_json(json.dumps(jsonable(everything)))
+        return
+    if name is None:
+        for nm, info in everything.items():
+            console.print(_system_line(nm, info), highlight=False, markup=False, soft_wrap=True)
+        console.print(f"({len(everything)} systems; details: stabjax systems NAME)", highlight=False)
         return
     for nm, info in everything.items():
         if not info["available"]:
@@ -582,6 +613,25 @@ def bench(
         dask_main(["workers"])
     else:
         raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+
+
+@app.command("examples")
+def examples_cmd(
+    dest: Path = typer.Argument(..., help="folder to copy the examples into (made if missing)"),
+    force: bool = typer.Option(False, "--force", help="replace example files that already exist in DEST"),
+):
+    """Copy the shipped examples (user models outside attitude control: spec + model + figure) out of the
+    installed package, so a wheel's user can run them: ``stabjax sweep DEST/duffing/spec.toml``."""
+    from .errors import ValidationError
+    from .reproduce import copy_examples
+
+    if dest.exists() and not dest.is_dir():
+        raise ValidationError("dest", f"{dest} exists and is not a directory")
+    written = copy_examples(dest, force=force)
+    for f in written:
+        console.print(f"wrote {f}", highlight=False)
+    names = sorted({f.parent.name for f in written})
+    console.print(f"run one with: stabjax sweep {dest / names[0] / 'spec.toml'}" if names else "", highlight=False)
 
 
 def _is_bench_record(path: Path) -> bool:
