@@ -503,6 +503,29 @@ def plot_cmd(
     _report(ds, out, replaced=replacing)
 
 
+@app.command("report")
+def report_cmd(
+    file: Path = typer.Argument(..., help="a result (netCDF): a sweep, an example's basin result or a refinement"),
+    out: Optional[Path] = typer.Option(None, help="HTML page to write (default: FILE with .html)"),
+    force: bool = ForceOpt,
+):
+    """Write one self-contained HTML page of a result: what was run, outcomes with S ± SE and Wilson
+    intervals, figures, the theory's agreement and the warnings (for a lab notebook)."""
+    from .report import write_report
+
+    ds = _open_result_file(file)
+    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds:
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} is not a stabjax result (no verdict, outcome or refinement points)")
+    out = out or file.with_suffix(".html")
+    replacing = _check_output(out, "--out", (".html",), inputs=(file,), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(".html"),
+                              what=f"the report of {file}")
+    write_report(ds, out, source=str(file))
+    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), highlight=False)
+
+
 def _warn_changed_model(ds):
     """A result records its model file's hash; say so when the file on disk has changed since."""
     import hashlib
