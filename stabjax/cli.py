@@ -526,6 +526,31 @@ def report_cmd(
     console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), highlight=False)
 
 
+@app.command("view")
+def view_cmd(
+    result: Path = typer.Argument(..., help="a result (netCDF), or a running sweep's chunk store (RESULT.nc.zarr)"),
+    port: int = typer.Option(0, help="port on 127.0.0.1 (default: a free one)"),
+    browser: bool = typer.Option(True, "--browser/--no-browser", help="open the page in the default browser"),
+    quit_after: Optional[float] = typer.Option(None, "--quit-after", help="stop the server after this many seconds "
+                                                                          "(scripts, tests)"),
+):
+    """Explore a result in the browser: its map, a click re-simulates that trajectory (time series with the late
+    window, phase portrait, why it got its outcome), feature space, fractions with Wilson bands. Serves on
+    127.0.0.1 only; a running sweep's store refreshes as chunks land. Needs: pip install 'stabjax[view]'."""
+    from . import validate
+    from .view import serve
+
+    validate.integer(port, "--port", lo=0, hi=65535)
+    if quit_after is not None:
+        validate.number(quit_after, "--quit-after", lo=0.0, lo_open=True)
+    if not result.exists():
+        from .errors import ValidationError
+
+        raise ValidationError("result", f"not found: {result}")
+    serve(result, port=port, show=browser, quit_after=quit_after,
+          announce=lambda text: console.print(text, highlight=False, soft_wrap=True))
+
+
 def _warn_changed_model(ds):
     """A result records its model file's hash; say so when the file on disk has changed since."""
     import hashlib
