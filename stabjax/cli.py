@@ -485,10 +485,21 @@ def export(
 @app.command("plot")
 def plot_cmd(
     file: Path = typer.Argument(..., help="sweep result (netCDF)"),
-    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with .png)"),
+    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with the --format extension)"),
+    fmt: Optional[str] = typer.Option(None, "--format", help="png | svg | pdf: vector output (svg, pdf) for a paper, "
+                                                            "beside the PNG (default: from --out, else png)"),
     force: bool = ForceOpt,
 ):
     """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
+    if fmt is not None:
+        from .errors import ValidationError
+
+        if fmt.lower().lstrip(".") not in ("png", "svg", "pdf"):
+            raise ValidationError("--format", f"choose png, svg or pdf; got {fmt!r}")
+        fmt = fmt.lower().lstrip(".")
+        if out is not None and out.suffix.lower() != f".{fmt}":
+            raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
+        out = out or file.with_suffix(f".{fmt}")
     ds = _open_result_file(file)
     if "verdict" not in ds:
         from .errors import ValidationError

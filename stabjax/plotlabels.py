@@ -36,6 +36,8 @@ def words(doc: str, name: str, unit: str = "", limit: int = 44) -> str:
         doc = ""
     if len(doc) > limit:
         doc = doc[:limit].rsplit(" ", 1)[0] + "…"
+    if not name:
+        return doc
     text = f"{doc} ({name})" if doc and doc.lower() != name.lower() else name
     return text + (f" [{unit}]" if unit and unit not in ("-", "1", "dimensionless") else "")
 
