@@ -482,7 +482,9 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
     th = fmap.multi_line(xs="xs", ys="ys", source=tl, line_color="black", line_width=2.5)
     main = r.ds.attrs.get("theory_main") or ""
     if tl.data["xs"]:
-        items.append(LegendItem(label=f"theory boundary ({main})", renderers=[th]))
+        from .plotting import theory_words
+
+        items.append(LegendItem(label=f"theory boundary: {theory_words(r.ds, main)}", renderers=[th]))
     if r.kind == "refine" and len(r.ds.attrs["axes"].split()) == 2:
         a0, a1 = r.ds.attrs["axes"].split()
         mid = fmap.scatter(r.ds[f"{a1}_mid"].values, r.ds[f"{a0}_mid"].values, size=3, color="black")
@@ -591,14 +593,16 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
         ffs = figure(title="feature space: every trajectory, coloured by outcome (well separated classes = "
                            "trustworthy outcomes)", width=620, height=360, name="features",
                      tools="tap,pan,wheel_zoom,box_zoom,reset,save")
-        fg = ffs.scatter("x", "y", source=fsrc, fill_color="color", line_color=None, size=5, alpha=0.8)
+        # trajectories on one attractor share its features: coincident dots, a template's star on top
+        fg = ffs.scatter("x", "y", source=fsrc, fill_color="color", line_color=None, size=9, alpha=0.6)
         ffs.add_tools(HoverTool(renderers=[fg], tooltips=[("", "@name"), ("trajectory", "@idx")]))
         fx, fy = Select(title="feature x", options=keys, value=keys[0], width=200), \
             Select(title="feature y", options=keys, value=keys[min(1, len(keys) - 1)], width=200)
         tsrc = ColumnDataSource(dict(x=[], y=[], name=[]))
         if "template_features" in r.ds:
-            ffs.scatter("x", "y", source=tsrc, marker="star", size=16, fill_color="white", line_color="black",
-                        legend_label="templates")
+            ffs.scatter("x", "y", source=tsrc, marker="star", size=18, fill_color=None, line_color="black",
+                        line_width=1.5, legend_label="templates")
+            ffs.legend.location = "top_left"
 
         def upd_features(_attr, _old, _new):
             fsrc.data = dict(fsrc.data, x=fcols[fx.value], y=fcols[fy.value])
