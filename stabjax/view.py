@@ -169,8 +169,9 @@ class Result:
             return np.asarray(self.ds["outcome"].values).ravel()
         return np.asarray(V.at_t1(self.ds["verdict"]).values).ravel()
 
-    def explain(self, idx: int) -> list[tuple[str, str]]:
-        """(what, value) rows saying why trajectory ``idx`` got its verdict and outcome."""
+    def explain(self, idx: int, traj: xr.Dataset | None = None) -> list[tuple[str, str]]:
+        """(what, value) rows saying why trajectory ``idx`` got its verdict and outcome (``traj``: its
+        re-simulation, for the escape time)."""
         ds = self.ds
         names, _ = self.names_colors()
         rows: list[tuple[str, str]] = []
@@ -192,11 +193,18 @@ class Result:
             rows.append(("verdict at each horizon", ", ".join(f"T={T:.3g}: {V.NAMES[int(x)]}" for T, x in zip(hs, v))))
         st = int(one.get("solver_status", 0))
         if st == O.STATUS_ESCAPED:
-            rows.append(("escape", f"stopped at the escape radius |y_i| > {self.plan.system.escape_radius or '?'}"
-                                   " (status 100): ran away"))
+            when = ""
+            if traj is not None:  # the re-run stops there too: its last finite save time
+                fin = np.all([np.isfinite(traj[v].values.reshape(traj.sizes["t"], -1)).all(1)
+                              for v in traj.data_vars if "t" in traj[v].dims], axis=0)
+                when = f" at t ≈ {float(traj['t'].values[fin][-1]):.4g}" if fin.any() and not fin.all() else ""
+            rows.append(("escape", f"stopped{when} once max|y_i| > {self.plan.system.escape_radius or '?'} "
+                                   "(status 100): ran away"))
+            rows.append(("assigned by", "the escape (before any rule or template)"))
         elif st != 0:
-            rows.append(("solver", f"failed with status {st} (did not reach t1)"))
-        rows += self._rule_rows(idx, code, one)
+            rows.append(("solver", f"failed with status {st} (did not reach t1): outcome 'failed'"))
+        else:
+            rows += self._rule_rows(idx, code, one)
         for k in ("error_t1", "error_max_late", "t_settle", "n_flips", "t_first_flip", "decay_exponent", "peak_ratio"):
             if k in one:
                 val = np.atleast_1d(one[k])[-1]
@@ -551,12 +559,38 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
         p = r.params_of(idx)
         swept = [a.param.name for a in r.plan.grid] + list(r.plan.sample)
         ptxt = ", ".join(f"{k} = {np.array2string(np.asarray(p[k]), precision=5)}" for k in dict.fromkeys(swept) if k in p)
-        rows = r.explain(idx)
+        rows = r.explain(idx, traj)
+        draw_templates(idx)
         why.text = (f"<b>trajectory {idx}</b>: {ptxt}<br><i>re-simulated on the diffrax engine with the result's "
                     f"solver ({r.plan.icfg.solver}, rtol {r.plan.icfg.rtol:g}, atol {r.plan.icfg.atol:g}) to t1 = "
                     f"{r.plan.icfg.t1:g}; solver status {traj.attrs['solver_status']}</i>"
                     "<table style='font-size:12px'>" + "".join(f"<tr><td><b>{_esc(a)}</b></td><td>{_esc(b)}</td></tr>"
                                                              for a, b in rows) + "</table>")
+
+    tmpl_src = ColumnDataSource(dict(xs=[], ys=[], name=[]))
+    fph.multi_line("xs", "ys", source=tmpl_src, line_color="#999999", line_dash="dashed", line_width=1,
+                   legend_label="templates (same parameters)")
+    decl = None if r.kind == "refine" or r.plan.scheme.from_verdicts else r.plan.scheme.decl
+
+    def draw_templates(idx: int):
+        """The templates' own trajectories at the clicked point: the attractors the outcome is named by."""
+        if decl is None or not decl.templates:
+            return
+        base = r.params_of(idx)
+        state["templates"] = []
+        for name, over in decl.templates.items():
+            full = r.plan.system.params.resolve(over)
+            p = {**base, **{k: full[k] for k in over}}
+            ic = r.plan.icfg
+            try:
+                from .engine import simulate
+
+                t = simulate(r.plan.system, p, t1=ic.t1, t0=ic.t0, solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
+                             max_steps=ic.max_steps)
+            except Exception:  # noqa: BLE001 - a template that cannot run is left out of the picture
+                continue
+            state["templates"].append((name, _components(t)))
+        draw_phase()
 
     def draw_phase():
         comps = state.get("comps") or {}
@@ -566,6 +600,9 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
             start.data = dict(x=x[:1], y=y[:1])
             fph.xaxis.axis_label, fph.yaxis.axis_label = phx.value, phy.value
             fph.title.text = f"phase portrait: {phy.value} against {phx.value}"
+            tm = [(n, c) for n, c in state.get("templates", []) if phx.value in c and phy.value in c]
+            tmpl_src.data = dict(xs=[c[phx.value] for _, c in tm], ys=[c[phy.value] for _, c in tm],
+                                 name=[n for n, _ in tm])
 
     def on_select(_attr, _old, new):
         if new:

@@ -104,6 +104,53 @@ def test_basin_result_explains_the_rule_that_fired_and_shows_feature_space(resul
     assert feats.data["color"][k] == colors[names.index("limit_cycle")] == src.data["color"][k]
 
 
+def test_templates_are_named_with_their_distance_and_drawn_beside_the_trajectory(tmp_path):
+    import tomllib
+
+    from see_results import ROOT
+
+    spec = tomllib.loads((ROOT / "stabjax" / "examples" / "duffing" / "spec.toml").read_text())
+    spec["system"] = f"{ROOT / 'stabjax' / 'examples' / 'duffing' / 'model.py'}:Duffing"
+    spec["sample"]["n"] = 12
+    spec["integrate"].update(t1=300.0, n_checkpoints=600)
+    out = tmp_path / "duffing.nc"
+    run_spec(spec, out)
+    doc, r = page(out)
+    click(doc, 0)
+    why = doc.select_one({"name": "why"}).text
+    m = re.search(r"nearest template</b></td><td>(\w+) at distance ([\d.e+-]+)", why)
+    ds = open_result(out)
+    names = str(ds["outcome"].attrs["flag_meanings"]).split()
+    if names[int(ds["outcome"].values[0])] != "unclassified":
+        assert m and m.group(1) == names[int(ds["outcome"].values[0])]
+    # the templates' own trajectories at the clicked point, in the phase portrait
+    phase = doc.select_one({"name": "phase"})
+    tm = [g for g in phase.renderers if "xs" in g.data_source.data][0].data_source.data
+    assert len(tm["xs"]) == ds.sizes["template"] and sorted(tm["name"]) == sorted(ds["template"].values.tolist())
+
+
+def test_an_escaped_trajectory_says_when_it_left_and_that_the_escape_decided(tmp_path):
+    import tomllib
+
+    from see_results import ROOT
+
+    spec = tomllib.loads((ROOT / "stabjax" / "examples" / "lorenz" / "spec.toml").read_text())
+    spec["system"] = f"{ROOT / 'stabjax' / 'examples' / 'lorenz' / 'model.py'}:{spec['system'].split(':')[1]}"
+    spec["sample"]["n"] = 12
+    spec["integrate"].update(t1=100.0, n_checkpoints=400)
+    out = tmp_path / "lorenz.nc"
+    run_spec(spec, out)
+    ds = open_result(out)
+    esc = np.flatnonzero(ds["solver_status"].values == 100)
+    assert esc.size  # most starts of this case run away
+    doc, _ = page(out)
+    click(doc, int(esc[0]))
+    why = doc.select_one({"name": "why"}).text
+    t = float(re.search(r"stopped at t ≈ ([\d.e+-]+) once max\|y_i\| &gt; 200", why).group(1))
+    assert 0 < t < 100
+    assert "the escape (before any rule or template)" in why and "<b>rule " not in why
+
+
 def test_fractions_along_a_swept_parameter_with_wilson_bands(results):
     doc, _ = page(results["along"])
     ds = open_result(results["along"])
