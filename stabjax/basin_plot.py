@@ -75,10 +75,10 @@ def plot_basin(ds: xr.Dataset, out: str | Path) -> Path:
         fig = _samples_only(ds, names, colors)
     elif has_sample and len(grid) == 1:
         fig = _fractions_along(ds, grid[0], names, colors)
-    elif has_sample and len(grid) == 2:
-        fig = _dominant_map(ds, grid, names, colors)
+    elif has_sample and len(grid) == 2:  # the second grid axis horizontal, as on the verdict map (plotting)
+        fig = _dominant_map(ds, grid[::-1], names, colors)
     elif not has_sample and len(grid) in (1, 2):
-        fig = _outcome_map(ds, grid, names, colors)
+        fig = _outcome_map(ds, grid[::-1], names, colors)
     else:
         fig = _bars_only(ds, names, colors)
     fig.savefig(out, dpi=130, bbox_inches="tight")

@@ -90,3 +90,27 @@ def test_plot_format_refuses_what_does_not_fit(result, tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error: --format:")
     assert run_cli("plot", str(result), "--format", "svg", "--out", str(tmp_path / "m.pdf")) == 2
     assert "does not end in .svg" in capsys.readouterr().err
+
+
+def test_both_maps_of_a_sampled_2d_result_put_the_same_axis_horizontal(tmp_path, monkeypatch):
+    import stabjax.basin_plot as B
+
+    spec = {"system": "monoaxial", "name": "sampled2d", "params": {"mu": 1.5},
+            "grid": {"alpha": [0.4, 0.8], "sigma": [1.3, 1.4, 1.5]},
+            "sample": {"n": 4, "seed": 0, "w0": {"dist": "ball", "radius": 0.1}},
+            "integrate": {"t1": 50.0, "n_checkpoints": 64}}
+    ds = run_spec(spec)
+    fig = plot_sweep(ds)
+    x_sweep = fig.axes[0].get_xlabel()
+    plt.close(fig)
+    drawn = {}
+    real = B._dominant_map
+
+    def spy(ds_, dims, names, colors):
+        f = real(ds_, dims, names, colors)
+        drawn["x"] = f.axes[0].get_xlabel()
+        return f
+
+    monkeypatch.setattr(B, "_dominant_map", spy)
+    B.plot_basin(ds, tmp_path / "b.png")
+    assert drawn["x"] == x_sweep == "perturbation order sigma ($\\sigma$)"
