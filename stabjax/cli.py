@@ -639,7 +639,8 @@ def report_cmd(
                               same=lambda p: p.resolve() == file.resolve().with_suffix(".html"),
                               what=f"the report of {file}")
     write_report(ds, out, source=str(file))
-    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False)
+    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False,
+                  soft_wrap=True)
 
 
 @app.command("view")
@@ -798,9 +799,10 @@ def examples_cmd(
         raise ValidationError("dest", f"{dest} exists and is not a directory")
     written = copy_examples(dest, force=force)
     for f in written:
-        console.print(f"wrote {f}", markup=False)
+        console.print(f"wrote {f}", markup=False, soft_wrap=True)
     names = sorted({f.parent.name for f in written})
-    console.print(f"run one with: stabjax sweep {dest / names[0] / 'spec.toml'}" if names else "", highlight=False)
+    console.print(f"run one with: stabjax sweep {dest / names[0] / 'spec.toml'}" if names else "", markup=False,
+                  soft_wrap=True)
 
 
 def _is_bench_record(path: Path) -> bool:
