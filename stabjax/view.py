@@ -439,9 +439,10 @@ def feature_columns(r: Result) -> dict[str, np.ndarray]:
     return cols
 
 
-def fraction_columns(r: Result, outcome: int, leading: int = 0) -> dict[str, Any] | None:
-    """Basin fraction of one outcome along the (first) swept axis with its Wilson band, or None
-    when the result has no per-point fractions (no samples) or no swept axis."""
+def fraction_columns(r: Result, outcome: int, at: dict[str, int] | None = None) -> dict[str, Any] | None:
+    """Basin fraction of one outcome along the last swept axis with its Wilson band, at the index
+    ``at`` of every other grid axis (default 0; the page follows the clicked cell), or None when the
+    result has no per-point fractions (no samples) or no swept axis."""
     ds = r.ds
     if "basin_fraction" not in ds or r.kind == "refine":
         return None
@@ -450,10 +451,11 @@ def fraction_columns(r: Result, outcome: int, leading: int = 0) -> dict[str, Any
         return None
     xd = dims[-1]
     sub = ds[["basin_fraction", "basin_ci_low", "basin_ci_high"]].isel(outcome_name=outcome)
-    other = {d: (leading if i == 0 else 0) for i, d in enumerate(dims[:-1])}
+    other = {d: int((at or {}).get(d, 0)) for d in dims[:-1]}
     sub = sub.isel(other) if other else sub
+    where = ", ".join(f"{d} = {float(ds[d].values[i]):.4g}" for d, i in other.items())
     return dict(x=np.asarray(ds[xd].values, float), s=sub["basin_fraction"].values,
-                lo=sub["basin_ci_low"].values, hi=sub["basin_ci_high"].values, dim=xd)
+                lo=sub["basin_ci_low"].values, hi=sub["basin_ci_high"].values, dim=xd, where=where)
 
 
 def build(doc, r: Result, refresh_s: float = 2.0) -> None:
@@ -490,9 +492,7 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
     th = fmap.multi_line(xs="xs", ys="ys", source=tl, line_color="black", line_width=2.5)
     main = r.ds.attrs.get("theory_main") or ""
     if tl.data["xs"]:
-        from .plotting import theory_words
-
-        items.append(LegendItem(label=f"theory boundary: {theory_words(r.ds, main)}", renderers=[th]))
+        items.append(LegendItem(label=f"theory boundary: {_theory_words(r, main)}", renderers=[th]))
     if r.kind == "refine" and len(r.ds.attrs["axes"].split()) == 2:
         a0, a1 = r.ds.attrs["axes"].split()
         mid = fmap.scatter(r.ds[f"{a1}_mid"].values, r.ds[f"{a0}_mid"].values, size=3, color="black")
@@ -561,6 +561,8 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
         ptxt = ", ".join(f"{k} = {np.array2string(np.asarray(p[k]), precision=5)}" for k in dict.fromkeys(swept) if k in p)
         rows = r.explain(idx, traj)
         draw_templates(idx)
+        if "follow" in state:
+            state["follow"](idx)
         why.text = (f"<b>trajectory {idx}</b>: {ptxt}<br><i>re-simulated on the diffrax engine with the result's "
                     f"solver ({r.plan.icfg.solver}, rtol {r.plan.icfg.rtol:g}, atol {r.plan.icfg.atol:g}) to t1 = "
                     f"{r.plan.icfg.t1:g}; solver status {traj.attrs['solver_status']}</i>"
@@ -568,9 +570,10 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
                                                              for a, b in rows) + "</table>")
 
     tmpl_src = ColumnDataSource(dict(xs=[], ys=[], name=[]))
-    fph.multi_line("xs", "ys", source=tmpl_src, line_color="#999999", line_dash="dashed", line_width=1,
-                   legend_label="templates (same parameters)")
     decl = None if r.kind == "refine" or r.plan.scheme.from_verdicts else r.plan.scheme.decl
+    if decl is not None and decl.templates:
+        fph.multi_line("xs", "ys", source=tmpl_src, line_color="#999999", line_dash="dashed", line_width=1,
+                       legend_label="templates (same parameters)")
 
     def draw_templates(idx: int):
         """The templates' own trajectories at the clicked point: the attractors the outcome is named by."""
@@ -663,20 +666,36 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
         upd_features("value", None, None)
         extra.append(column(row(fx, fy), ffs))
     fr = fraction_columns(r, 0)
+    fr_sources: dict[int, Any] = {}
     if fr is not None:
-        ffr = figure(title=f"basin stability S along {fr['dim']} (bands: 95% Wilson intervals)", width=620, height=320,
+        ffr = figure(title=f"basin stability S along {fr['dim']}" + (f" at {fr['where']}" if fr["where"] else "")
+                     + " (bands: 95% Wilson intervals)", width=620, height=320,
                      x_axis_label=_axis_label(r.ds, fr["dim"]), y_axis_label="basin stability S", y_range=(-0.02, 1.02),
                      name="fractions", tools="pan,wheel_zoom,box_zoom,reset,save")
         for k, (n, c) in enumerate(zip(names, colors)):
-            f = fraction_columns(r, k)
-            if not np.any(f["s"] > 0):
+            if not np.any(r.ds["basin_fraction"].isel(outcome_name=k).values > 0):
                 continue
-            s = ColumnDataSource({k: v for k, v in f.items() if k != "dim"})
-            ffr.varea(x="x", y1="lo", y2="hi", source=s, fill_color=c, fill_alpha=0.25)
-            ffr.line("x", "s", source=s, line_color=c, line_width=2, legend_label=n)
-            ffr.scatter("x", "s", source=s, color=c, size=5)
+            f = fraction_columns(r, k)
+            fr_sources[k] = ColumnDataSource({key: v for key, v in f.items() if key not in ("dim", "where")})
+            ffr.varea(x="x", y1="lo", y2="hi", source=fr_sources[k], fill_color=c, fill_alpha=0.25)
+            ffr.line("x", "s", source=fr_sources[k], line_color=c, line_width=2, legend_label=n)
+            ffr.scatter("x", "s", source=fr_sources[k], color=c, size=5)
         ffr.legend.label_text_font_size = "9pt"
         extra.append(ffr)
+
+        def follow(idx: int):
+            """The fractions along the last axis through the clicked cell (its other grid indices)."""
+            gdims = r.grid_dims()
+            if len(gdims) < 2:
+                return
+            point = np.unravel_index(idx // max(r.plan.n_sample, 1), [r.ds.sizes[d] for d in gdims])
+            at = dict(zip(gdims[:-1], (int(i) for i in point[:-1])))
+            for k, src_k in fr_sources.items():
+                f = fraction_columns(r, k, at)
+                src_k.data = {key: v for key, v in f.items() if key not in ("dim", "where")}
+            ffr.title.text = f"basin stability S along {f['dim']} at {f['where']} (bands: 95% Wilson intervals)"
+
+        state["follow"] = follow
 
     def refresh():
         before = r.ds.attrs.get("store_chunks")
@@ -702,6 +721,21 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
     right = column(why, sample_pick, fts, row(phx, phy), fph)
     doc.add_root(row(left, right))
     doc.title = f"stabjax view: {title}"
+
+
+def _theory_words(r: Result, main: str) -> str:
+    """What the main predicate says: from the dataset (sweeps), else from the system's theory (a
+    refinement records only the predicate's name)."""
+    from .plotlabels import words
+    from .plotting import theory_words
+
+    if f"theory_{main}" in r.ds:
+        return theory_words(r.ds, main)
+    try:
+        pred = r.plan.system.theory(r.plan.system.params.resolve()).predicates[main]
+        return words(pred.doc, "", limit=60) or main
+    except Exception:  # noqa: BLE001 - a theory that cannot be evaluated alone: its name
+        return main
 
 
 def _components(traj: xr.Dataset) -> dict[str, np.ndarray]:

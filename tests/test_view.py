@@ -276,3 +276,22 @@ def test_view_refuses_bad_input(tmp_path, capsys):
     assert run("view", str(tmp_path), "--port", "70000") == 2
     assert capsys.readouterr().err.startswith("error: --port:")
     assert LOOPBACK == "127.0.0.1"
+
+
+def test_fractions_follow_the_clicked_row_of_a_2d_sampled_map(tmp_path):
+    spec = {"system": "monoaxial", "name": "sampled2d", "params": {"mu": 1.5},
+            "grid": {"alpha": [0.35, 0.9], "sigma": [1.2, 1.3, 1.5]},
+            "sample": {"n": 4, "seed": 0, "w0": {"dist": "ball", "radius": 0.1}},
+            "integrate": {"t1": 60.0, "n_checkpoints": 64}}
+    out = tmp_path / "s.nc"
+    run_spec(spec, out)
+    ds = open_result(out)
+    doc, _ = page(out)
+    fr = doc.select_one({"name": "fractions"})
+    src = doc.select_one({"name": "map"}).renderers[0].data_source
+    cell = int(np.flatnonzero(np.isclose(src.data["y"], 0.9))[0])  # a cell of the alpha = 0.9 row
+    click(doc, cell)
+    assert "at alpha = 0.9" in fr.title.text
+    band = [g for g in fr.renderers if type(g.glyph).__name__ == "VArea"][0].data_source.data
+    k = [i for i in range(ds.sizes["outcome_name"]) if ds["basin_fraction"].isel(outcome_name=i).values.any()][0]
+    np.testing.assert_allclose(band["s"], ds["basin_fraction"].isel(outcome_name=k, alpha=1).values)
