@@ -8,7 +8,7 @@ classified, 1 some failed (or a write failed), 2 usage or input error, 128 + N i
 (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP). Text that is not ours (messages, names, paths, docs) is printed
 without Rich markup, so brackets such as ``[refine]`` or ``grid.J[0]`` survive.
 
-Size (~750 lines): one function per command of the typer app plus the checks they share (usage
+Size (~900 lines): one function per command of the typer app plus the checks they share (usage
 errors, output paths, exit statuses); split by command, those checks would be imported back by each.
 What a command may write over (inputs, stores, reproductions, atomic maps) is :mod:`stabjax.outputs`.
 """
