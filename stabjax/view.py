@@ -766,7 +766,10 @@ def _status_text(r: Result) -> str:
     n = int(ds.attrs.get("n_trajectories", 0))
     txt = (f"{r.path.name}: {n:,} trajectories; t1 = {r.plan.icfg.t1:g}; engine {ds.attrs.get('engine', '?')}; "
            f"created {ds.attrs.get('created', '?')}")
-    if "pending" in ds:
+    if "pending" in ds and not r.running:
+        txt = (f"<b>chunk store, every chunk finished</b> ({ds.attrs.get('store_chunks', '?')}); the netCDF file is "
+               f"written when the sweep ends (or: stabjax export {r.path} --out FILE.nc)<br>" + txt)
+    elif "pending" in ds:
         done = int((~np.asarray(ds["pending"].values)).sum())
         txt = (f"<b>running sweep</b>: {done:,} of {int(ds['pending'].size):,} trajectories finished "
                f"({ds.attrs.get('store_chunks', '?')} chunks; pending cells grey; refreshes as chunks land)<br>" + txt)

@@ -192,10 +192,13 @@ def test_a_running_sweeps_store_shows_finished_chunks_and_marks_the_rest(tmp_pat
     src = doc.select_one({"name": "map"}).renderers[0].data_source
     assert sum(n == "pending" for n in src.data["name"]) == 15
     assert "running sweep" in doc.select_one({"name": "status"}).text
-    # the rest of the sweep lands: the same reader sees it complete
+    # the rest of the sweep lands: the page's periodic refresh redraws the map from the store
     run_spec(VERDICT_MAP, out, batch_size=5, keep_partial=True)
-    r.reload()
+    (refresh,) = [cb for cb in doc.session_callbacks if type(cb).__name__ == "PeriodicCallback"]
+    refresh.callback()
     assert not r.running
+    assert not any(n == "pending" for n in src.data["name"])
+    assert "running sweep" not in doc.select_one({"name": "status"}).text
 
 
 def _listening(port: int) -> list[str]:
