@@ -56,8 +56,8 @@ def read_result(path: str | Path) -> xr.Dataset:
     path = Path(path)
     if not path.is_dir():
         return open_result(path)
-    from .store import load_results, plan_from_manifest, read_manifest
-    from .sweep import assemble
+    from .store import plan_from_manifest, read_manifest
+    from .sweep import assemble_store
 
     m = read_manifest(path)
     if m is None:
@@ -69,8 +69,7 @@ def read_result(path: str | Path) -> xr.Dataset:
         done[int(i) * batch: (int(i) + 1) * batch] = True
     if not m.get("arrays") or not done.any():
         raise ValidationError("result", f"{path}: no chunk has finished yet; try again in a moment")
-    res = load_results(path, m, lazy=False)
-    ds = assemble(plan, res)
+    ds = assemble_store(plan, path, m, lazy=False)  # the sweep's own assembly (unfinished chunks: fill values)
     ds["pending"] = (plan.dims, ~done.reshape(plan.shape), {"long_name": "not computed yet (running sweep)"})
     ds.attrs["store_chunks"] = f"{len(m.get('chunks', {}))}/{m.get('n_chunks', '?')}"
     return ds
