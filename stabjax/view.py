@@ -55,7 +55,15 @@ def read_result(path: str | Path) -> xr.Dataset:
 
     path = Path(path)
     if not path.is_dir():
-        return open_result(path)
+        try:
+            ds = open_result(path)
+        except ValidationError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - netCDF/HDF5 raise several types for a foreign file
+            raise ValidationError("result", f"{path} is not a netCDF result ({type(exc).__name__})") from None
+        if not any(k in ds for k in ("verdict", "outcome", "point_label")):
+            raise ValidationError("result", f"{path} is not a stabjax result (no verdict, outcome or refinement points)")
+        return ds
     from .store import plan_from_manifest, read_manifest
     from .sweep import assemble_store
 

@@ -275,6 +275,10 @@ def test_view_refuses_bad_input(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error: result:")
     assert run("view", str(tmp_path), "--no-browser", "--quit-after", "1") == 2
     assert "not a sweep's chunk store" in capsys.readouterr().err
+    junk = tmp_path / "junk.nc"
+    junk.write_text("not netcdf")
+    assert run("view", str(junk), "--no-browser", "--quit-after", "1") == 2
+    assert capsys.readouterr().err.startswith("error: result:")
     assert run("view", str(tmp_path), "--port", "70000") == 2
     assert capsys.readouterr().err.startswith("error: --port:")
     assert LOOPBACK == "127.0.0.1"
