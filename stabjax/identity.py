@@ -248,8 +248,8 @@ def changed_sources(attrs: Mapping[str, Any]) -> list[str]:
         src = json.loads(attrs.get("model_sources_json") or "{}")
     except ValueError:
         src = {}
-    if not src and attrs.get("model_file") and attrs.get("model_sha256"):
-        src = {attrs["model_file"]: attrs["model_sha256"]}
+    if attrs.get("model_file") and attrs.get("model_sha256"):  # results written before model_sources_json too
+        src.setdefault(attrs["model_file"], attrs["model_sha256"])
     out = []
     for f, sha in src.items():
         if sha and sha != "unknown" and os.path.exists(f):

@@ -476,6 +476,7 @@ class ChunkStore:
         self._group = None
         self.manifest["arrays"] = {k: {"dtype": v.dtype.str, "trailing": list(v.shape[1:]),
                                        "dims": list(ds[k].dims[nd:])} for k, v in rec.items()}
+        self.manifest["variables"] = [str(k) for k in ds.data_vars]  # the dataset's order (zarr lists names sorted)
         self._save_manifest()
 
     def _basin_per_chunk(self) -> bool:
@@ -562,6 +563,9 @@ class ChunkStore:
             extra[k] = extra[k].astype(object)
         names = [k for k in extra.variables if k not in self.manifest["entries"]]
         self.manifest["entries"] = [*self.manifest["entries"], *names]
+        order = [v for v in self.manifest.get("variables", []) if v not in extra.data_vars]
+        at = next((j for j, v in enumerate(order) if v.startswith(("theory_", "margin_", "derived_"))), len(order))
+        self.manifest["variables"] = order[:at] + [str(k) for k in extra.data_vars] + order[at:]  # as build() orders
         self._save_manifest()
         existing = set(self._data().array_keys())
         extra = extra.drop_vars([k for k in extra.variables if k in existing and k not in data])
@@ -658,6 +662,15 @@ def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool = 
     return out
 
 
+def pending_mask(manifest: Mapping[str, Any]) -> np.ndarray:
+    """Boolean array over the plan's grid: True where a trajectory's chunk has not finished."""
+    ch = Chunking(manifest["chunking"]["shape"], manifest["batch_size"])
+    pending = np.ones(ch.shape, bool)
+    for i in manifest.get("chunks", {}):
+        pending[ch.region(int(i))] = False
+    return pending
+
+
 def open_store(path: str | Path):
     """The dataset a store holds, as xarray reads it (``xr.open_zarr``), lazily; with the zarr
     encodings dropped and text coordinates as Python strings, so that it writes to netCDF exactly
@@ -665,6 +678,9 @@ def open_store(path: str | Path):
     import xarray as xr
 
     ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3)
+    with contextlib.suppress(StoreError, TypeError, KeyError):
+        order = (read_manifest(Path(path)) or {}).get("variables") or []
+        ds = ds[[v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]]
     for v in ds.variables.values():
         v.encoding = {}
     for k in list(ds.coords):
@@ -725,5 +741,5 @@ def finished_store(store: str | Path):
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
-           "identity", "describe_changes", "read_manifest", "open_store", "load_results", "engines_of", "plan_from_manifest",
+           "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "engines_of", "plan_from_manifest",
            "stored_batch", "verify", "checksum"]

@@ -74,6 +74,7 @@ def test_sweep_dataset_is_cf(in_memory, tmp_path):
         assert not exc.code
     with xr.open_dataset(out) as ds:
         check_cf(ds.load())
+        assert list(ds.data_vars) == list(in_memory.data_vars)  # the store keeps the dataset's order
         for k in in_memory.data_vars:
             np.testing.assert_array_equal(ds[k].values, in_memory[k].values, err_msg=k)
             for a in ("units", "long_name", "flag_meanings"):
