@@ -680,7 +680,8 @@ def open_store(path: str | Path):
     ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3)
     with contextlib.suppress(StoreError, TypeError, KeyError):
         order = (read_manifest(Path(path)) or {}).get("variables") or []
-        ds = ds[[v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]]
+        names = [v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]
+        ds = xr.Dataset({v: ds[v] for v in names}, coords=ds.coords, attrs=ds.attrs)  # every coordinate kept
     for v in ds.variables.values():
         v.encoding = {}
     for k in list(ds.coords):
