@@ -57,7 +57,7 @@ def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | N
     params = plan.system.check(params)
     varied = set().union(*[set(t) for t in decl.templates.values()])
     static = [k for k in static_params(plan) if k not in varied]
-    res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static)
+    res = solve_batch(plan.integrated, params, plan.icfg, plan.vcfg, static=static)
     feat = O.feature_getter(res, tuple(plan.system.observables))
     n = g * len(names)
 

@@ -79,6 +79,7 @@ class Plan:
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     model_sha256: str = ""  # hash of the file defining the system's class
+    lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
 
     engine: str = ""
     engine_note: str = ""
@@ -87,6 +88,17 @@ class Plan:
     def escape_radius(self) -> float | None:
         r = self.icfg.escape_radius
         return r if r is not None else self.system.escape_radius
+
+    @property
+    def integrated(self) -> System:
+        """The system the engines integrate: the model, or with ``lyapunov`` the model with its tangent
+        dynamics (:class:`stabjax.lyapunov.TangentSystem`, window = the outcome features' window)."""
+        if not self.lyapunov:
+            return self.system
+        from .lyapunov import tangent, window_start
+
+        return tangent(self.system, window_start(self.icfg.t0, self.icfg.t1, self.vcfg.feature_window),
+                       float(self.icfg.t1))
 
     @property
     def scheme(self) -> OutcomeScheme:
@@ -467,11 +479,14 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         outcomes = scheme(system, decl, escape)
         # the fold also keeps late-window statistics of every observable, for the outcome rules
         vcfg = vcfg.replace(features=True, feature_window=float(decl.window))
+    # the tangent dynamics only when a rule, a feature, discovery or the user asks for the exponent
+    lyap = decl is not None and decl.uses_lyapunov(system)
+    n_obs = len(system.observables) + int(lyap)
     # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
-    vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=len(system.observables))
+    vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
-                model_sha256=model_fingerprint(system))
+                model_sha256=model_fingerprint(system), lyapunov=lyap)
     return plan
 
 
