@@ -77,6 +77,11 @@ def point_outcomes(plan, params: Mapping[str, np.ndarray], results: Mapping[str,
     sch = plan.scheme
     if sch.from_verdicts:
         return O.assign(sch, plan.system, results, {})
+    if sch.decl.discover:
+        from .errors import ValidationError
+
+        raise ValidationError("outcomes.discover", "discovery groups a whole sweep's trajectories; refinement "
+                              "needs declared outcomes (rules or templates)")
     n = len(np.asarray(results["solver_status"]))
     ns = n // n_points
     tf = template_features_at(plan, {k: np.asarray(v)[::ns] for k, v in params.items()})
@@ -107,7 +112,13 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any
     sch = plan.scheme
     shape, dims = plan.shape, plan.dims
     tf = template_features(plan)
-    codes = outcome_codes(plan, results, tf)
+    extra: tuple[dict, dict] = ({}, {})
+    if sch.decl is not None and sch.decl.discover:  # the outcomes are the attractors found (stabjax.discover)
+        from . import discover
+
+        codes, sch, *extra = discover.outcomes(plan, {k: np.asarray(v) for k, v in results.items()})
+    else:
+        codes = outcome_codes(plan, results, tf)
     flags = dict(flag_values=np.arange(len(sch.names), dtype=np.int8), flag_meanings=" ".join(sch.names),
                  flag_colors=" ".join(sch.colors))
     data: dict[str, Any] = {
@@ -115,6 +126,8 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any
     }
     coords: dict[str, Any] = {"outcome_name": ("outcome_name", np.array(sch.names, dtype=object),
                                           {"long_name": "outcome name (code = index)"})}
+    data.update(extra[0])
+    coords.update(extra[1])
     if tf is not None:
         gdims = tuple(a.name for a in plan.grid)
         gshape = tuple(a.size for a in plan.grid)

@@ -284,6 +284,8 @@ class Outcomes:
             DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
             kw["discovery"] = dict(table["discovery"])
             kw["discover"] = kw["discover"] or "discover" not in table
+        if kw["discover"] and "rules" not in table and "templates" not in table:
+            kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
         return cls(**kw)
 
     def names(self, escape: bool) -> tuple[str, ...]:

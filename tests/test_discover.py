@@ -1,0 +1,119 @@
+"""Attractor discovery (stabjax.discover): grouping properties on synthetic feature clouds, and the
+partition of the examples' starts against their declared rules/templates (independent of the
+discovery code: the rules are the examples' own, checked against SciPy in test_examples.py)."""
+import tomllib
+
+import numpy as np
+import pytest
+
+from stabjax.discover import DiscoveryConfig, group
+from stabjax.sweep import run_spec
+
+
+def _cloud(rng, n, centre, spread, d=8):
+    x = np.tile(np.asarray(centre, float), (n, 1))
+    return x + rng.normal(0.0, spread, (n, d))
+
+
+def test_one_chaotic_cloud_is_never_split():
+    """A ring-shaped cloud (a chaotic attractor's features scatter along its own shape) of 20 000
+    points, sampled at 4000: one group, every point in it."""
+    rng = np.random.default_rng(1)
+    th = rng.uniform(0, 2 * np.pi, 20000)
+    x = np.zeros((20000, 8))
+    x[:, 0], x[:, 1] = 0.3 * np.cos(th), 0.3 * np.sin(th)
+    x += rng.normal(0, 0.01, x.shape)
+    lab, _ = group(x, DiscoveryConfig())
+    assert set(np.unique(lab)) == {0}
+
+
+def test_two_clouds_apart_are_never_merged_and_a_rare_basin_is_found():
+    """Two chaotic-like clouds whose edges are 3 eps apart, a fixed point and a basin of 12 starts
+    (0.04 %: absent from the subsample) stay four groups."""
+    rng = np.random.default_rng(2)
+    cfg = DiscoveryConfig()
+    a = _cloud(rng, 15000, np.zeros(8), 0.01)
+    b = _cloud(rng, 10000, np.r_[0.2, np.zeros(7)], 0.01)  # centres 0.2 apart, edges (4 sigma) ~0.12 = 2.4 eps
+    fp = np.tile(np.r_[-0.6, 0.5, np.zeros(6)], (5000, 1))
+    rare = np.tile(np.r_[0.7, -0.4, np.zeros(6)], (12, 1))
+    lab, _ = group(np.concatenate([a, b, fp, rare]), cfg)
+    parts = [lab[:15000], lab[15000:25000], lab[25000:30000], lab[30000:]]
+    firsts = [np.unique(p) for p in parts]
+    assert all(len(f) == 1 and f[0] >= 0 for f in firsts)
+    assert len({int(f[0]) for f in firsts}) == 4
+
+
+def test_discovery_config_is_checked():
+    from stabjax.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="outcomes.discovery.eps"):
+        DiscoveryConfig.from_dict({"eps": -1})
+    with pytest.raises(ValidationError, match="unknown key"):
+        DiscoveryConfig.from_dict({"radius": 0.1})
+
+
+def _example(name, n, **over):
+    spec = tomllib.load(open(f"examples/{name}/spec.toml", "rb"))
+    spec["system"] = f"examples/{name}/" + spec["system"]
+    spec["sample"]["n"] = n
+    for k, v in over.items():
+        spec.setdefault(k, {}).update(v)
+    return spec
+
+
+def _matched(declared, found):
+    """Fraction of starts in the matched class: each found outcome mapped to the declared outcome
+    most of its starts carry; the map must be one-to-one (no declared outcome split or merged)."""
+    dn, fn = declared["outcome"].attrs["flag_meanings"].split(), found["outcome"].attrs["flag_meanings"].split()
+    a, b = declared["outcome"].values.ravel(), found["outcome"].values.ravel()
+    tab = np.zeros((len(dn), len(fn)), int)
+    np.add.at(tab, (a, b), 1)
+    used = [j for j in range(len(fn)) if tab[:, j].sum()]
+    to = {j: int(np.argmax(tab[:, j])) for j in used}
+    assert len(set(to.values())) == len(used), (dn, fn, tab)
+    return sum(tab[to[j], j] for j in used) / a.size, {fn[j]: dn[to[j]] for j in used}
+
+
+@pytest.mark.parametrize("name,n,expect", [
+    ("pendulum", 300, {"fixed_point": 1, "limit_cycle": 1}),
+    ("duffing", 300, {"limit_cycle": 5}),
+    ("lorenz", 300, {"chaotic": 2}),
+])
+def test_examples_partition_recovered(name, n, expect):
+    declared = run_spec(_example(name, n))
+    found = run_spec(_example(name, n, outcomes={"discover": True}))
+    frac, mapping = _matched(declared, found)
+    assert frac >= 0.98, (frac, mapping)
+    types = list(found["attractor_type"].values)
+    assert {t: types.count(t) for t in set(types)} == expect
+    if name == "lorenz":  # the escape outcome is kept as declared
+        assert mapping.get("unbounded") == "unbounded"
+
+
+def test_lorenz63_attractors_found_and_typed():
+    """r = 24.4: C+- = (+-q, +-q, r - 1), q = sqrt(b (r - 1)), typed fixed points with the exponent of
+    the Jacobian's leading eigenvalue there (-0.0102), and one chaotic attractor (lambda ~ 0.9)."""
+    ds = run_spec(_example("lorenz63", 300))  # C- holds ~5 %: 15 starts, above min_samples
+    types = list(ds["attractor_type"].values)
+    assert sorted(types) == ["chaotic", "fixed_point", "fixed_point"]
+    b, r = 8 / 3, 24.4
+    q = np.sqrt(b * (r - 1))
+    ifp = [i for i, t in enumerate(types) if t == "fixed_point"]
+    fp = ds["attractor_state"].values[ifp]
+    # distance to C+- a posteriori: f(x) = J (x - C) + O(|x - C|^2), so |x - C| <= |J^-1| |f(x)| (1 + 1 %).
+    # (At rtol = atol = 1e-8 Tsit5 stays ~4e-5 from this weakly stable focus: the controller lets the
+    # step grow to where the oscillatory mode is barely damped; 3e-7 at 1e-10, 3e-9 at 1e-12.)
+    s = 10.0
+    for x in fp:
+        c = np.array([np.sign(x[0]) * q, np.sign(x[0]) * q, r - 1])
+        J = np.array([[-s, s, 0], [r - c[2], -1, -c[0]], [c[1], c[0], -b]])
+        f = np.array([s * (x[1] - x[0]), r * x[0] - x[1] - x[0] * x[2], x[0] * x[1] - b * x[2]])
+        bound = 1.01 * np.linalg.norm(np.linalg.inv(J), 2) * np.linalg.norm(f)
+        assert np.linalg.norm(x - c) <= bound + 1e-12 and bound < 1e-3, (x, c, bound)
+    lam1 = np.linalg.eigvals(np.array([[-s, s, 0], [1, -1, -q], [q, q, -b]])).real.max()
+    lam = ds["attractor_lyapunov"].values
+    # the window (t_w = 1500) is long past the approach: the estimate is the linear one, within
+    # ln kappa(V) / T_w (see test_lyapunov) of the eigenvalue
+    np.testing.assert_allclose(lam[ifp], lam1, atol=0.01)
+    assert lam[types.index("chaotic")] > 0.5
+    assert ds["basin_fraction"].sel(outcome_name="unclassified").item() <= 0.02
