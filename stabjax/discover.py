@@ -10,7 +10,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    the whole sweep (max of its window maxima minus min of its window minima). Per *observable*, not
    per feature: a z-score per feature (pyBasin) would blow the solver noise in the window std of
    fixed points (1e-12) up to unit size; per observable no observable dominates by its units and
-   the noise stays noise.
+   the noise stays noise. A range is never taken below 10^4 solver tolerances
+   (:func:`observable_ranges`): an observable every trajectory brings to the same value carries
+   only noise.
 3. **Grouping**: scikit-learn's DBSCAN (Ester et al. 1996) with radius ``eps`` (fraction of each
    observable's range) and ``min_samples``, on a random subsample of ``subsample`` trajectories;
    every trajectory then takes the label of its nearest core sample if that lies within ``eps``
@@ -130,14 +132,24 @@ def feature_table(results: Mapping[str, np.ndarray], observables: tuple[str, ...
     return np.stack(cols, axis=1), names
 
 
-def observable_ranges(results, valid: np.ndarray, n_obs: int) -> np.ndarray:
-    """Range of each observable over the valid trajectories' windows (1 where it is constant)."""
+NOISE_FACTOR = 1e4  # differences below this many solver tolerances are numerical, not dynamical
+
+
+def observable_ranges(results, valid: np.ndarray, n_obs: int, atol: float = 0.0, rtol: float = 0.0) -> np.ndarray:
+    """Range of each observable over the valid trajectories' windows, at least ``NOISE_FACTOR``
+    tolerances (atol + rtol max|value|): an observable that every trajectory brings to the same
+    value (a velocity at rest) must not blow its solver noise up to the size of a real difference.
+    Measured: Tsit5 at rtol = atol = 1e-8 stays 4e-5 (4000 tolerances) from a weakly stable focus
+    (Lorenz r = 24.4), the controller holding the step where the oscillation is barely damped."""
     lo = np.asarray(results["feat_min"], float)[valid, :n_obs]
     hi = np.asarray(results["feat_max"], float)[valid, :n_obs]
     if lo.shape[0] == 0:
         return np.ones(n_obs)
     r = np.nanmax(hi, axis=0) - np.nanmin(lo, axis=0)
-    return np.where(np.isfinite(r) & (r > 0), r, 1.0)
+    big = np.maximum(np.nanmax(np.abs(hi), axis=0), np.nanmax(np.abs(lo), axis=0))
+    floor = NOISE_FACTOR * (atol + rtol * np.where(np.isfinite(big), big, 0.0))
+    r = np.where(np.isfinite(r), np.maximum(r, floor), 0.0)
+    return np.where(r > 0, r, 1.0)
 
 
 def _dbscan(x: np.ndarray, cfg: DiscoveryConfig, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,12 +197,13 @@ def group(x: np.ndarray, cfg: DiscoveryConfig) -> tuple[np.ndarray, dict[str, An
 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
-             valid: np.ndarray) -> Discovery:
-    """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors."""
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0) -> Discovery:
+    """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
+    ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales)."""
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1)
-    scale = observable_ranges(results, valid, n_obs)
+    scale = observable_ranges(results, valid, n_obs, atol, rtol)
     x = feats / np.repeat(scale, len(STATS))[None, :]
     idx = np.flatnonzero(valid)
     lab_v, stats = group(x[idx], cfg)
@@ -250,7 +263,7 @@ def outcomes(plan, results: Mapping[str, np.ndarray]):
     decl = sch.decl
     cfg = plan_config(plan)
     status = np.asarray(results["solver_status"])
-    disc = discover(results, tuple(plan.system.observables), cfg, status == 0)
+    disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
     escape = decl.escape in sch.names
     names = tuple(disc.names) + ((decl.escape,) if escape else ()) + (O.UNCLASSIFIED, O.FAILED_NAME)
     if len(names) > 127:

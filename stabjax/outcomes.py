@@ -19,9 +19,10 @@ integer code, stored as the dataset variable ``outcome`` with CF ``flag_values``
 4. ``unclassified``: no rule holds and no template is near;
 5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
 
-Nothing is absorbed silently: 4 and 5 are always present. Systems that declare no outcomes
-(the attitude models) use their verdicts as outcomes (converged, flipped, diverged, undecided,
-failed), with the same codes as ``verdict``.
+Nothing is absorbed silently: 4 and 5 are always present. A system that declares no outcomes gets
+its attractors discovered (:mod:`stabjax.discover`: ``fixed_point_1``, ``limit_cycle_1``,
+``chaotic_1``, ...). The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
+outcomes (converged, flipped, diverged, undecided, failed), with the same codes as ``verdict``.
 
 Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
 sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
@@ -203,6 +204,22 @@ def _names(system) -> tuple[tuple[str, ...], tuple[str, ...]]:
 # ---- declarations ----------------------------------------------------------------------------------
 
 
+class _Verdicts:
+    """The declaration ``outcomes = VERDICTS``: the outcomes are the attitude verdicts (converged,
+    flipped, diverged, undecided, failed) of :mod:`stabjax.verdict`, whose rules read observable 0
+    as an error metric and observable 1 as a size. The built-in attitude systems declare it; a model
+    that declares nothing gets its attractors discovered (:mod:`stabjax.discover`) instead."""
+
+    def __repr__(self):
+        return "VERDICTS"
+
+    def __reduce__(self):
+        return "VERDICTS"
+
+
+VERDICTS = _Verdicts()
+
+
 @dataclass
 class Outcomes:
     """A system's outcome declaration (see the module docstring).
@@ -284,6 +301,8 @@ class Outcomes:
             DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
             kw["discovery"] = dict(table["discovery"])
             kw["discover"] = kw["discover"] or "discover" not in table
+        if ("rules" in table or "templates" in table) and "discover" not in table:
+            kw["discover"] = False  # declared outcomes replace a discovering base declaration
         if kw["discover"] and "rules" not in table and "templates" not in table:
             kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
         return cls(**kw)

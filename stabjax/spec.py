@@ -32,7 +32,7 @@ from . import verdict as VD
 from .errors import ValidationError
 from .params import Param, parse_value
 from .models import model_fingerprint, resolve as resolve_system
-from .outcomes import OutcomeScheme, Outcomes, scheme
+from .outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
 from .system import System
 
 TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run",
@@ -469,7 +469,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     if horizons is not None and not isinstance(horizons, (list, tuple)):
         raise ValidationError("verdict.horizons", f"must be a list of times, got {horizons!r}")
     vcfg = verdict_config(system, vtab)
-    decl = system.outcomes
+    # VERDICTS (the attitude systems): the verdicts are the outcomes; no declaration: discovery
+    decl = None if system.outcomes is VERDICTS else (system.outcomes or Outcomes(discover=True))
     if "outcomes" in spec:
         decl = Outcomes.from_spec(spec["outcomes"], base=decl)
     outcomes = None

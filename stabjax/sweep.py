@@ -343,6 +343,10 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
             data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
     results = dict(results)
+    if not plan.scheme.from_verdicts:
+        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
+        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
+        results = {k: v for k, v in results.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
     if "verdict" in results and "solver_status" in results:
         # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
         # (array operations only: in a big sweep these are dask arrays read lazily from the store)

@@ -117,3 +117,59 @@ def test_lorenz63_attractors_found_and_typed():
     np.testing.assert_allclose(lam[ifp], lam1, atol=0.01)
     assert lam[types.index("chaotic")] > 0.5
     assert ds["basin_fraction"].sel(outcome_name="unclassified").item() <= 0.02
+
+
+class TriWell:
+    """x'' + c x' + V'(x) = 0, V'(x) = x (x^2 - 1)(x^2 - 4): stable rest points x = 0, +-2 (V'' = 4, 24),
+    unstable at +-1 (the issue's "three stable rest points" model)."""
+
+
+def _triwell():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class TriWellModel(System):
+        name = "triwell_test"
+        params = ParamSet((Param("c", 0.5, "damping"), Param("x0", 0.0, "initial x", kind="initial"),
+                           Param("v0", 0.0, "initial v", kind="initial")))
+        state = (("x", ()), ("v", ()))
+        observables = ("x", "v")
+        observable_doc = ("position", "velocity")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["v0"]])
+
+        def rhs(self, t, y, p):
+            x, v = y[0], y[1]
+            return jnp.stack([v, -p["c"] * v - x * (x * x - 1) * (x * x - 4)])
+
+        def observe(self, t, y, p):
+            return y
+
+    return TriWellModel
+
+
+def test_model_without_outcomes_gets_its_attractors_not_verdicts():
+    """Issue #23 item 1: no converged/flipped words and no attitude-verdict variables; the three rest
+    points are found, typed and placed (each start's rest point checked with SciPy DOP853)."""
+    from scipy.integrate import solve_ivp
+
+    model = _triwell()
+    ds = run_spec({"system": model, "sample": {"n": 200, "seed": 5, "x0": {"dist": "uniform", "low": -2.5, "high": 2.5},
+                                                 "v0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
+                   "integrate": {"t1": 200.0, "rtol": 1e-8, "atol": 1e-10, "n_checkpoints": 400}})
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert names == ["fixed_point_1", "fixed_point_2", "fixed_point_3", "unclassified", "failed"]
+    for var in ("verdict", "decay_exponent", "n_flips", "t_settle", "size_max", "error_t1"):
+        assert var not in ds
+    assert not any(w in " ".join(names) for w in ("converged", "flipped", "undecided"))
+    rest = np.sort(ds["attractor_state"].values[:, 0])
+    np.testing.assert_allclose(rest, [-2.0, 0.0, 2.0], atol=1e-6)
+    # per start: the rest point SciPy reaches is the representative state of the start's group
+    x0, v0 = ds["x0_sample"].values, ds["v0_sample"].values
+    code = ds["outcome"].values
+    f = lambda t, y: [y[1], -0.5 * y[1] - y[0] * (y[0] ** 2 - 1) * (y[0] ** 2 - 4)]
+    for i in range(0, 200, 10):
+        end = solve_ivp(f, (0, 200.0), [x0[i], v0[i]], method="DOP853", rtol=1e-10, atol=1e-12).y[0, -1]
+        assert abs(end - ds["attractor_state"].values[code[i], 0]) < 1e-6, (i, end)
