@@ -128,6 +128,15 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any
                                           {"long_name": "outcome name (code = index)"})}
     data.update(extra[0])
     coords.update(extra[1])
+    from . import entropy
+
+    if entropy.applies(plan):  # one start per cell of a 2-D grid of initial conditions: Daza et al. (2016)
+        r = entropy.basin_entropy(codes.reshape(shape))
+        meta = {"box": r["box"], "boxes": r["n_boxes"], "boundary_boxes": r["n_boundary_boxes"],
+                "cells_used": r["cells_used"], "units": "nats"}
+        data["basin_entropy"] = ((), r["S_b"], {"long_name": "basin entropy S_b (Daza et al. 2016)", **meta})
+        data["boundary_basin_entropy"] = ((), r["S_bb"], {
+            "long_name": "boundary basin entropy S_bb (> ln 2: fractal boundary, sufficient condition)", **meta})
     if tf is not None:
         gdims = tuple(a.name for a in plan.grid)
         gshape = tuple(a.size for a in plan.grid)

@@ -213,4 +213,11 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    if "basin_entropy" in ds:
+        a = ds["basin_entropy"].attrs
+        sbb = float(ds["boundary_basin_entropy"])
+        lines.append(f"basin entropy S_b = {float(ds['basin_entropy']):.4f}, boundary basin entropy S_bb = {sbb:.4f} "
+                     f"nats ({a.get('box')} x {a.get('box')} cells per box, {a.get('boundary_boxes')} of "
+                     f"{a.get('boxes')} boxes on a boundary; S_bb {'>' if sbb > np.log(2) else '<='} ln 2"
+                     f"{': fractal boundary' if sbb > np.log(2) else ''})")
     return "\n".join(lines)
