@@ -213,6 +213,13 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    if "attractor_events" in ds:
+        import json
+
+        for e in json.loads(str(ds["attractor_events"].values)):
+            where = {k: v for k, v in e.items() if k not in ("attractor", "event", "index")}
+            lines.append(f"{e['attractor']}: {'born' if e['event'] == 'birth' else 'lost'} at "
+                         + ", ".join(f"{k} = {v:.6g}" for k, v in where.items()))
     if "basin_entropy" in ds:
         a = ds["basin_entropy"].attrs
         sbb = float(ds["boundary_basin_entropy"])

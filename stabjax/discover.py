@@ -38,12 +38,18 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    Without the exponent (``lyapunov = false``) a non-stationary group is ``attractor``.
    Names: the type and a number, ``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ... numbered
    by decreasing basin size within each type.
-5. **Representative** of each group: the member whose features lie nearest the group's median;
+5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point is grouped on its
+   own and the attractors of neighbouring points are matched by the distance between their
+   representatives (:func:`continue_along`, Attractors.jl's global continuation), so
+   ``basin_fraction`` along the axis follows one attractor and births and deaths are reported
+   (``attractor_events``). ``continuation = false`` groups all points together instead.
+6. **Representative** of each group: the member whose features lie nearest the group's median;
    its parameters (start), its state at t1 (re-integrated on its own) and the group's median
    features are stored in the dataset.
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
@@ -68,6 +74,11 @@ class DiscoveryConfig:
     chaos_threshold  median largest Lyapunov exponent above this -> chaotic
     lyapunov         integrate the tangent dynamics for the exponent (off: no chaotic/limit-cycle types)
     seed             of the subsample
+    continuation     with one [grid] axis: group each grid point on its own and match the attractors
+                     of neighbouring points (:func:`continue_along`); off: group all points together
+    match_threshold  largest distance (scaled features) between representatives of one attractor at
+                     neighbouring grid points (default inf, as Attractors.jl's MatchBySSSetDistance: the
+                     greedy order alone decides; a finite value lets a far jump be a death and a birth)
     """
 
     eps: float = 0.05
@@ -77,6 +88,8 @@ class DiscoveryConfig:
     chaos_threshold: float = 0.01
     lyapunov: bool = True
     seed: int = 0
+    continuation: bool = True
+    match_threshold: float = math.inf
 
     @classmethod
     def from_dict(cls, d: Any, section: str = "outcomes.discovery") -> "DiscoveryConfig":
@@ -97,7 +110,8 @@ class DiscoveryConfig:
                 if isinstance(v, bool) or not isinstance(v, int) or v < (0 if k == "seed" else 1):
                     raise ValidationError(f"{section}.{k}", f"must be a positive integer, got {v!r}")
             else:
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or (
+                        math.isinf(v) and k != "match_threshold"):
                     raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
                 if k != "chaos_threshold" and not v > 0:
                     raise ValidationError(f"{section}.{k}", f"must be > 0, got {v!r}")
@@ -210,22 +224,35 @@ def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     lam_all = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
     groups = [idx[lab_v == g] for g in range(int(lab_v.max()) + 1 if lab_v.size else 0)]
     groups = [g for g in groups if g.size]
+    return _named(groups, feats, fnames, x, scale, lam_all, cfg, stats)
+
+
+def _describe(g: np.ndarray, feats, x, scale, lam_all, cfg: DiscoveryConfig):
+    """(type, median features, median exponent, representative index) of one group of trajectories."""
+    n_obs = len(scale)
     std_cols = [k * len(STATS) + 1 for k in range(n_obs)]
+    med = np.median(feats[g], axis=0)
+    rel_std = med[std_cols] / scale
+    lam = float(np.nanmedian(lam_all[g])) if lam_all is not None and np.isfinite(lam_all[g]).any() else math.nan
+    if np.all(rel_std < cfg.fixed_point_tol):
+        kind = "fixed_point"
+    elif lam_all is None:
+        kind = "attractor"
+    elif lam > cfg.chaos_threshold:
+        kind = "chaotic"
+    else:
+        kind = "limit_cycle"
+    xm = np.median(x[g], axis=0)
+    rep = int(g[np.argmin(np.linalg.norm(x[g] - xm, axis=1))])
+    return kind, med, lam, rep
+
+
+def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> Discovery:
+    """Name and order the groups (type, then decreasing size); ``kinds``: given types (continuation)."""
     typed = []
-    for g in groups:
-        med = np.median(feats[g], axis=0)
-        rel_std = med[std_cols] / scale
-        lam = float(np.nanmedian(lam_all[g])) if lam_all is not None and np.isfinite(lam_all[g]).any() else math.nan
-        if np.all(rel_std < cfg.fixed_point_tol):
-            kind = "fixed_point"
-        elif lam_all is None:
-            kind = "attractor"
-        elif lam > cfg.chaos_threshold:
-            kind = "chaotic"
-        else:
-            kind = "limit_cycle"
-        xm = np.median(x[g], axis=0)
-        rep = int(g[np.argmin(np.linalg.norm(x[g] - xm, axis=1))])
+    for i, g in enumerate(groups):
+        kind, med, lam, rep = _describe(g, feats, x, scale, lam_all, cfg)
+        kind = kinds[i] if kinds is not None else kind
         typed.append((TYPES.index(kind), -g.size, kind, g, med, lam, rep))
     typed.sort(key=lambda r: (r[0], r[1], r[6]))
     labels = np.full(len(feats), -1, np.int64)
@@ -240,11 +267,86 @@ def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
         lams.append(lam)
         reps.append(rep)
         labels[g] = a
-    stats.update(n_valid=int(valid.sum()), n_unclassified=int((labels[valid] < 0).sum()))
+    stats.update(n_grouped=int((labels >= 0).sum()))
     return Discovery(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                      features=np.asarray(fmed).reshape(len(names), len(fnames)), feature_names=fnames,
                      lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=scale,
                      stats=stats)
+
+
+def continue_along(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
+                   atol: float = 0.0, rtol: float = 0.0) -> tuple[Discovery, list[dict[str, Any]]]:
+    """Attractors followed along one grid axis (Datseris, Rossi & Wagemakers, Chaos 33 (2023): the
+    "global continuation" of Attractors.jl, ``MatchBySSSetDistance`` with centroid distances).
+
+    Trajectories are laid out point-major (``n_points`` grid points, the same number of samples
+    each). Each point is grouped on its own (:func:`group`, features scaled by the whole sweep's
+    ranges so distances compare between points); the groups of point k are matched to the
+    attractors alive at point k - 1 by the distance between their representatives' scaled feature
+    vectors, pairs accepted greedily in increasing distance while both are free and the distance is
+    at most ``match_threshold``; an unmatched group is a new attractor (a birth), an attractor of
+    point k - 1 left unmatched ends there (a death). Greedy, not an optimal assignment (as
+    Attractors.jl); an attractor that vanishes and reappears gets a new identity. An attractor's type
+    is the one it has at most of its points. Returns the discovery (labels over all trajectories)
+    and the events ``{"attractor", "event": "birth" | "death", "index": grid index}``.
+    """
+    n_obs = len(observables)
+    feats, fnames = feature_table(results, observables)
+    valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1)
+    scale = observable_ranges(results, valid, n_obs, atol, rtol)
+    x = feats / np.repeat(scale, len(STATS))[None, :]
+    lam_all = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
+    n = len(feats)
+    per = n // n_points
+    members: list[list[np.ndarray]] = []  # global id -> member index arrays
+    kinds: list[list[str]] = []
+    alive: dict[int, np.ndarray] = {}  # global id -> representative scaled features at the last point
+    span: list[list[int]] = []  # global id -> [first point, last point]
+    for k in range(n_points):
+        idx = np.arange(k * per, (k + 1) * per)
+        idx = idx[valid[idx]]
+        local = []
+        if idx.size:
+            lab, _ = group(x[idx], cfg)
+            for g in range(int(lab.max()) + 1 if lab.size else 0):
+                gi = idx[lab == g]
+                if gi.size:
+                    kind, _, _, rep = _describe(gi, feats, x, scale, lam_all, cfg)
+                    local.append((gi, kind, x[rep]))
+        pairs = sorted((float(np.linalg.norm(rep - alive[a])), j, a) for j, (_, _, rep) in enumerate(local)
+                       for a in alive)
+        taken_new, taken_old, ids = set(), set(), {}
+        for d, j, a in pairs:
+            if d <= cfg.match_threshold and j not in taken_new and a not in taken_old:
+                ids[j] = a
+                taken_new.add(j)
+                taken_old.add(a)
+        new_alive = {}
+        for j, (gi, kind, rep) in enumerate(local):
+            a = ids.get(j)
+            if a is None:
+                a = len(members)
+                members.append([])
+                kinds.append([])
+                span.append([k, k])
+            members[a].append(gi)
+            kinds[a].append(kind)
+            span[a][1] = k
+            new_alive[a] = rep
+        alive = new_alive
+    groups = [np.concatenate(m) for m in members]
+    majority = [max(TYPES, key=lambda t: (ks.count(t), -TYPES.index(t))) for ks in kinds]
+    disc = _named(groups, feats, fnames, x, scale, lam_all, cfg, {"points": n_points}, kinds=majority)
+    events = []
+    for a, g in enumerate(groups):
+        name = disc.names[int(disc.labels[g[0]])]
+        first, last = span[a]
+        if first > 0:
+            events.append({"attractor": name, "event": "birth", "index": first})
+        if last < n_points - 1:
+            events.append({"attractor": name, "event": "death", "index": last + 1})
+    events.sort(key=lambda e: (e["index"], e["event"], e["attractor"]))
+    return disc, events
 
 
 # ---- the outcomes of a plan ----------------------------------------------------------------------
@@ -263,7 +365,12 @@ def outcomes(plan, results: Mapping[str, np.ndarray]):
     decl = sch.decl
     cfg = plan_config(plan)
     status = np.asarray(results["solver_status"])
-    disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
+    events = None
+    if cfg.continuation and len(plan.grid) == 1 and plan.n_sample:
+        disc, events = continue_along(results, tuple(plan.system.observables), cfg, status == 0, plan.grid[0].size,
+                                      plan.icfg.atol, plan.icfg.rtol)
+    else:
+        disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
     escape = decl.escape in sch.names
     names = tuple(disc.names) + ((decl.escape,) if escape else ()) + (O.UNCLASSIFIED, O.FAILED_NAME)
     if len(names) > 127:
@@ -279,6 +386,12 @@ def outcomes(plan, results: Mapping[str, np.ndarray]):
         ok = ok | (status == O.STATUS_ESCAPED)
     code = np.where(ok, code, names.index(O.FAILED_NAME)).astype(np.int8)
     data, coords = _attractor_vars(plan, disc, results, cfg)
+    if events is not None:
+        ax = plan.grid[0]
+        ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
+        data["attractor_events"] = ((), json.dumps(ev), {
+            "long_name": f"births and deaths of attractors along {ax.name} (JSON: attractor, event, first grid "
+                         f"index where it is present (birth) or absent again (death), the {ax.name} value there)"})
     return code, new, data, coords
 
 

@@ -173,3 +173,39 @@ def test_model_without_outcomes_gets_its_attractors_not_verdicts():
     for i in range(0, 200, 10):
         end = solve_ivp(f, (0, 200.0), [x0[i], v0[i]], method="DOP853", rtol=1e-10, atol=1e-12).y[0, -1]
         assert abs(end - ds["attractor_state"].values[code[i], 0]) < 1e-6, (i, end)
+
+
+def test_continuation_through_births_and_deaths():
+    """Pendulum along the torque T (alpha = 0.3, K = 1): the running limit cycle exists above the
+    homoclinic torque T_c ~ 4 alpha sqrt(K) / pi = 0.38 (Melnikov, first order in alpha), the rest
+    point theta* = asin(T/K) only below the saddle-node at T = K. Along T = 0.1 ... 1.3 the limit
+    cycle is born once (between 0.1 and 0.5), the fixed point is lost once (between 0.7 and 1.1),
+    and each keeps one identity although both move (the fixed point's sin(theta) equals T / K, checked
+    at every T where it exists; the cycle's mean angular velocity grows with T)."""
+    import json
+
+    T = [0.1, 0.5, 0.7, 1.1, 1.3]
+    spec = {"system": "examples/pendulum/model.py:Pendulum", "grid": {"T": T}, "params": {"alpha": 0.3},
+            "sample": {"n": 80, "seed": 1, "theta0": {"dist": "uniform", "low": -3.1, "high": 3.1},
+                       "omega0": {"dist": "uniform", "low": -6.0, "high": 6.0}},
+            "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 600},
+            "outcomes": {"discover": True, "window": 0.2}}
+    ds = run_spec(spec)
+    types = list(ds["attractor_type"].values)
+    assert sorted(types) == ["fixed_point", "limit_cycle"]
+    names = list(ds["attractor"].values)
+    fp, lc = names[types.index("fixed_point")], names[types.index("limit_cycle")]
+    f_fp = ds["basin_fraction"].sel(outcome_name=fp).values
+    f_lc = ds["basin_fraction"].sel(outcome_name=lc).values
+    assert np.all(f_fp[:3] > 0) and np.all(f_fp[3:] == 0)
+    assert f_lc[0] == 0 and np.all(f_lc[1:] > 0)
+    ev = json.loads(str(ds["attractor_events"].values))
+    assert {(e["attractor"], e["event"], e["T"]) for e in ev} == {(lc, "birth", 0.5), (fp, "death", 1.1)}
+    code = ds["outcome"].values
+    sin_final = ds["feat_final"].sel(observable="sin_theta").values
+    omega_mean = ds["feat_mean"].sel(observable="omega").values
+    for i, t in enumerate(T):
+        if i < 3:
+            np.testing.assert_allclose(sin_final[i][code[i] == names.index(fp)], t, atol=1e-6)
+    w = [np.median(omega_mean[i][code[i] == names.index(lc)]) for i in range(1, 5)]
+    assert np.all(np.diff(w) > 0)
