@@ -128,7 +128,9 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any
                                           {"long_name": "outcome name (code = index)"})}
     data.update(extra[0])
     coords.update(extra[1])
-    from . import entropy
+    from . import entropy, starts
+
+    data.update(starts.dataset_vars(plan, codes, list(sch.names)))
 
     if entropy.applies(plan):  # one start per cell of a 2-D grid of initial conditions: Daza et al. (2016)
         r = entropy.basin_entropy(codes.reshape(shape))

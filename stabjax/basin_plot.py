@@ -213,6 +213,10 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    if "start_label_mcc" in ds:
+        lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
+                     f"Matthews correlation {float(ds['start_label_mcc']):.4f} "
+                     f"({ds['start_label_mcc'].attrs.get('mapping', '')})")
     if "attractor_events" in ds:
         import json
 

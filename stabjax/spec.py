@@ -80,6 +80,7 @@ class Plan:
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     model_sha256: str = ""  # hash of the file defining the system's class
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
+    start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.starts), or None
 
     engine: str = ""
     engine_note: str = ""
@@ -394,6 +395,15 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     sample_spec = dict(spec.get("sample") or {})
     sizes = [_axis_size(key, raw) for key, raw in grid_spec.items()]
     n_sample = 0
+    from_file = None
+    if "from" in sample_spec:  # the starts of a file (stabjax.starts): their number is the file's
+        from . import starts as ST
+
+        from_file = ST.load(sample_spec, system, base_dir,
+                            {re.sub(r"\[.*", "", k) for k in grid_spec})
+        sample_spec = {"n": len(next(iter(from_file[0].values())))}
+        # the file's content is part of what runs: a changed file is a different sweep (fingerprint)
+        spec["sample"] = {**dict(spec["sample"]), "__sha256__": ST.sha256(from_file[2])}
     if sample_spec:
         if "n" not in sample_spec:
             raise ValidationError("sample.n", "required: number of random draws")
@@ -431,7 +441,9 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         grid.append(Axis(key, name, prm, index, vals, log))
 
     sample = {}
-    if n_sample:
+    if from_file is not None:
+        sample = {k: np.asarray(v, float) for k, v in from_file[0].items()}
+    elif n_sample:
         seed = V.integer(sample_spec.pop("seed", 0), "sample.seed", lo=0, hi=2**128 - 1)
         if not sample_spec:
             raise ValidationError("sample", "no parameter to sample (add e.g. s0 = {dist = \"sphere\"})")
@@ -487,7 +499,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
-                model_sha256=model_fingerprint(system), lyapunov=lyap)
+                model_sha256=model_fingerprint(system), lyapunov=lyap,
+                start_labels=None if from_file is None else from_file[1])
     return plan
 
 
