@@ -403,7 +403,7 @@ def _attractor_vars(plan, disc: Discovery, results, cfg: DiscoveryConfig):
     for k, rep in enumerate(disc.representative):
         states[k] = representative_state(plan, int(rep))
     starts = plan.params_at(disc.representative) if a else {}
-    varied = [ax.param.name for ax in plan.grid] + list(plan.sample)
+    varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     n_obs = len(plan.system.observables)
     final = np.asarray(results["feat_final"], float)[disc.representative, :n_obs] if a else np.zeros((0, n_obs))
     data = {

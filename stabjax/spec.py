@@ -496,6 +496,9 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     lyap = decl is not None and decl.uses_lyapunov(system)
     n_obs = len(system.observables) + int(lyap)
     # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
+    if lyap and n_obs > VD.MAX_FEATURE_OBS:
+        raise ValidationError("outcomes.lyapunov", f"the exponent is kept as an extra observable: at most "
+                              f"{VD.MAX_FEATURE_OBS - 1} observables beside it, {system.name} has {n_obs - 1}")
     vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
