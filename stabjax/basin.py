@@ -107,11 +107,13 @@ def outcome_codes(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None
     return out
 
 
-def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(data variables, coordinates) for the outcome and the basin statistics."""
+def dataset_vars(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None = None
+                 ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(data variables, coordinates) for the outcome and the basin statistics; ``tf``: the template
+    features when already integrated (the sweep does it before the run, to check them first)."""
     sch = plan.scheme
     shape, dims = plan.shape, plan.dims
-    tf = template_features(plan)
+    tf = template_features(plan) if tf is None else tf
     extra: tuple[dict, dict] = ({}, {})
     if sch.decl is not None and sch.decl.discover:  # the outcomes are the attractors found (stabjax.discover)
         from . import discover

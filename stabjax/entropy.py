@@ -54,7 +54,8 @@ def basin_entropy(labels: np.ndarray, eps: int = DEFAULT_BOX) -> dict[str, float
             "fractal_by_ln2": bool(s_bb > LN2)}
 
 
-def applies(plan) -> bool:
-    """A grid of two axes over initial conditions and no sampling: one start per cell."""
+def applies(plan, eps: int = DEFAULT_BOX) -> bool:
+    """A grid of two axes over initial conditions and no sampling (one start per cell) that holds at
+    least one whole box."""
     return (len(plan.grid) == 2 and not plan.n_sample
-            and all(ax.param.kind == "initial" and ax.values.ndim == 1 for ax in plan.grid))
+            and all(ax.param.kind == "initial" and ax.values.ndim == 1 and ax.size >= eps for ax in plan.grid))

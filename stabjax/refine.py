@@ -816,13 +816,13 @@ def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot
     solve_points = executor.points_solver(plan) if executor is not None else None
     try:
         ds = refine_plan(plan, out, restart=restart, plot=plot, solve_points=solve_points)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (stabjax.signals): exit 128 + signal
         if err_console is not None:
             err_console.print(f"[yellow]interrupted: finished rounds are kept in {out}.partial; "
                               "run the same command to resume[/yellow]")
         import typer
 
-        raise typer.Exit(130)
+        raise typer.Exit(getattr(exc, "status", 130))
     pr = console.print if console is not None else print
     pr(f"wrote {out}  ({ds.attrs['wall_time_s']:.1f} s)")
     pr(format_summary(ds), highlight=False) if console is not None else pr(format_summary(ds))

@@ -24,12 +24,13 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
+from . import engines, signals
 from . import verdict as V
-from . import engines
 from .config import setup_jax, versions
 from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
-from .errors import ValidationError
+from .errors import OutputError, ValidationError
+from .outputs import write_reason
 from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
@@ -172,6 +173,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
+    tf = templates_first(plan)  # before the store exists: a refusal leaves nothing behind
     n = plan.size
     n_chunks = -(-n // batch)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
@@ -187,6 +189,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                 bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
                            steps=0, chunks=n_resumed)
             steps_run = 0
+            signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
             if executor is None:
                 for i in pending:
                     lo, hi = sink.bounds(i)
@@ -207,6 +210,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                         bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
                     if on_chunk is not None:
                         on_chunk(i, n_chunks)
+                    signals.checkpoint()
             else:
                 for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
                     lo, hi = sink.bounds(i)
@@ -217,18 +221,21 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                         bar.update(hi - lo, steps=steps_run, chunk_done=True)
                     if on_chunk is not None:
                         on_chunk(i, n_chunks)
+                    signals.checkpoint()
         finally:
+            signals.release()
             if bar is not None:
                 bar.close()
         wall = time.perf_counter() - t_start
         run_attrs = dict(wall=wall, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
         executor_name = executor.describe() if executor is not None else "local"
         if isinstance(sink, _Memory):
-            ds = assemble(plan, sink.results, **run_attrs)
+            ds = assemble(plan, sink.results, template_features=tf, **run_attrs)
             _engine_attrs(ds, sink.manifest, executor_name, plan.engine_note)
             return ds
         lazy = n > LAZY_ABOVE
-        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, **run_attrs)
+        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, template_features=tf,
+                            **run_attrs)
         ds.attrs["engine_note"] = plan.engine_note
         if not lazy:
             ds = ds.load()
@@ -237,6 +244,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         try:
             write(ds, out)
         except OSError as exc:
+            exc = exc.reason if isinstance(exc, OutputError) else exc
             raise S.StoreIOError(f"could not write {out}: {exc}. Every chunk is finished and kept in {store_path}; "
                                  f"write the file with: stabjax export {store_path} --out {out}") from None
         if not keep_partial:
@@ -263,7 +271,7 @@ def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str, no
 
 def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, Any], *, lazy: bool,
                    executor: str = "", wall: float | None = None, steps: int | None = None, batch: int | None = None,
-                   n_resumed: int | None = None) -> xr.Dataset:
+                   n_resumed: int | None = None, template_features: np.ndarray | None = None) -> xr.Dataset:
     """The sweep's Dataset from a complete store (arrays as dask arrays reading the store if ``lazy``)."""
     from .store import load_results
 
@@ -273,10 +281,34 @@ def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, An
                   wall=float(sum(c.get("seconds", 0.0) for c in chunks)) if wall is None else wall,
                   steps=int(sum(c.get("steps", 0) for c in chunks)) if steps is None else steps,
                   batch=int(manifest["batch_size"]) if batch is None else batch,
-                  n_resumed=0 if n_resumed is None else n_resumed)
+                  n_resumed=0 if n_resumed is None else n_resumed, template_features=template_features)
     _engine_attrs(ds, manifest, executor or "store")
     ds.attrs["store_created"] = manifest.get("created", "")
     return ds
+
+
+def templates_first(plan: Plan) -> np.ndarray | None:
+    """The template feature vectors at every grid point, integrated before any chunk of the sweep, or
+    None without templates. Two templates that coincide somewhere are refused here (naming them, the
+    point and their distance): otherwise the default ``max_distance`` is zero there and every
+    trajectory ends "unclassified" without a word, after the whole run (issue 22, item 6)."""
+    from .basin import template_features
+    from .outcomes import coinciding_templates
+
+    tf = template_features(plan)
+    if tf is None:
+        return None
+    hit = coinciding_templates(plan.outcomes.decl, tf)
+    if hit is not None:
+        p, a, b, d = hit
+        where = ""
+        if plan.grid:
+            idx = np.unravel_index(p, tuple(ax.size for ax in plan.grid))
+            where = " at " + ", ".join(f"{ax.name} = {np.asarray(ax.values[i]).tolist()}" for ax, i in zip(plan.grid, idx))
+        raise ValidationError("outcomes.templates", f"templates {a!r} and {b!r} coincide{where} (feature distance "
+                              f"{d:.3g}): they reach the same attractor, so no trajectory there could be told between "
+                              "them; drop one, or choose initial conditions in different basins")
+    return tf
 
 
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
@@ -325,7 +357,7 @@ def _theory_vars(plan: Plan, chunk: int = 262_144) -> dict[str, tuple[np.ndarray
 
 
 def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = float("nan"), steps: int = 0,
-             batch: int = 0, n_resumed: int = 0) -> xr.Dataset:
+             batch: int = 0, n_resumed: int = 0, template_features: np.ndarray | None = None) -> xr.Dataset:
     shape, dims = plan.shape, plan.dims
     coords: dict[str, Any] = {}
     data: dict[str, Any] = {}
@@ -368,7 +400,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
     if "solver_status" in results:
         from .basin import dataset_vars
 
-        bdata, bcoords = dataset_vars(plan, results)
+        bdata, bcoords = dataset_vars(plan, results, template_features)
         data.update(bdata)
         coords.update(bcoords)
     th = _theory_vars(plan)
@@ -438,6 +470,13 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
         with dask.config.set(scheduler="synchronous"):
             ds.to_netcdf(tmp, engine="netcdf4")
         os.replace(tmp, out)
+    except (OSError, RuntimeError) as exc:
+        # a full disk reaches us from netCDF/HDF5 as ``RuntimeError: NetCDF: HDF error``: say which file
+        # failed and the likely reason, not a traceback (exit 1); ``out`` itself is untouched
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(out, write_reason(exc, out)) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -512,7 +551,10 @@ class _Bar:
         self.task = self.progress.add_task(self._desc(), total=total, rate="")
 
     def _desc(self) -> str:
-        return f"{self.name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else self.name
+        from rich.markup import escape  # the description is read as markup: a name "[x]" must survive
+
+        name = escape(self.name)
+        return f"{name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else name
 
     def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
         """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""
