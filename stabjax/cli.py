@@ -564,10 +564,10 @@ def plot_cmd(
 ):
     """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
     ds = _open_result_file(file)
-    if "verdict" not in ds:
+    if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
         from .errors import ValidationError
 
-        raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
+        raise ValidationError("file", f"{file} is not a sweep result (no 'outcome' or 'verdict' variable)")
     _warn_changed_model(ds)
     out = out or file.with_suffix(".png")
     # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force

@@ -2,6 +2,7 @@
 partition of the examples' starts against their declared rules/templates (independent of the
 discovery code: the rules are the examples' own, checked against SciPy in test_examples.py)."""
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -239,3 +240,33 @@ def test_all_escaping_sweep_discovers_nothing_and_says_so():
     assert ds["outcome"].attrs["flag_meanings"].split() == ["escaped", "unclassified", "failed"]
     assert ds.sizes["attractor"] == 0
     assert float(ds["basin_fraction"].sel(outcome_name="escaped")) == 1.0
+
+
+def test_cli_sweep_and_replot_of_a_discovery(tmp_path, capsys):
+    """The command line end to end on a model without declarations: the summary names the attractors,
+    and the result (no verdict variable) can be drawn again."""
+    from stabjax.cli import main
+
+    spec = tmp_path / "tri.toml"
+    spec.write_text(f'''system = "{Path(__file__).resolve().parents[1] / "examples/pendulum/model.py"}:Pendulum"
+name = "tri"
+[sample]
+n = 40
+seed = 2
+theta0 = {{dist = "uniform", low = -2.6, high = 3.6}}
+omega0 = {{dist = "uniform", low = -6.0, high = 6.0}}
+[integrate]
+t1 = 300.0
+n_checkpoints = 300
+[outcomes]
+discover = true
+''')
+    out = tmp_path / "tri.nc"
+    for args in (["sweep", str(spec), "--out", str(out), "--no-progress"], ["plot", str(out), "--out",
+                                                                             str(tmp_path / "again.png")]):
+        try:
+            main(args)
+        except SystemExit as exc:
+            assert not exc.code, capsys.readouterr()
+    text = capsys.readouterr().out
+    assert "fixed_point_1" in text and "limit_cycle_1" in text and (tmp_path / "again.png").exists()
