@@ -609,6 +609,11 @@ def horizon_check_cmd(
     validate.integer(n, "--n", lo=1)
     validate.integer(seed, "--seed", lo=0)
     ds = _open_result_file(file)
+    if "verdict" not in ds:
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} holds named outcomes, not attitude verdicts: horizon-check compares "
+                                      "verdicts (rerun the sweep with a longer --t1 to compare outcomes)")
     if "horizon" in ds.dims and not as_json:
         for j, T in enumerate(ds["horizon"].values):
             c = V.counts(ds["verdict"].isel(horizon=j).values)
