@@ -47,8 +47,10 @@ STATUS_ESCAPED = 100  # solver_status of a trajectory stopped at escape_radius (
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 MAX_RULE_CHARS = 500
 
-PALETTE = ("#2a9d8f", "#e76f51", "#264653", "#e9c46a", "#8ab17d", "#9b5de5", "#f15bb5", "#00bbf9", "#fee440",
-           "#5f0f40")
+# named outcomes, in declaration order: Okabe & Ito's colour-blind-safe palette (blue, vermillion, bluish
+# green, reddish purple, orange, sky blue, yellow), then darker tones; greys stay for unclassified/failed
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#5f0f40", "#264653",
+           "#8d6e00")
 GREY_UNCLASSIFIED, GREY_FAILED, COLOR_ESCAPED = "#adb5bd", "#6c757d", "#8d0801"
 
 
