@@ -70,6 +70,10 @@ def test_tangent_is_integrated_only_on_request():
     assert not plan.lyapunov and plan.integrated is plan.system
     base["outcomes"]["lyapunov"] = True
     assert make_plan(base).lyapunov
+    # a template feature naming the exponent asks for it too
+    base["outcomes"] = {"rules": {}, "templates": {"a": {"y0": 0.6}, "b": {"y0": 0.9}},
+                        "features": ["max(y0)", "lyapunov"]}
+    assert make_plan(base).lyapunov
 
 
 @pytest.mark.parametrize("engine", ["native", "fused", "diffrax"])
