@@ -225,4 +225,22 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    if "start_label_mcc" in ds:
+        lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
+                     f"Matthews correlation {float(ds['start_label_mcc']):.4f} "
+                     f"({ds['start_label_mcc'].attrs.get('mapping', '')})")
+    if "attractor_events" in ds:
+        import json
+
+        for e in json.loads(str(ds["attractor_events"].values)):
+            where = {k: v for k, v in e.items() if k not in ("attractor", "event", "index")}
+            lines.append(f"{e['attractor']}: {'born' if e['event'] == 'birth' else 'lost'} at "
+                         + ", ".join(f"{k} = {v:.6g}" for k, v in where.items()))
+    if "basin_entropy" in ds:
+        a = ds["basin_entropy"].attrs
+        sbb = float(ds["boundary_basin_entropy"])
+        lines.append(f"basin entropy S_b = {float(ds['basin_entropy']):.4f}, boundary basin entropy S_bb = {sbb:.4f} "
+                     f"nats ({a.get('box')} x {a.get('box')} cells per box, {a.get('boundary_boxes')} of "
+                     f"{a.get('boxes')} boxes on a boundary; S_bb {'>' if sbb > np.log(2) else '<='} ln 2"
+                     f"{': fractal boundary' if sbb > np.log(2) else ''})")
     return "\n".join(lines)

@@ -606,10 +606,10 @@ def plot_cmd(
             raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
         out = out or file.with_suffix(f".{fmt}")
     ds = _open_result_file(file)
-    if "verdict" not in ds:
+    if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
         from .errors import ValidationError
 
-        raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
+        raise ValidationError("file", f"{file} is not a sweep result (no 'outcome' or 'verdict' variable)")
     _warn_changed_model(ds)
     out = out or file.with_suffix(".png")
     # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
@@ -698,6 +698,11 @@ def horizon_check_cmd(
     validate.integer(n, "--n", lo=1)
     validate.integer(seed, "--seed", lo=0)
     ds = _open_result_file(file)
+    if "verdict" not in ds:
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} holds named outcomes, not attitude verdicts: horizon-check compares "
+                                      "verdicts (rerun the sweep with a longer --t1 to compare outcomes)")
     if "horizon" in ds.dims and not as_json:
         for j, T in enumerate(ds["horizon"].values):
             c = V.counts(ds["verdict"].isel(horizon=j).values)

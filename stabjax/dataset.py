@@ -33,6 +33,9 @@ from .identity import provenance as identity_attrs
 from .outcomes import STATUS_ESCAPED
 
 THEORY_CHUNK = 262_144  # trajectories per host-side pass over the parameters
+# per-trajectory results that are not classifier summaries
+_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
+                    "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
 
 
 def trailing_dims(key: str, ndim_trailing: int) -> tuple[str, ...]:
@@ -76,6 +79,10 @@ def derive_chunk(plan, res: Mapping[str, np.ndarray], lo: int, hi: int, tf: np.n
     solver status and the outcomes are per trajectory (:func:`per_trajectory_outcomes`), the
     ``outcome`` code of each trajectory (``tf``: :func:`template_features`)."""
     out = {k: np.asarray(v) for k, v in res.items()}
+    if not plan.scheme.from_verdicts:
+        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
+        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
+        out = {k: v for k, v in out.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
     if "verdict" in out and "solver_status" in out:
         esc = out["solver_status"] == STATUS_ESCAPED
         v = out["verdict"]
@@ -108,6 +115,24 @@ def basin_vars(plan, codes) -> dict[str, tuple]:
     sch = plan.scheme
     st = O.basin_stats(np.asarray(codes), len(sch.names))
     return _basin_layout(plan, st)
+
+
+def outcome_extras(plan, codes, names: list[str]) -> dict[str, tuple]:
+    """Variables that need every trajectory's outcome code (shape = plan.shape): the agreement with the
+    labels of a starts file (:mod:`stabjax.starts`) and the basin entropy of a 2-D grid of starts
+    (:mod:`stabjax.entropy`). The store adds them when the sweep finishes."""
+    from . import entropy, starts
+
+    codes = np.asarray(codes)
+    data = dict(starts.dataset_vars(plan, codes, list(names)))
+    if entropy.applies(plan):  # one start per cell of a 2-D grid of initial conditions: Daza et al. (2016)
+        r = entropy.basin_entropy(codes.reshape(plan.shape))
+        meta = {"box": r["box"], "boxes": r["n_boxes"], "boundary_boxes": r["n_boundary_boxes"],
+                "cells_used": r["cells_used"], "units": "nats"}
+        data["basin_entropy"] = ((), r["S_b"], {"long_name": "basin entropy S_b (Daza et al. 2016)", **meta})
+        data["boundary_basin_entropy"] = ((), r["S_bb"], {
+            "long_name": "boundary basin entropy S_bb (> ln 2: fractal boundary, sufficient condition)", **meta})
+    return data
 
 
 def _basin_layout(plan, st: Mapping[str, Any]) -> dict[str, tuple]:
@@ -196,7 +221,7 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
         if k == "outcome":
             continue
         extra = trailing_dims(k, v.ndim - len(shape))
-        data[k] = ((*dims, *extra), v, {"long_name": V.SUMMARY_DOC.get(k, k)})
+        data[k] = ((*dims, *extra), v, {"long_name": V.SUMMARY_DOC.get(k, _DOC.get(k, k))})
         if "horizon" in extra and "horizon" not in coords:
             coords["horizon"] = ("horizon", V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1),
                                  {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
@@ -218,6 +243,8 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
             coords["template"] = ("template", np.array(list(sch.decl.templates), dtype=object))
             coords["feature"] = ("feature", np.array(list(sch.decl.features), dtype=object))
         data.update(basin if basin is not None else basin_vars(plan, results["outcome"]))
+        if whole:
+            data.update(outcome_extras(plan, np.asarray(results["outcome"]), list(sch.names)))
     elif whole and "solver_status" in results:
         flat = {k: np.asarray(v).reshape(plan.size, *np.shape(v)[len(shape):]) for k, v in results.items()}
         wdata, wcoords = whole_sweep_vars(plan, flat, tf)

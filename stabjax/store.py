@@ -536,10 +536,15 @@ class ChunkStore:
                 raise StoreError(f"{self.path} has no arrays")
             g = self._data()
             if "outcome" in self.manifest["arrays"]:
-                for k, (_, values, _) in D.basin_vars(self.plan, g["outcome"][...]).items():
+                codes = g["outcome"][...]
+                for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
                     g[k][...] = values
+                extras = D.outcome_extras(self.plan, codes, list(self.plan.scheme.names))
+                if extras:  # need every code (starts-file agreement, basin entropy): added now
+                    self._add_vars(extras, {})
             elif "solver_status" in self.manifest["arrays"]:  # outcomes over the whole sweep: added now
-                self._add_whole_sweep_vars()
+                self._add_vars(*D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
+                                                   self.template_features()))
             _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
             self.manifest["finished"] = True
             self._save_manifest()
@@ -547,18 +552,19 @@ class ChunkStore:
             raise self._io_error("the dataset's statistics", exc) from None
 
 
-    def _add_whole_sweep_vars(self):
-        """The variables of a classification over the whole sweep (:func:`stabjax.dataset.whole_sweep_vars`),
-        from the stored records, written as new arrays of the group (listed in the manifest first)."""
+    def _add_vars(self, data: Mapping[str, tuple], coords: Mapping[str, tuple]):
+        """Variables known only when every chunk is in (a classification over the whole sweep:
+        :func:`stabjax.dataset.whole_sweep_vars`; what needs every outcome code:
+        :func:`stabjax.dataset.outcome_extras`), written as new arrays of the group, listed in the
+        manifest first and placed in the dataset's order as :func:`stabjax.dataset.build` places them."""
         import xarray as xr
 
         from . import dataset as D
 
-        data, coords = D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
-                                          self.template_features())
-        extra = xr.Dataset(data, coords=coords)
+        extra = xr.Dataset(dict(data), coords=dict(coords))
         D.cf_attributes(extra, self.plan)
-        extra.attrs = {}  # the group's attributes are the dataset's: written by finish()
+        # xarray's append replaces the group's attributes with these: keep the dataset's
+        extra.attrs = json.loads((self.path / ROOT).read_text()).get("attributes", {})
         for k in [k for k, v in extra.variables.items() if v.dtype.kind == "U"]:
             extra[k] = extra[k].astype(object)
         names = [k for k in extra.variables if k not in self.manifest["entries"]]

@@ -55,7 +55,7 @@ def default_batch(plan: Plan) -> int:
 
 def _engine(plan: Plan):
     """The plan's engine; for a plan not yet resolved, the first that accepts it (no translation)."""
-    return engines.get(plan.engine or engines.resolve(plan.system, plan.icfg).engine)
+    return engines.get(plan.engine or engines.resolve(plan.integrated, plan.icfg).engine)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -147,7 +147,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
         time.sleep(float(delay))
     lo, hi = Chunking(plan.shape, batch).bounds(i)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
-    res = engines.solve(plan.engine, plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
+    res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
                         static=static_params(plan), progress=progress)
     return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, plan.engine
 

@@ -244,6 +244,7 @@ def test_outcomes_over_the_whole_sweep_are_added_when_it_finishes(tmp_path, monk
     assert "outcome" not in m["arrays"] and {"outcome", "basin_fraction", "outcome_name"} <= set(m["entries"])
     z = xr.open_zarr(tmp_path / "w.nc.zarr")
     assert set(z.data_vars) == set(ref.data_vars)
+    assert z.attrs["n_trajectories"] == 20 and z.attrs["fingerprint"] == ref.attrs["fingerprint"]  # attrs kept
     np.testing.assert_array_equal(z["basin_fraction"].values, ref["basin_fraction"].values)
     assert z["outcome"].attrs["units"] == "1" and z["outcome"].attrs["flag_meanings"] == ref["outcome"].attrs["flag_meanings"]
 
