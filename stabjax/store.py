@@ -33,7 +33,7 @@ store after the netCDF file is written) deletes only the entries the manifest li
 The manifest's identity (:mod:`stabjax.identity`) is compared on every resume; any difference is
 refused with a message naming what changed (library versions: recorded and reported only).
 
-Size (~650 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
+Size (~750 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
 integrity checks are one file format and change together; the writer lock is :mod:`stabjax.lock`.
 """
 from __future__ import annotations
