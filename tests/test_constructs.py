@@ -53,6 +53,7 @@ CONSTRUCTS = {
     "tanh_abs_max": lambda y, k: -k * jnp.tanh(y) - 0.1 * jnp.abs(y) * jnp.maximum(y, 0.0) + jnp.cross(E3, y),
     "cond": lambda y, k: jax.lax.cond(y[0] > 0, lambda: A @ y, lambda: 2.0 * k * A @ y),
     "solve": lambda y, k: jnp.linalg.solve(P + 0.2 * jnp.outer(y, y), -k * P @ y + jnp.cross(E3, y)),
+    "lu_factor_solve": lambda y, k: jax.scipy.linalg.lu_solve(jax.scipy.linalg.lu_factor(P + 0.2 * jnp.outer(y, y)), -k * P @ y),
     "inv": lambda y, k: -k * jnp.linalg.inv(P + 0.2 * jnp.outer(y, y)) @ (P @ y),
     "det": lambda y, k: -k * y * jnp.linalg.det(jnp.eye(3) + 0.1 * jnp.outer(y, y)) + jnp.cross(E3, y),
     "cholesky": lambda y, k: -k * jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(S + jnp.outer(y, y)), S @ y),
@@ -246,7 +247,7 @@ def test_mass_matrix_model_runs_natively_and_matches_dop853():
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
 def test_unrolled_lu_and_triangular_solve_match_lapack(n):
     """Same pivots and permutation as LAPACK's getrf (first largest |a_ik|), factors to rounding;
-    triangular solves in all 16 forms of the primitive."""
+    pivots to permutation as JAX's; triangular solves in all 16 forms of the primitive."""
     rng = np.random.default_rng(n)
     for _ in range(5):
         a = rng.normal(size=(n, n))
@@ -255,6 +256,9 @@ def test_unrolled_lu_and_triangular_solve_match_lapack(n):
         np.testing.assert_array_equal(got[1], ref[1])
         np.testing.assert_array_equal(got[2], ref[2])
         np.testing.assert_allclose(got[0], ref[0], rtol=1e-12, atol=1e-12)
+        piv = np.array([rng.integers(k, n) for k in range(n)], np.int32)
+        np.testing.assert_array_equal(unrolled.lu_pivots_to_permutation(piv, permutation_size=n),
+                                      jax.lax.linalg.lu_pivots_to_permutation(piv, n))
         t = a + n * np.eye(n)
         for left in (False, True):
             b = rng.normal(size=(n, 2) if left else (2, n))

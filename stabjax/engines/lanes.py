@@ -10,8 +10,40 @@ and XLA only ever sees elementwise operations on contiguous (L,) vectors, which 
 SIMD loops. ``pow`` with a lane-varying exponent goes through exp/log (XLA's vectorised
 kernels) instead of scalar libm calls. Any primitive without a rule raises :class:`NoRule`.
 
+What a model may use (each rule is written once here, so the fused and the native engine take
+the same constructs; tests/test_constructs.py runs a one-line model of each):
+
+* elementwise math, comparisons, ``where``/``select``, ``clip``, reductions, ``dot_general``
+  (``@``, ``einsum``, ``cross``, ``norm``), slicing, reshapes, ``concatenate``/``stack``, ``pad``
+  (``jnp.diag``), ``cumsum``/``cumprod``/``cummax``/``cummin``, ``argmax``/``argmin``;
+* indexing: ``gather``/``dynamic_slice`` also with an index computed from the state (the
+  element is a select among the positions the index may take: the axes are small), and
+  ``scatter`` (``x.at[i].set/add/mul/min/max``) with indices known when tracing;
+* ``lax.cond`` (both branches evaluated, then selected per lane), ``lax.scan`` and
+  ``lax.while_loop``/``fori_loop`` whose trip count is known when tracing (unrolled, up to
+  :data:`MAX_UNROLL` iterations; a condition that depends on the state has no rule: lanes would
+  need different trip counts);
+* ``stop_gradient`` (the identity on values), ``custom_jvp``/``custom_vjp`` functions (their
+  primal), ``custom_linear_solve`` (its forward solve);
+* small dense linear algebra: ``lu``, ``triangular_solve``, ``cholesky`` and ``eigh`` are
+  replaced by the unrolled scalar algorithms of :mod:`stabjax.engines.unrolled` (so
+  ``jnp.linalg.solve``, ``inv``, ``det``, ``eigh``, ``eigvalsh``, ``jax.scipy.linalg.cho_solve``,
+  ``lu_factor``/``lu_solve`` work; ``lu_pivots_to_permutation`` too) up to 12 x 12 (eigh: 8 x 8). They are hand-written because
+  there is no matrix to give LAPACK: every element is its own lane vector or C variable, and a
+  per-lane library call would leave the SIMD loop.
+
+Not supported (the engine chain then falls back to diffrax with the reason in ``engine_note``):
+loops whose trip count depends on the state, ``sort``, scatter at a state-dependent index,
+larger matrices, other decompositions (``svd``, ``qr``, general ``eig``), float32 or complex values
+in the native engine.
+
 The fused engine evaluates with :class:`Lanes` directly; the native engine subclasses it to
 emit one line of C per scalar operation instead.
+
+Length: about 700 lines, over the project's ~550-line guide, because this is one evaluator: the
+rule table of :meth:`Lanes.apply` and the methods its rules share (gather, scatter, loops); split
+across modules, the answer to "which primitives do the fast engines run" would be in several places.
+The linear-algebra algorithms, which are separate JAX functions, live in :mod:`.unrolled`.
 """
 from __future__ import annotations
 

@@ -103,6 +103,23 @@ def _lu(x):
             jnp.stack(perm).astype(jnp.int32))
 
 
+def lu_pivots_to_permutation(pivots, *, permutation_size):
+    """``lax.linalg.lu_pivots_to_permutation``: the row exchanges k <-> pivots[k] applied in order to
+    0..m-1 (``jax.scipy.linalg.lu_solve`` needs it); each exchange a select per entry."""
+    return _batched(functools.partial(_pivots_to_perm, m=permutation_size), pivots, core=1)
+
+
+def _pivots_to_perm(pivots, *, m):
+    perm = [jnp.int32(i) for i in range(m)]
+    for k in range(pivots.shape[0]):
+        p = pivots[k]
+        old_k = perm[k]
+        for i in range(k + 1, m):
+            hit = p == i
+            perm[k], perm[i] = jnp.where(hit, perm[i], perm[k]), jnp.where(hit, old_k, perm[i])
+    return jnp.stack(perm).astype(jnp.int32)
+
+
 # ---- Cholesky ------------------------------------------------------------------------------------
 
 
@@ -252,7 +269,8 @@ def _eigh(x, *, lower, sort_eigenvalues):
 
 # ---- the primitives' replacements ----------------------------------------------------------------
 
-_REPLACE = {"lu": lu, "triangular_solve": triangular_solve, "eigh": eigh, "cholesky": cholesky}
+_REPLACE = {"lu": lu, "lu_pivots_to_permutation": lu_pivots_to_permutation, "triangular_solve": triangular_solve,
+            "eigh": eigh, "cholesky": cholesky}
 
 
 def replaceable(name: str) -> bool:
@@ -283,7 +301,7 @@ _CACHE: dict = {}  # expansion key -> ClosedJaxpr (a model has a handful of shap
 def _expansion(key, name, params, avals):
     if key in _CACHE:
         return _CACHE[key]
-    n = max(int(a.shape[-1]) for a in avals if a.ndim >= 2)
+    n = max(int(a.shape[-1]) for a in avals)
     if n > MAX_N:
         raise ValueError(f"{name} of a {n} x {n} matrix (unrolled up to {MAX_N})")
     if any(np.dtype(a.dtype).kind == "c" for a in avals):
@@ -297,4 +315,4 @@ def _expansion(key, name, params, avals):
     return closed
 
 
-__all__ = ["lu", "cholesky", "triangular_solve", "eigh", "jacobi_sweeps", "expansion", "replaceable", "MAX_N"]
+__all__ = ["lu", "lu_pivots_to_permutation", "cholesky", "triangular_solve", "eigh", "jacobi_sweeps", "expansion", "replaceable", "MAX_N"]
