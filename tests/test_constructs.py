@@ -65,7 +65,10 @@ CONSTRUCTS = {
     "stop_gradient": lambda y, k: -k * jax.lax.stop_gradient(y) + 0.5 * jnp.sin(y[::-1]),
     "at_set": lambda y, k: (A @ y).at[2].set(-k * y[2] + 0.3 * y[0] * y[1]),
     "cumsum": lambda y, k: -k * jnp.cumsum(y) + jnp.cross(E3, y),
-    "argmax_index": lambda y, k: A @ y - 0.1 * y[jnp.argmax(jnp.abs(y))] * y,
+    "argmax_index": lambda y, k: A @ y - 0.1 * jnp.abs(y[jnp.argmax(jnp.abs(y))]) * y,
+    "sort": lambda y, k: -k * y + 0.2 * jnp.sort(y),
+    # continuous: the value written at the state-dependent index is zero where the index switches
+    "at_argmax_add": lambda y, k: A @ y + jnp.zeros(3).at[jnp.argmax(y)].add(jnp.sort(y)[1] - jnp.max(y)),
 }
 
 

@@ -16,9 +16,9 @@ the same constructs; tests/test_constructs.py runs a one-line model of each):
 * elementwise math, comparisons, ``where``/``select``, ``clip``, reductions, ``dot_general``
   (``@``, ``einsum``, ``cross``, ``norm``), slicing, reshapes, ``concatenate``/``stack``, ``pad``
   (``jnp.diag``), ``cumsum``/``cumprod``/``cummax``/``cummin``, ``argmax``/``argmin``;
-* indexing: ``gather``/``dynamic_slice`` also with an index computed from the state (the
-  element is a select among the positions the index may take: the axes are small), and
-  ``scatter`` (``x.at[i].set/add/mul/min/max``) with indices known when tracing;
+* indexing: ``gather``/``dynamic_slice`` and ``scatter`` (``x.at[i].set/add/mul/min/max``), also
+  with an index computed from the state (a select among the positions the index may take: the
+  axes are small); ``sort`` (``jnp.sort``, ``argsort``, ``median``) by a sorting network;
 * ``lax.cond`` (both branches evaluated, then selected per lane), ``lax.scan`` and
   ``lax.while_loop``/``fori_loop`` whose trip count is known when tracing (unrolled, up to
   :data:`MAX_UNROLL` iterations; a condition that depends on the state has no rule: lanes would
@@ -33,8 +33,7 @@ the same constructs; tests/test_constructs.py runs a one-line model of each):
   per-lane library call would leave the SIMD loop.
 
 Not supported (the engine chain then falls back to diffrax with the reason in ``engine_note``):
-loops whose trip count depends on the state, ``sort``, scatter at a state-dependent index,
-larger matrices, other decompositions (``svd``, ``qr``, general ``eig``), float32 or complex values
+loops whose trip count depends on the state, larger matrices, other decompositions (``svd``, ``qr``, general ``eig``), float32 or complex values
 in the native engine.
 
 The fused engine evaluates with :class:`Lanes` directly; the native engine subclasses it to
@@ -321,6 +320,8 @@ class Lanes:
             return [out]
         if name in _SCATTER:
             return [self.scatter(a, ins[1], ins[2], p, _SCATTER[name], eqn.invars[0].aval.dtype)]
+        if name == "sort":
+            return self.sort(ins, p, [v.aval.dtype for v in eqn.invars])
         if name in _CUMULATIVE:
             return [self.cumulative(a, p, _CUMULATIVE[name], eqn.invars[0].aval.dtype)]
         if name in ("argmax", "argmin"):
@@ -402,12 +403,12 @@ class Lanes:
         return np.moveaxis(moved, -1, axis)
 
     def scatter(self, operand, indices, updates, p, op, dtype):
-        """XLA scatter with indices known when tracing (``x.at[i].set(v)``, ``.add``, ...)."""
+        """XLA scatter (``x.at[i].set(v)``, ``.add``, ``.mul``, ``.min``, ``.max``). An index known when
+        tracing writes one element; one computed from the state writes, at every position it may
+        take, a select between the old and the new value."""
         dn = p["dimension_numbers"]
         if dn.operand_batching_dims:
             raise NoRule("scatter with batching dimensions")
-        if not all(is_const(e) for e in indices.flat):
-            raise NoRule("scatter with a lane-varying index")
         fill = "FILL" in str(p["mode"])
         out = operand.copy()
         window_dims = [d for d in range(operand.ndim) if d not in dn.inserted_window_dims]
@@ -415,23 +416,82 @@ class Lanes:
         for w, ud in zip(window_dims, dn.update_window_dims):
             win_size[w] = updates.shape[ud]
         scatter_pos = [d for d in range(updates.ndim) if d not in dn.update_window_dims]
+        i32 = np.dtype(np.int32)
         for ui in np.ndindex(updates.shape):
             g = tuple(ui[d] for d in scatter_pos)
             start = [0] * operand.ndim
             dropped = False
+            varying = {}
             for k, d in enumerate(dn.scatter_dims_to_operand_dims):
-                s, hi = int(indices[g + (k,)]), operand.shape[d] - win_size[d]
+                s, hi = indices[g + (k,)], operand.shape[d] - win_size[d]
+                if not is_const(s):
+                    s = self.bind_elem(lax.convert_element_type_p, {"new_dtype": i32, "weak_type": False,
+                                                                    "sharding": None}, [s], [_aval_dtype(s)])
+                    if not fill:  # clip: the index is clamped into range
+                        s = self.binop("min", self.binop("max", s, np.int32(0), i32), np.int32(hi), i32)
+                    varying[d] = s
+                    continue
+                s = int(s)
                 if fill and not 0 <= s <= hi:
                     dropped = True
                 start[d] = min(max(s, 0), hi)
             if dropped:
                 continue
-            idx = list(start)
+            offs = [0] * operand.ndim
             for w, ud in zip(window_dims, dn.update_window_dims):
-                idx[w] += ui[ud]
-            idx = tuple(idx)
-            out[idx] = updates[ui] if op is None else self.binop(op, out[idx], updates[ui], dtype)
+                offs[w] = ui[ud]
+            upd = updates[ui]
+            dims = list(varying)
+            for cand in np.ndindex(*[operand.shape[d] - win_size[d] + 1 for d in dims]):
+                st = list(start)
+                hit = None
+                for d, c in zip(dims, cand):
+                    st[d] = c
+                    eq = self.bind_elem(lax.eq_p, {}, [varying[d], np.int32(c)], [i32, i32])
+                    hit = eq if hit is None else self.binop("and", hit, eq, np.bool_)
+                idx = tuple(a + b for a, b in zip(st, offs))
+                new = upd if op is None else self.binop(op, out[idx], upd, dtype)
+                out[idx] = new if hit is None else self.bind_elem(lax.select_n_p, {}, [hit, out[idx], new],
+                                                                  [np.bool_, dtype, dtype])
         return out
+
+    def sort(self, ins, p, dtypes):
+        """lax.sort along one axis (``jnp.sort``, ``argsort``, ``median``): an odd-even transposition
+        network, n rounds of compare-and-swap of neighbours, each swap a select (stable: equal
+        keys never swap). Keys compare as JAX orders them, NaN last (-0.0 and 0.0 compare equal)."""
+        dim, nk = p["dimension"], p["num_keys"]
+        moved = [np.moveaxis(x, dim, -1).copy() for x in ins]
+        n = moved[0].shape[-1]
+        for line in np.ndindex(moved[0].shape[:-1]):
+            cols = [[m[line + (j,)] for j in range(n)] for m in moved]
+            for rnd in range(n):
+                for j in range(rnd % 2, n - 1, 2):
+                    swap = self._sort_less([c[j + 1] for c in cols[:nk]], [c[j] for c in cols[:nk]], dtypes[:nk])
+                    for c, dt in zip(cols, dtypes):
+                        a, b = c[j], c[j + 1]
+                        c[j] = self.bind_elem(lax.select_n_p, {}, [swap, a, b], [np.bool_, dt, dt])
+                        c[j + 1] = self.bind_elem(lax.select_n_p, {}, [swap, b, a], [np.bool_, dt, dt])
+            for m, c in zip(moved, cols):
+                for j in range(n):
+                    m[line + (j,)] = c[j]
+        return [np.moveaxis(m, -1, dim) for m in moved]
+
+    def _sort_less(self, xs, ys, dtypes):
+        """x < y lexicographically over the keys, NaN after every number."""
+        less, equal = None, None
+        for x, y, dt in zip(xs, ys, dtypes):
+            lt = self.bind_elem(lax.lt_p, {}, [x, y], [dt, dt])
+            eq = self.bind_elem(lax.eq_p, {}, [x, y], [dt, dt])
+            if np.dtype(dt).kind == "f":
+                x_nan = self.bind_elem(lax.ne_p, {}, [x, x], [dt, dt])
+                y_nan = self.bind_elem(lax.ne_p, {}, [y, y], [dt, dt])
+                x_num = self.bind_elem(lax.not_p, {}, [x_nan], [np.bool_])
+                lt = self.binop("or", lt, self.binop("and", y_nan, x_num, np.bool_), np.bool_)
+                eq = self.binop("or", eq, self.binop("and", x_nan, y_nan, np.bool_), np.bool_)
+            term = lt if equal is None else self.binop("and", equal, lt, np.bool_)
+            less = term if less is None else self.binop("or", less, term, np.bool_)
+            equal = eq if equal is None else self.binop("and", equal, eq, np.bool_)
+        return less
 
     def pad(self, a, value, config):
         """lax.pad with non-negative edge padding and interior padding (``jnp.diag`` uses it)."""
