@@ -255,23 +255,23 @@ def test_unrolled_lu_and_triangular_solve_match_lapack(n):
     for _ in range(5):
         a = rng.normal(size=(n, n))
         ref = jax.lax.linalg.lu(a)
-        got = jax.jit(unrolled.lu)(a)
+        got = unrolled.lu(a)
         np.testing.assert_array_equal(got[1], ref[1])
         np.testing.assert_array_equal(got[2], ref[2])
         np.testing.assert_allclose(got[0], ref[0], rtol=1e-12, atol=1e-12)
         piv = np.array([rng.integers(k, n) for k in range(n)], np.int32)
         np.testing.assert_array_equal(unrolled.lu_pivots_to_permutation(piv, permutation_size=n),
                                       jax.lax.linalg.lu_pivots_to_permutation(piv, n))
-        t = a + n * np.eye(n)
-        for left in (False, True):
-            b = rng.normal(size=(n, 2) if left else (2, n))
-            for lower in (False, True):
-                for trans in (False, True):
-                    for unit in (False, True):
-                        kw = dict(left_side=left, lower=lower, transpose_a=trans, unit_diagonal=unit)
-                        np.testing.assert_allclose(unrolled.triangular_solve(t, b, **kw),
-                                                   jax.lax.linalg.triangular_solve(t, b, **kw),
-                                                   rtol=1e-12, atol=1e-12, err_msg=str(kw))
+    t = a + n * np.eye(n)
+    for left in (False, True):
+        b = rng.normal(size=(n, 2) if left else (2, n))
+        for lower in (False, True):
+            for trans in (False, True):
+                for unit in (False, True):
+                    kw = dict(left_side=left, lower=lower, transpose_a=trans, unit_diagonal=unit)
+                    np.testing.assert_allclose(unrolled.triangular_solve(t, b, **kw),
+                                               jax.lax.linalg.triangular_solve(t, b, **kw),
+                                               rtol=1e-12, atol=1e-12, err_msg=str(kw))
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 5, 6])
