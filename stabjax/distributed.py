@@ -144,7 +144,7 @@ def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
     from .sweep import static_params
 
     plan = engines.resolve_plan(worker_plan(payload), static=static_params(worker_plan(payload)))
-    res = engines.solve(plan.engine, plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
+    res = engines.solve(plan.engine, plan.integrated, params, plan.icfg, plan.vcfg, static=static_params(plan))
     return {k: np.asarray(v) for k, v in res.items()}, plan.engine
 
 

@@ -317,7 +317,7 @@ def default_solver(plan: Plan) -> SolvePoints:
         m = max(64, 1 << (n - 1).bit_length()) if pad else n
         if m > n:
             params = {k: np.concatenate([v, np.repeat(v[-1:], m - n, axis=0)]) for k, v in params.items()}
-        res = engines.solve(plan.engine, plan.system, params, plan.icfg, plan.vcfg, static=static)
+        res = engines.solve(plan.engine, plan.integrated, params, plan.icfg, plan.vcfg, static=static)
         return {k: np.asarray(v)[:n] for k, v in res.items()}
 
     solve_points.engine = plan.engine

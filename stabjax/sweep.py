@@ -35,6 +35,9 @@ from .outcomes import STATUS_ESCAPED
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
 DEFAULT_MEMORY_FRACTION = 0.25
+# per-trajectory results that are not classifier summaries
+_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
+                    "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
 
 
 def _available_memory() -> int:
@@ -56,7 +59,7 @@ def default_batch(plan: Plan) -> int:
 
 def _engine(plan: Plan):
     """The plan's engine; for a plan not yet resolved, the first that accepts it (no translation)."""
-    return engines.get(plan.engine or engines.resolve(plan.system, plan.icfg).engine)
+    return engines.get(plan.engine or engines.resolve(plan.integrated, plan.icfg).engine)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -138,7 +141,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
         time.sleep(float(delay))
     lo, hi = i * batch, min(plan.size, (i + 1) * batch)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
-    res = engines.solve(plan.engine, plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
+    res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
                         static=static_params(plan), progress=progress)
     return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, plan.engine
 
@@ -372,6 +375,10 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
             data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
     results = dict(results)
+    if not plan.scheme.from_verdicts:
+        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
+        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
+        results = {k: v for k, v in results.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
     if "verdict" in results and "solver_status" in results:
         # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
         # (array operations only: in a big sweep these are dask arrays read lazily from the store)
@@ -382,7 +389,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
         # trailing dims (INTERFACES 2): e.g. verdicts at each horizon, features per observable
         extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
         extra += tuple(f"{k}_dim{i}" for i in range(len(extra), v.ndim - 1))
-        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, _DOC.get(k, k))})
         if "horizon" in extra and "horizon" not in coords:
             coords["horizon"] = ("horizon", V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1),
                                  {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
@@ -531,6 +538,8 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
 
 
 class _Bar:
+    """A live progress bar on a terminal (rich): trajectories done/total, chunks, rates, elapsed, ETA."""
+
     def __init__(self, total: int, name: str, chunks: int = 0):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -562,8 +571,61 @@ class _Bar:
         self.progress.stop()
 
 
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+class _Lines:
+    """Progress as plain lines, for output that is not a terminal (a log file, CI).
+
+    A live bar redraws one line with control codes; in a file it is cut off or repeated as
+    garbage. This writes one complete line every ``interval`` seconds (and a last one when the
+    sweep ends): done/total trajectories, percent, chunks, the rate of this run (resumed chunks
+    excluded) and the ETA from that rate, so ``tail -f log`` and a CI log both read well.
+    """
+
+    def __init__(self, total: int, name: str, chunks: int = 0, *, interval: float | None = None, stream=None):
+        import sys
+
+        self.total, self.name, self.chunks = max(int(total), 1), name, chunks
+        self.interval = float(os.environ.get("STABJAX_PROGRESS_INTERVAL", "5")) if interval is None else interval
+        self.stream = stream if stream is not None else sys.stderr
+        self.done = self.run = self.chunks_done = 0
+        self.t0 = self.last = time.perf_counter()
+
+    def line(self) -> str:
+        dt = max(time.perf_counter() - self.t0, 1e-9)
+        rate = self.run / dt
+        left = self.total - self.done
+        eta = _clock(left / rate) if rate > 0 else "?"
+        chunks = f", {self.chunks_done}/{self.chunks} chunks" if self.chunks else ""
+        return (f"{self.name}: {self.done:,}/{self.total:,} traj ({100 * self.done / self.total:.0f}%{chunks}), "
+                f"{rate:,.0f} traj/s, elapsed {_clock(dt)}, ETA {eta}")
+
+    def _emit(self):
+        print(self.line(), file=self.stream, flush=True)
+        self.last = time.perf_counter()
+
+    def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
+        self.done = min(self.total, self.done + k)
+        self.chunks_done += chunks + int(chunk_done)
+        if not chunks:
+            self.run += k
+        if time.perf_counter() - self.last >= self.interval:
+            self._emit()
+
+    def close(self):
+        self._emit()
+
+
 def _progress(enabled: bool, total: int, name: str, chunks: int = 0):
-    return _Bar(total, name, chunks) if enabled else None
+    """A live bar on a terminal, plain periodic lines otherwise (see :class:`_Lines`); None if disabled."""
+    if not enabled:
+        return None
+    from rich.console import Console
+
+    return _Bar(total, name, chunks) if Console().is_terminal else _Lines(total, name, chunks)
 
 
 def export_store(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22) -> xr.Dataset:
