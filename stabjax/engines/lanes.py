@@ -39,7 +39,7 @@ in the native engine.
 The fused engine evaluates with :class:`Lanes` directly; the native engine subclasses it to
 emit one line of C per scalar operation instead.
 
-Length: about 700 lines, over the project's ~550-line guide, because this is one evaluator: the
+Length: about 770 lines, over the project's ~550-line guide, because this is one evaluator: the
 rule table of :meth:`Lanes.apply` and the methods its rules share (gather, scatter, loops); split
 across modules, the answer to "which primitives do the fast engines run" would be in several places.
 The linear-algebra algorithms, which are separate JAX functions, live in :mod:`.unrolled`.
