@@ -385,7 +385,7 @@ class NativeModel:
             template = []
             for o in outs:
                 template.append([o[i] if is_const(o[i]) else None for i in np.ndindex(o.shape)])
-        except NoRule:  # e.g. a matrix inverse: every element is passed in
+        except NoRule:  # e.g. a decomposition without a rule (svd): every element is passed in
             template = [[None] * int(np.prod(s)) for s, _ in self.args_shapes]
         self.template = template
         self.dyn_slots = [(j, i) for j, t in enumerate(template) for i, e in enumerate(t) if e is None]
