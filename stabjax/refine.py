@@ -46,6 +46,7 @@ between modules. The benchmark against the full lattice is its own module.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -529,7 +530,7 @@ class Refiner:
 def _margin(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, str]:
     """The main theorem's margin at grid-axis ``values`` (M, D) (first sample), and its name."""
     values = np.asarray(values, float).reshape(-1, len(plan.grid))
-    p = point_params(Plan(**{**plan.__dict__, "n_sample": 0, "sample": {}}), values)
+    p = point_params(dataclasses.replace(plan, n_sample=0, sample={}), values)
     if plan.n_sample:  # the theorems are about parameters; use the first draw for any sampled one
         for k, v in plan.sample.items():
             p[k] = np.broadcast_to(v[0], (len(values), *v.shape[1:])).copy()
@@ -691,15 +692,10 @@ def assemble(ref: Refiner) -> xr.Dataset:
 
 def _fingerprint(plan: Plan) -> str:
     """The plan's fingerprint plus the resolved solver and classifier settings (a --t1 override is not in the spec)."""
-    import hashlib
-
     spec = dict(plan.spec)
     if isinstance(spec.get("refine"), Mapping):  # max_points only stops a run: raising it resumes the same one
         spec["refine"] = {k: v for k, v in spec["refine"].items() if k != "max_points"}
-    same = Plan(**{**plan.__dict__, "spec": spec})
-    blob = json.dumps({"plan": same.fingerprint(), "integrate": plan.icfg.__dict__,
-                       "verdict": {k: repr(v) for k, v in plan.vcfg.__dict__.items()}}, sort_keys=True, default=repr)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    return dataclasses.replace(plan, spec=spec).fingerprint()  # stabjax.identity: settings and model files included
 
 
 def refine_plan(plan: Plan, out: str | Path | None = None, *, solve_points: SolvePoints | None = None,
