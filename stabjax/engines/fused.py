@@ -26,7 +26,10 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   stacks, 3x3 products become bookkeeping, XLA sees only elementwise ops on contiguous
   vectors. Parameters equal across the sweep are folded in as constants. float64 log, sin,
   cos and pow use branch-free vectorisable code (:mod:`stabjax.engines.vmath`; XLA:CPU calls
-  scalar libm for them). Systems with a primitive that has no rule (or with their own
+  scalar libm for them). Loops with a trip count known when tracing are unrolled and small
+  dense linear algebra (solve, inv, det, eigh, Cholesky) is written out as scalar operations
+  (:mod:`stabjax.engines.unrolled`): the list of what a model may use is in
+  :mod:`stabjax.engines.lanes`. Systems with a primitive that has no rule (or with their own
   ``classify``, or another solver) raise :class:`Unsupported`: the sweep runs on the diffrax engine.
 * **Both CPU cores.** Trajectories are dealt round-robin to the local devices, each device runs
   its own loop (``shard_map``); :func:`stabjax.config.setup_jax` asks JAX for one host device per core. On a GPU
