@@ -557,31 +557,43 @@ def bench(
                               "dask: 1 and 2 local workers and the per-chunk overhead"),
     force: bool = ForceOpt,
 ):
-    """Benchmark against named baselines in one process (figures in the README and docs/performance.md)."""
+    """Benchmark against named baselines in one process (figures in the README and docs/performance.md).
+
+    The benchmarks are research code kept beside the tests in a source checkout (``benchmarks/``), not
+    in the installed package: run this from the top of a clone."""
     from . import validate
     from .errors import ValidationError
 
-    if suite == "engines":
-        from .bench import main as bench_main
-
+    if suite not in ("engines", "models", "refine", "dask"):
+        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+    if suite == "engines":  # every input checked before the checkout is looked for
         n = _int_list(sizes, "--sizes")
         validate.number(t1, "--t1", lo=0.0, lo_open=True)
         _check_output(out, "--out", (".json",), force=force, same=_is_bench_record, what="a previous benchmark record")
-        bench_main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
+        _benchmark("bench").main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
     elif suite == "models":
-        from .bench_models import main as models_main
-
-        models_main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
+        _benchmark("bench_models").main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
     elif suite == "refine":
-        from .refine_bench import main as refine_main
-
-        raise typer.Exit(refine_main(["--t1", "200", "--full-rows", "8"] if quick else []))
-    elif suite == "dask":
-        from .distributed import main as dask_main
-
-        dask_main(["workers"])
+        raise typer.Exit(_benchmark("refine_bench").main(["--t1", "200", "--full-rows", "8"] if quick else []))
     else:
-        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+        _benchmark("dask_bench").main(["workers"])
+
+
+def _benchmark(module: str):
+    """``benchmarks.<module>`` of the source checkout in the current directory (the installed wheel holds
+    no benchmark code), or a ValidationError saying how to run it."""
+    import importlib
+
+    from .errors import ValidationError
+
+    root = Path.cwd()
+    if not (root / "benchmarks" / f"{module}.py").is_file():
+        raise ValidationError("bench", f"no benchmarks/{module}.py here: the benchmarks live in a source checkout, "
+                              "not in the installed package; run `stabjax bench` (or `python -m benchmarks."
+                              f"{module}`) from the top of a clone of the repository")
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return importlib.import_module(f"benchmarks.{module}")
 
 
 def _is_bench_record(path: Path) -> bool:
@@ -606,9 +618,14 @@ def main(argv: list[str] | None = None):
     type -- printed with the usage, or a :class:`~stabjax.errors.StabjaxError` naming the field);
     130 interrupted (Ctrl-C).
     """
+    import matplotlib
+
     from .config import setup_jax
     from .errors import StabjaxError
 
+    # the CLI only writes figures to files: a non-interactive backend, chosen here and not on import of the
+    # plotting modules (a user importing stabjax.plotting in Jupyter keeps inline figures)
+    matplotlib.use("Agg")
     setup_jax()
     click_exception = _click_exception()
     try:

@@ -25,7 +25,7 @@ of the point's samples (ties: the lower code). With several verdict horizons (re
 
 What it can miss: like any grid method, the coarse grid must resolve the regions: an island, or a
 boundary that enters and leaves a coarse cell between the same corners, is invisible if no
-evaluated point lands in it. The benchmark (:mod:`stabjax.refine_bench`) compares the refinement against the
+evaluated point lands in it. The benchmark (`benchmarks/refine_bench.py` in a source checkout) compares the refinement against the
 full lattice and counts any boundary edge of the full grid the refinement did not find.
 
 Theory. For each bracketed segment the signed distance from its midpoint to the zero contour of

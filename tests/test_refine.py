@@ -354,7 +354,7 @@ def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
 def test_benchmark_against_full_lattice(oscillator, tmp_path):
     """The benchmark's bookkeeping on the oscillator: the full lattice (1-D, 65 points) holds exactly one
     boundary edge, found by the refinement, with the same labels at the shared points; --full-from re-uses it."""
-    from stabjax.refine_bench import benchmark, format_benchmark
+    from benchmarks.refine_bench import benchmark, format_benchmark
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 64, "pair": ["converged", "*"]},
              params={"c": C1})
