@@ -59,6 +59,7 @@ import xarray as xr
 
 from . import verdict as V
 from .errors import StabjaxError, ValidationError
+from .status import verdicts as status_verdicts
 from .validate import number as _number
 from .spec import Plan, load_spec, make_plan
 
@@ -329,6 +330,8 @@ def _labels(plan: Plan, cfg: RefineConfig, res: Mapping[str, np.ndarray], n_poin
     if cfg.label not in res:
         raise StabjaxError(f"the engine returned no {cfg.label!r} (refine.label)")
     lab = np.asarray(res[cfg.label])
+    if cfg.label == "verdict":  # an escaped point is diverged, as in a sweep (one rule: stabjax.status)
+        lab = status_verdicts(np.asarray(res["solver_status"]), lab)
     if lab.ndim == 2:  # (N, n_horizons): horizons ascending, last = t1
         hs = horizon_times(plan)
         if hs is not None and len(hs) == lab.shape[1]:

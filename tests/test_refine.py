@@ -474,3 +474,37 @@ def test_refine_named_outcome_of_a_user_model_file(tmp_path):
     assert ds.attrs["n_segments"] == 1
     assert float(ds["k_lo"][0]) <= k_star <= float(ds["k_hi"][0])
     assert float(ds["width_k"][0]) <= 1e-3
+
+
+class EscapingOscillator(DampedOscillator):
+    """The oscillator stopped at max(|x|, |x'|) > 2, with the size threshold of *diverged* raised to 10: for
+    k > c + 0.03 the oscillation grows (e^2 ~ exp((k - c) t)) out of the ball before t1 = 50 (solver_status
+    ESCAPED) and no checkpoint reaches the size 10, so the classifier alone says failed."""
+
+    name = "test_escaping_oscillator"
+    escape_radius = 2.0
+    verdict = VerdictConfig(settle_tol=0.999, excursion_tol=1.2, flip_tol=1.5, converged_tol=0.999,
+                            diverge_size=10.0, growth_tol=0.5)
+
+
+def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
+    """One rule for an escape (stabjax.status): a point whose trajectory escapes is *diverged* in the
+    refinement's labels exactly as in a sweep's verdicts at the same parameters. Fails if refine reads the
+    classifier's raw verdict (failed) while the sweep maps the escape to diverged, or vice versa."""
+    from stabjax import status
+    from stabjax.refine import refine_spec
+    from stabjax.sweep import run_spec
+
+    monkeypatch.setitem(registry.SYSTEMS, "test_escaping_oscillator", f"{__name__}:EscapingOscillator")
+    monkeypatch.setitem(registry._cache, "test_escaping_oscillator", EscapingOscillator())
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": {"k": 0.02}}, params={"c": C1},
+             system="test_escaping_oscillator")
+    ref = refine_spec(s)
+    k = ref["point_k"].values
+    sw = run_spec({**{key: v for key, v in s.items() if key != "refine"}, "grid": {"k": k.tolist()}})
+    esc = sw["solver_status"].values == status.ESCAPED
+    # the premise: the far side escapes (e^2 ~ exp((k - c) t) passes 4 by t1 = 50 for k - c > ln 4 / 50)
+    assert np.all(esc[k > C1 + 0.05]) and not np.any(esc[k < C1]) and esc.sum() >= 2
+    np.testing.assert_array_equal(ref["point_label"].values, sw["verdict"].values[:, -1])
+    assert np.all(ref["point_label"].values[esc] == V.DIVERGED)
+    assert np.all(ref["point_label"].values[k < C1 - DELTA] == V.CONVERGED)

@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ... import verdict as V
-from ...config import STATUS_OK, STATUS_MAX_STEPS, escape_radius
+from ...config import escape_radius
+from ...status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from ..base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from ..static import StaticParams, split_static
 from ..tsit5 import SOLVER, t1_clip_floor
