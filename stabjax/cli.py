@@ -400,8 +400,8 @@ def sweep(
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
             from .refine import run_cli
 
-            return run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console,
-                           executor=executor)
+            return run_cli(plan, out, plot=plot, console=console, batch_size=batch_size, progress=progress,
+                           restart=restart, store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1})
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
                       keep_partial=keep_store, executor=executor, overrides={"t1": t1})
     except KeyboardInterrupt:
@@ -498,7 +498,7 @@ def horizon_check_cmd(
     from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
     from . import validate
     from . import verdict as V
-    from .sweep import horizon_check
+    from .horizon import horizon_check
 
     validate.number(factor, "--factor", lo=1.0, lo_open=True)
     validate.integer(n, "--n", lo=1)

@@ -19,8 +19,8 @@ never by forking this process, which has loaded JAX. Threads: every worker runs 
 time (one Dask thread); the native engine inside it uses ``threads`` OS threads, passed through
 the environment variable ``STABJAX_THREADS`` (read by the native engine's ``default_threads``).
 ``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
-Arbitrary points of a plan (the rounds of :mod:`stabjax.refine`) go to the workers through
-:meth:`DaskExecutor.points_solver`, a ``solve_points(params) -> results`` callable. On a host with
+A plan over explicit points (``Plan.points``: a round of :mod:`stabjax.refine`) travels with its points
+and runs through :meth:`DaskExecutor.map_chunks` like any plan. On a host with
 several GPUs a local cluster runs one worker per device, each seeing only its own
 (``CUDA_VISIBLE_DEVICES``).
 """
@@ -89,13 +89,19 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
 
     return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
             "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
-            "model": model_fingerprint(plan.system), "threads": threads}
+            "model": model_fingerprint(plan.system), "threads": threads,
+            "points": None if plan.points is None else np.asarray(plan.points, float).tolist()}  # explicit points
 
 
 def _plan_key(payload: Mapping[str, Any]) -> str:
     import json
 
-    return payload["fingerprint"] + payload["digest"] + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True, default=str)
+    import hashlib
+
+    pts = payload.get("points")
+    pts = "" if pts is None else hashlib.sha256(np.ascontiguousarray(np.asarray(pts, float)).tobytes()).hexdigest()
+    return payload["fingerprint"] + payload["digest"] + pts + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True,
+                                                                         default=str)
 
 
 def worker_plan(payload: Mapping[str, Any]):
@@ -118,6 +124,8 @@ def worker_plan(payload: Mapping[str, Any]):
             raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
                                f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
                                "versions or model files, or a plan not built from its spec)")
+        if payload.get("points") is not None:
+            plan = replace(plan, points=np.asarray(payload["points"], float))
         mine = model_fingerprint(plan.system)
         if mine != payload["model"]:
             raise StabjaxError(f"worker {socket.gethostname()}: model source {mine['file']} differs from the client's "
@@ -136,16 +144,6 @@ def run_chunk(payload: Mapping[str, Any], i: int):
     res, engine = solve_chunk(plan, payload["batch"], i)
     info = {"worker": f"{socket.gethostname()}:{os.getpid()}", "seconds": round(time.perf_counter() - t0, 4)}
     return i, res, engine, info
-
-
-def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
-    """The task for arbitrary points of the payload's plan (e.g. a refinement round): (results, engine)."""
-    from . import engines
-    from .sweep import static_params
-
-    plan = engines.resolve_plan(worker_plan(payload), static=static_params(worker_plan(payload)))
-    res = engines.solve(plan.engine, plan.system, params, plan.icfg, plan.vcfg, static=static_params(plan))
-    return {k: np.asarray(v) for k, v in res.items()}, plan.engine
 
 
 def _gpu_devices() -> list[str]:
@@ -268,35 +266,6 @@ class DaskExecutor:
         self.client.wait_for_workers(n, timeout=timeout or self.timeout)
 
     # -- work
-    def points_solver(self, plan, *, chunk: int | None = None):
-        """A ``solve_points(params) -> results`` callable that evaluates arbitrary points of ``plan``
-        (every parameter, leading dim n, already checked) on the workers: split into pieces of
-        ``chunk`` (default: n / workers, at least 64), each padded to the same size (one compile per
-        shape), results in the order given. For rounds of :mod:`stabjax.refine`."""
-        payload = payload_for(plan, 0, None, None if self.cluster is not None else self.threads)
-
-        def solve_points(params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-            n = len(next(iter(params.values())))
-            size = int(chunk or max(64, -(-n // max(1, self.n_workers()))))
-            pieces = []
-            for lo in range(0, n, size):
-                hi = min(n, lo + size)
-                p = {k: np.asarray(v[lo:hi]) for k, v in params.items()}
-                if hi - lo < size:
-                    p = {k: np.concatenate([v, np.repeat(v[-1:], size - (hi - lo), axis=0)]) for k, v in p.items()}
-                pieces.append((lo, hi, p))
-            futs = [self.client.submit(run_points, payload, p, retries=self.retries, pure=False) for _, _, p in pieces]
-            try:
-                parts = self.client.gather(futs)
-            finally:
-                for f in futs:
-                    f.release()
-            self.last_engines = sorted({e for _, e in parts})
-            return {k: np.concatenate([r[k][: hi - lo] for (lo, hi, _), (r, _) in zip(pieces, parts)])
-                    for k in parts[0][0]}
-
-        return solve_points
-
     def map_chunks(self, plan, batch: int, chunks: Iterable[int], overrides: Mapping[str, Any] | None = None
                    ) -> Iterator[tuple[int, dict[str, np.ndarray], str, dict]]:
         """Submit every chunk; yield (i, results, engine, info) as each completes (any order)."""

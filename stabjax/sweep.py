@@ -6,8 +6,14 @@ spec. With an output path, each finished chunk is written to a zarr store (``<ou
 from it, and a changed spec, model or command-line override is refused rather than silently
 mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`).
 
-Size (~550 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
-the one path from a plan to a dataset; the store itself and the Dask executor are modules of their own.
+The runner is one loop (``_run_chunks``) with two doors: :func:`run_plan` for a plan's whole grid, and
+:func:`run_points` for explicit grid points (``Plan.points``), through which an explorer such as the
+boundary refinement (:mod:`stabjax.refine`) runs each round: the same engine, chunking, store, resume and
+Dask path as a sweep.
+
+Size (~520 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
+the one path from a plan to a dataset; the store, the Dask executor, the progress bar and the horizon
+check are modules of their own.
 """
 from __future__ import annotations
 
@@ -27,10 +33,10 @@ import xarray as xr
 from . import verdict as V
 from . import engines
 from .config import setup_jax, versions
-from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import ValidationError
-from .outcomes import STATUS_ESCAPED
+from .progress import progress_bar
+from .status import verdicts as status_verdicts
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
 DEFAULT_MEMORY_FRACTION = 0.25
@@ -163,62 +169,12 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
 
     setup_jax()
     plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
-
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
-    if batch_size is None and store_path is not None and not restart:
-        batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
-    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
-    check_plan(plan)
     n = plan.size
-    n_chunks = -(-n // batch)
-    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
-        else _Memory(plan, batch)
-    t_start = time.perf_counter()
+    sink, batch, overrides = _open_sink(plan, store_path, batch_size, memory_limit, restart, overrides)
     try:
-        pending = sink.pending()
-        n_resumed = n_chunks - len(pending)
-        bar = _progress(progress, n, plan.name, n_chunks)
-        try:
-            if bar is not None and n_resumed:
-                bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
-                           steps=0, chunks=n_resumed)
-            steps_run = 0
-            if executor is None:
-                for i in pending:
-                    lo, hi = sink.bounds(i)
-                    shown = [0]
-
-                    def within(done, _total, lo=lo, hi=hi, shown=shown):
-                        k = min(done, hi - lo) - shown[0]
-                        if bar is not None and k > 0:
-                            bar.update(k, steps=steps_run)
-                            shown[0] += k
-
-                    t0 = time.perf_counter()
-                    res, eng = solve_chunk(plan, batch, i, progress=within)
-                    sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
-                                             "seconds": round(time.perf_counter() - t0, 4)})
-                    steps_run += int(res["n_steps"].sum())
-                    if bar is not None:
-                        bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
-                    if on_chunk is not None:
-                        on_chunk(i, n_chunks)
-            else:
-                for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
-                    lo, hi = sink.bounds(i)
-                    sink.write(i, res, eng, info)
-                    steps_run += int(res["n_steps"].sum())
-                    del res
-                    if bar is not None:
-                        bar.update(hi - lo, steps=steps_run, chunk_done=True)
-                    if on_chunk is not None:
-                        on_chunk(i, n_chunks)
-        finally:
-            if bar is not None:
-                bar.close()
-        wall = time.perf_counter() - t_start
-        run_attrs = dict(wall=wall, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
+        run_attrs = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
+                                overrides=overrides)
         executor_name = executor.describe() if executor is not None else "local"
         if isinstance(sink, _Memory):
             ds = assemble(plan, sink.results, **run_attrs)
@@ -246,6 +202,122 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
+
+
+def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = None, batch_size: int | None = None,
+               progress: bool = False, restart: bool = False, keep_store: bool = False,
+               memory_limit: int | None = None, overrides: Mapping[str, Any] | None = None,
+               executor=None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Integrate the plan's samples at explicit grid points ``values`` (P, n_axes) through the same runner as
+    :func:`run_plan` (chunks, engine, Dask workers, chunk store, resume): the per-trajectory results, point-major
+    (each point's samples contiguous), and the run's record (``engines``, ``steps``, ``wall``, ``batch``,
+    ``n_resumed``). An explorer (:mod:`stabjax.refine`) hands each round's points here.
+
+    With ``store`` the chunks go to a chunk store whose identity covers the points (a store of other points is
+    refused, the same points resume); it is removed once read unless ``keep_store``. Without a batch size the
+    chunks are a power of two (>= 64) trajectories, so that a shape-compiled engine compiles a few shapes for
+    all the rounds of an explorer rather than one per round.
+    """
+    import hashlib
+
+    from .store import load_results, stored_batch
+
+    setup_jax()
+    values = np.ascontiguousarray(np.asarray(values, float).reshape(-1, len(plan.grid)))
+    resolved = engines.resolve_plan(plan, static=static_params(plan))
+    plan = dataclasses.replace(resolved, points=values)
+    if batch_size is None and (store is None or restart or stored_batch(Path(store)) is None):
+        per_shape = _engine(plan).compiles_per_shape
+        b = choose_batch_size(plan, None, memory_limit)
+        batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if per_shape else b
+    digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
+    overrides = {**(overrides or {}), "points": f"{len(values)} points, sha256 {digest}"}
+    sink, batch, overrides = _open_sink(plan, None if store is None else Path(store), batch_size, memory_limit,
+                                        restart, overrides)
+    try:
+        info = _run_chunks(plan, sink, batch, progress=progress, executor=executor, overrides=overrides)
+        if isinstance(sink, _Memory):
+            results = sink.results
+        else:
+            results = {k: np.asarray(v) for k, v in load_results(sink.path, sink.manifest, lazy=False).items()}
+        info["engines"] = sorted({c.get("engine", "?") for c in sink.manifest["chunks"].values()})
+        info["n_chunks"] = -(-plan.size // batch)
+        if store is not None and not keep_store:
+            sink.discard()
+    finally:
+        sink.close()
+    if store is not None and not keep_store:
+        with contextlib.suppress(OSError):
+            Path(store).rmdir()
+    return results, info
+
+
+def _open_sink(plan: Plan, store_path: Path | None, batch_size: int | None, memory_limit: int | None, restart: bool,
+               overrides: Mapping[str, Any] | None):
+    """The chunk sink of a run (a chunk store at ``store_path``, else memory), its chunk size, and the overrides
+    recorded in the store's identity. A resume keeps the chunking it started with."""
+    from . import store as S
+
+    if batch_size is None and store_path is not None and not restart:
+        batch_size = S.stored_batch(store_path)
+    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
+    check_plan(plan)
+    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
+    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
+        else _Memory(plan, batch)
+    return sink, batch, overrides
+
+
+def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
+                on_chunk: Callable[[int, int], None] | None = None, executor=None,
+                overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Compute every pending chunk of ``plan`` into ``sink``, here or on the executor's workers; the run's
+    wall time, steps, chunk size and number of chunks resumed."""
+    t_start = time.perf_counter()
+    n = plan.size
+    n_chunks = -(-n // batch)
+    pending = sink.pending()
+    n_resumed = n_chunks - len(pending)
+    bar = progress_bar(progress, n, plan.name, n_chunks)
+    try:
+        if bar is not None and n_resumed:
+            bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
+                       steps=0, chunks=n_resumed)
+        steps_run = 0
+        if executor is None:
+            for i in pending:
+                lo, hi = sink.bounds(i)
+                shown = [0]
+
+                def within(done, _total, lo=lo, hi=hi, shown=shown):
+                    k = min(done, hi - lo) - shown[0]
+                    if bar is not None and k > 0:
+                        bar.update(k, steps=steps_run)
+                        shown[0] += k
+
+                t0 = time.perf_counter()
+                res, eng = solve_chunk(plan, batch, i, progress=within)
+                sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
+                                         "seconds": round(time.perf_counter() - t0, 4)})
+                steps_run += int(res["n_steps"].sum())
+                if bar is not None:
+                    bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
+                if on_chunk is not None:
+                    on_chunk(i, n_chunks)
+        else:
+            for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
+                lo, hi = sink.bounds(i)
+                sink.write(i, res, eng, info)
+                steps_run += int(res["n_steps"].sum())
+                del res
+                if bar is not None:
+                    bar.update(hi - lo, steps=steps_run, chunk_done=True)
+                if on_chunk is not None:
+                    on_chunk(i, n_chunks)
+    finally:
+        if bar is not None:
+            bar.close()
+    return dict(wall=time.perf_counter() - t_start, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
 
 
 def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str, note: str = "") -> None:
@@ -343,9 +415,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
     if "verdict" in results and "solver_status" in results:
         # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
         # (array operations only: in a big sweep these are dask arrays read lazily from the store)
-        esc = results["solver_status"] == STATUS_ESCAPED
-        v = results["verdict"]
-        results["verdict"] = np.where(esc.reshape(esc.shape + (1,) * (v.ndim - 1)), V.DIVERGED, v).astype(v.dtype)
+        results["verdict"] = status_verdicts(results["solver_status"], results["verdict"])
     for k, v in results.items():
         # trailing dims (INTERFACES 2): e.g. verdicts at each horizon, features per observable
         extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
@@ -445,83 +515,6 @@ def open_result(path: str | Path) -> xr.Dataset:
 
 
 # ---- horizon check -----------------------------------------------------------------------------
-
-
-def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int = 0,
-                  batch_size: int | None = None) -> xr.Dataset:
-    """Re-run a random subset of a finished sweep with ``t1 * factor``; return old/new verdicts.
-
-    A thin use of the multi-horizon classifier: the sweep's own dataset already holds verdicts at
-    t1 and the decades below it (dim ``horizon``); this extends the run *beyond* t1 for a subset,
-    with the old horizons kept (``verdict_horizons``: the re-run's verdicts at every horizon up to
-    t1 * factor). The result has dim ``traj`` with the flat indices, ``verdict_short`` (the
-    dataset's, at t1) / ``verdict_long`` (at t1 * factor), and attrs ``n_changed`` and a
-    confusion table.
-    """
-    spec = json.loads(ds.attrs["spec_json"])
-    plan = make_plan(spec)
-    icfg = plan.icfg
-    if factor <= 1:
-        raise ValidationError("factor", f"must be > 1, got {factor}")
-    rng = np.random.default_rng(seed)
-    n = min(n, plan.size)
-    idx = np.sort(rng.choice(plan.size, size=n, replace=False))
-    long_cfg = icfg.replace(t1=icfg.t1 * factor)
-    hs = V.horizon_times(plan.vcfg, icfg.t0, icfg.t1)
-    long_v = V.bind(plan.vcfg, long_cfg.t0, long_cfg.t1, horizons=list(hs[-(V.MAX_HORIZONS - 1):]))
-    plan_long = dataclasses.replace(plan, icfg=long_cfg, vcfg=long_v, engine="")
-    p = plan_long.system.check(plan_long.params_at(idx))
-    res = solve_batch(plan.system, p, long_cfg, long_v)
-    old = np.asarray(V.at_t1(ds["verdict"]).values).ravel()[idx]
-    new_all = np.asarray(res["verdict"])
-    new = new_all[:, -1] if new_all.ndim == 2 else new_all
-    table = np.zeros((len(V.NAMES), len(V.NAMES)), dtype=int)
-    np.add.at(table, (old.astype(int), new.astype(int)), 1)
-    out = xr.Dataset(
-        {"verdict_short": ("traj", old), "verdict_long": ("traj", new),
-         "transition": (("short", "long"), table),
-         **({"verdict_horizons": (("traj", "horizon"), new_all)} if new_all.ndim == 2 else {})},
-        coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES),
-                **({"horizon": ("horizon", np.asarray(long_v.horizons))} if new_all.ndim == 2 else {})},
-    )
-    out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, n_changed=int((old != new).sum()), n_checked=int(n))
-    return out
-
-
-# ---- progress ---------------------------------------------------------------------------------
-
-
-class _Bar:
-    def __init__(self, total: int, name: str, chunks: int = 0):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-        self.progress = Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("traj"),
-            TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn(), transient=False,
-        )
-        self.t0 = time.perf_counter()
-        self.progress.start()
-        self.name, self.chunks, self.chunks_done, self.run = name, chunks, 0, 0
-        self.task = self.progress.add_task(self._desc(), total=total, rate="")
-
-    def _desc(self) -> str:
-        return f"{self.name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else self.name
-
-    def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
-        """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""
-        dt = max(time.perf_counter() - self.t0, 1e-9)
-        self.chunks_done += chunks + int(chunk_done)
-        if not chunks:
-            self.run += k
-        self.progress.update(self.task, advance=k, description=self._desc(),
-                             rate=f"{self.run / dt:,.0f} traj/s {steps / dt:,.0f} traj-steps/s")
-
-    def close(self):
-        self.progress.stop()
-
-
-def _progress(enabled: bool, total: int, name: str, chunks: int = 0):
-    return _Bar(total, name, chunks) if enabled else None
 
 
 def export_store(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22) -> xr.Dataset:

@@ -57,7 +57,8 @@ def test_fingerprint_changes_with_spec():
 def test_horizon_check_counts_changes():
     """alpha = 1/3 is 'flipped' at t1 = 3000 (the 2nd excursion is in the late window);
     at 8x the horizon the same trajectory must be re-run and classified again."""
-    from stabjax.sweep import horizon_check, run_spec
+    from stabjax.horizon import horizon_check
+    from stabjax.sweep import run_spec
 
     spec = {"system": "monoaxial", "grid": {"alpha": [1 / 3, 7 / 9]}, "integrate": {"t1": 3000.0, "n_checkpoints": 3000}}
     ds = run_spec(spec)

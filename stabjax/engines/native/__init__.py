@@ -236,6 +236,7 @@ class NativeEngine(Engine):
     """The native C engine (CPU with a working C compiler)."""
 
     name = "native"
+    compiles_per_shape = False  # the C loop takes any number of trajectories
 
     def supports(self, system, icfg) -> str | None:
         reason = lane_engine_declines(self.name, SOLVER, system, icfg)
