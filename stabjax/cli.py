@@ -526,7 +526,7 @@ def horizon_check_cmd(
 
 @app.command()
 def reproduce(
-    name: str = typer.Argument(..., help="at2019 | saakyan | two-body | gyrodyne"),
+    name: str = typer.Argument(..., help="at2019 | saakyan | twobody | gyrodyne"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="default results/<name>"),
     quick: bool = typer.Option(False, help="short horizons and small grids (smoke test)"),
 ):

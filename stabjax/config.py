@@ -57,7 +57,7 @@ class VerdictConfig:
                     the ``n_horizon_decades`` decades below it. :func:`stabjax.verdict.bind` fixes
                     them (with t0, t1) when a plan is made; the last horizon is always t1
     n_horizon_decades  default horizons: t0 + (t1 - t0) 10^-k, k = n_horizon_decades .. 0
-    features        also return feat_max/min/mean/std/final of each observable (INTERFACES 4)
+    features        also return feat_max/min/mean/std/final of each observable (stabjax.verdict)
     feature_window  features over t >= t0 + (1 - feature_window)(t1 - t0)
     t0, t1, n_obs   bound by :func:`stabjax.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
     """

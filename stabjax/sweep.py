@@ -417,7 +417,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
         # (array operations only: in a big sweep these are dask arrays read lazily from the store)
         results["verdict"] = status_verdicts(results["solver_status"], results["verdict"])
     for k, v in results.items():
-        # trailing dims (INTERFACES 2): e.g. verdicts at each horizon, features per observable
+        # trailing dims (verdict.TRAILING_DIMS): e.g. verdicts at each horizon, features per observable
         extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
         extra += tuple(f"{k}_dim{i}" for i in range(len(extra), v.ndim - 1))
         data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})

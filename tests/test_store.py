@@ -273,7 +273,7 @@ def test_lazy_assembly_for_big_sweeps(spec, tmp_path, monkeypatch, reference):
 
 
 def test_trailing_dims_are_chunked_with_the_sweep(spec, tmp_path, monkeypatch):
-    """Results with trailing dims (INTERFACES item 2: e.g. a verdict per horizon) are stored as
+    """Results with trailing dims (verdict.TRAILING_DIMS: e.g. a verdict per horizon) are stored as
     (N, *trailing) arrays whose zarr chunks are (batch, *trailing), named from verdict.TRAILING_DIMS."""
     import zarr
 

@@ -14,7 +14,7 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   of ``err / (atol + rtol max(|y0|, |y1|))``), the same I-controller as ``diffrax.PIDController``
   defaults (safety 0.9, factor in [0.2, 10], accepted steps never shrink, rejected ones shrink
   by at least 0.9), the same initial step (Hairer's rule), the same clipping of the last step to
-  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/test_fast.py``).
+  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/test_fused.py``).
 * **Checkpoints without storage.** A step handles at most ``CHECKPOINT_SLOTS`` checkpoints and
   ends on the next one if it would cross more (the controller's own proposal is kept for the
   step after); the state at a checkpoint comes from Tsit5's dense output (the interpolant

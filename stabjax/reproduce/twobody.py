@@ -1,4 +1,4 @@
-"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
+"""`stabjax reproduce twobody`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
 
 The paper has no numerical example. We use the test case of docs/models/twobody.md ("Test case"), a small
 spacecraft-like carrier I1 = diag(10, 8, 6) kg m^2 and an *unbalanced* rotor with products of
