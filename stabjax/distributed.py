@@ -16,8 +16,8 @@ store: it collects results as chunks complete (:func:`distributed.as_completed`)
 
 Local workers are started by spawning (``distributed.worker.multiprocessing-method: spawn``),
 never by forking this process, which has loaded JAX. Threads: every worker runs one chunk at a
-time (one Dask thread); the native engine inside it uses ``threads`` OS threads, passed through
-the environment variable ``STABJAX_THREADS`` (read by the native engine's ``default_threads``).
+time (one Dask thread); the engine inside it uses ``threads`` OS threads, passed with every task as
+``[integrate] threads`` of the worker's plan (a setting that changes no result).
 ``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
 A plan over explicit points (``Plan.points``: a round of :mod:`stabjax.refine`) travels with its points
 and runs through :meth:`DaskExecutor.map_chunks` like any plan. On a host with
@@ -225,8 +225,7 @@ class DaskExecutor:
         if n * threads > c and not self.oversubscribe:
             raise ValidationError("--threads", f"{n} workers x {threads} threads = {n * threads} exceeds the {c} cores "
                                   "of this machine; use fewer, or pass --oversubscribe")
-        self.threads = threads
-        env["STABJAX_THREADS"] = str(threads)
+        self.threads = threads  # sent with each task in the plan's [integrate] settings (payload_for)
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, silence_logs=logging.ERROR, env=env)
 
@@ -274,7 +273,7 @@ class DaskExecutor:
         chunks = list(chunks)
         if not chunks:
             return
-        payload = payload_for(plan, batch, overrides, None if self.cluster is not None else self.threads)
+        payload = payload_for(plan, batch, overrides, self.threads)
         futs = [self.client.submit(run_chunk, payload, i, retries=self.retries, pure=False) for i in chunks]
         try:
             for fut in as_completed(futs, loop=self.client.loop):

@@ -215,11 +215,16 @@ def one_worker():
 
 
 def test_ci_local_cluster_sweep_is_the_local_sweep(plan, reference, one_worker):
-    """A sweep through a Dask worker gives the in-process sweep's dataset bitwise (same engine, same chunks).
-    Fails if the payload re-plans differently on the worker or chunks come back misplaced."""
+    """A sweep through a Dask worker gives the in-process sweep's dataset bitwise (same engine, same chunks), and
+    the worker runs its engine with the executor's thread count. Fails if the payload re-plans differently on the
+    worker, chunks come back misplaced, or the threads reach the worker some other way."""
     ds = run_plan(plan, None, batch_size=4, executor=one_worker)
     assert_same(ds, reference)
     assert ds.attrs["engine"] == reference.attrs["engine"] and "dask (local cluster, 1 workers" in ds.attrs["executor"]
+    # the worker's engine threads travel with the task, in its plan's [integrate] settings, not in its environment
+    assert set(one_worker.client.run(lambda: os.environ.get("STABJAX_THREADS")).values()) == {None}
+    threads = one_worker.client.run(lambda: sorted({p.icfg.threads for p in D._PLANS.values()}))
+    assert list(threads.values()) == [[1]]
 
 
 def test_ci_refinement_runs_its_rounds_on_the_workers(one_worker, tmp_path):

@@ -126,7 +126,7 @@ def warm(system, icfg, vcfg, params, *, static=None) -> float:
 
 
 def default_threads() -> int:
-    """``$STABJAX_THREADS`` if set (Dask workers get their share of the cores this way), else one
+    """``$STABJAX_THREADS`` if set (a user's limit for a run in this process), else one
     thread per core available to this process. ``[integrate] threads`` overrides both."""
     env = os.environ.get("STABJAX_THREADS", "").strip()
     if env.isdigit() and int(env) > 0:
