@@ -4,8 +4,8 @@ Importing stabjax changes no global setting of JAX. The command line and the doc
 points (:func:`stabjax.sweep.run_spec`, :func:`stabjax.sweep.run_plan`,
 :func:`stabjax.engine.simulate`, :func:`stabjax.engine.solve_batch`) call
 :func:`stabjax.config.setup_jax` first, which switches float64 on (the monoaxial instability of
-paper A is algebraic and invisible in float32); ``STABJAX_X64=0`` or ``setup_jax(x64=False)``
-before any of them opts out. Code that builds JAX arrays for stabjax itself calls it first too.
+paper A is algebraic and invisible in float32; float64 is the only precision, and ``STABJAX_X64=0``
+is refused). Code that builds JAX arrays for stabjax itself calls it first too.
 """
 __version__ = "0.1.0"
 

@@ -103,11 +103,13 @@ def outcome_codes(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None
     return out
 
 
-def dataset_vars(plan, results: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(data variables, coordinates) for the outcome and the basin statistics."""
+def dataset_vars(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None = None
+                 ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(data variables, coordinates) for the outcome and the basin statistics; ``tf``: the template
+    features when already integrated (the sweep does it before the run, to check them first)."""
     sch = plan.scheme
     shape, dims = plan.shape, plan.dims
-    tf = template_features(plan)
+    tf = template_features(plan) if tf is None else tf
     codes = outcome_codes(plan, results, tf)
     flags = dict(flag_values=np.arange(len(sch.names), dtype=np.int8), flag_meanings=" ".join(sch.names),
                  flag_colors=" ".join(sch.colors))

@@ -2,10 +2,14 @@
 
 Every user error (:class:`stabjax.errors.StabjaxError`) is printed as ``error: <field>: <message>``
 and exits with status 2 (a failed write of the chunk store or the output, e.g. a full disk: status 1);
-finished sweep chunks are kept on disk, so the same command resumes.
+finished sweep chunks are kept on disk, so the same command resumes. Exit statuses: 0 every trajectory
+classified, 1 some failed (or a write failed), 2 usage or input error, 128 + N interrupted by signal N
+(130 Ctrl-C, 143 SIGTERM, 129 SIGHUP). Text that is not ours (messages, names, paths, docs) is printed
+without Rich markup, so brackets such as ``[refine]`` or ``grid.J[0]`` survive.
 
-Size (~600 lines): one function per command of the typer app plus the checks they share (usage
+Size (~750 lines): one function per command of the typer app plus the checks they share (usage
 errors, output paths, exit statuses); split by command, those checks would be imported back by each.
+What a command may write over (inputs, stores, reproductions, atomic maps) is :mod:`stabjax.outputs`.
 """
 from __future__ import annotations
 
@@ -17,9 +21,13 @@ from typing import Any, Optional
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+from .outputs import check_store_path, input_files, same_file_as_any, write_image
+
+# rich_markup_mode=None: the help is plain text, so "[refine]" in a docstring is shown, not eaten as a tag
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="stabjax: batch stability explorer for rigid-body attitude control.")
 console = Console()
 err_console = Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
@@ -82,9 +90,9 @@ def _check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: t
                                      f"got {out.suffix or 'no extension'!r}")
     if out.parent.exists() and not out.parent.is_dir():
         raise ValidationError(field, f"{out.parent} is not a directory")
-    for inp in inputs:
-        if inp.exists() and out.exists() and out.resolve() == inp.resolve():
-            raise ValidationError(field, f"{out} is this command's input; it is never overwritten")
+    if out.exists() and same_file_as_any(out, inputs):
+        raise ValidationError(field, f"{out} is this command's input (the spec, the model or a module it imports, "
+                                     "or the file read); it is never overwritten")
     if not out.exists():
         return False
     if force or (same is not None and same(out)):
@@ -155,6 +163,8 @@ def _open_result_file(file: Path):
 
     if file.is_dir():
         raise ValidationError("file", f"{file} is a directory, not a sweep result")
+    if file.exists() and not file.is_file():  # a FIFO would block the open forever
+        raise ValidationError("file", f"{file} is not a regular file (a pipe, device or socket)")
     try:
         return open_result(file)
     except ValidationError:
@@ -214,30 +224,33 @@ def systems(
         return
     for nm, info in everything.items():
         if not info["available"]:
-            console.print(f"[bold]{nm}[/bold]  [dim]({info['source']}; not available: {info['reason']})[/dim]")
+            console.print(f"[bold]{escape(nm)}[/bold]  [dim]({escape(str(info['source']))}; not available: "
+                          f"{escape(str(info['reason']))})[/dim]")
             continue
-        src = "" if info["source"] == "builtin" else f"  [dim]({info['source']})[/dim]"
-        t = Table(title=f"[bold]{nm}[/bold] — {info['title']}{src}\n[dim]{info['paper']}[/dim]", title_justify="left")
+        src = "" if info["source"] == "builtin" else f"  [dim]({escape(str(info['source']))})[/dim]"
+        t = Table(title=f"[bold]{escape(nm)}[/bold] — {escape(str(info['title']))}{src}\n[dim]{escape(str(info['paper']))}[/dim]",
+                  title_justify="left")
         for col in ("name", "kind", "shape", "default", "unit", "meaning"):
             t.add_column(col, overflow="fold")
         for r in info["params"]:
             d = r["default"]
             dtxt = ", ".join(f"{x:.6g}" for x in np.ravel(np.asarray(d, float))) if np.ndim(d) else f"{float(d):.6g}"
-            t.add_row(r["name"], r["kind"], "x".join(map(str, r["shape"])) or "scalar", dtxt, r["unit"], r["doc"])
+            t.add_row(*(escape(str(x)) for x in (r["name"], r["kind"], "x".join(map(str, r["shape"])) or "scalar", dtxt,
+                                                   r["unit"], r["doc"])))
         console.print(t)
         if name is not None:
-            console.print("[bold]state[/bold]: " + ", ".join(f"{n}{tuple(sh) if sh else ''}" for n, sh in info["state"]))
+            console.print("[bold]state[/bold]: " + escape(", ".join(f"{n}{tuple(sh) if sh else ''}" for n, sh in info["state"])))
             o = Table(title="observables", title_justify="left")
             o.add_column("name")
             o.add_column("meaning")
             for k, v in info["observables"].items():
-                o.add_row(k, v)
+                o.add_row(escape(str(k)), escape(str(v)))
             console.print(o)
             oc = Table(title="outcomes (code = row, first match wins)", title_justify="left")
             oc.add_column("outcome")
             oc.add_column("assigned by", overflow="fold")
             for k, v in info["outcomes"].items():
-                oc.add_row(k, v)
+                oc.add_row(escape(str(k)), escape(str(v)))
             console.print(oc)
 
 
@@ -262,7 +275,7 @@ def simulate(
     sysm = resolve(system, base_dir=Path.cwd())
     replacing = False
     if out is not None:
-        replacing = _check_output(out, "--out", RESULT_SUFFIXES, force=force,
+        replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=input_files(system=sysm), force=force,
                                   same=lambda p: _trajectory_system(p) == sysm.name,
                                   what=f"a trajectory of {sysm.name} written by stabjax simulate")
     times = None
@@ -288,14 +301,14 @@ def simulate(
     if as_json:
         console.print_json(json.dumps(jsonable(final)))
     else:
-        t = Table(title=f"{system}: final state at t = {final['t']:g}")
+        t = Table(title=f"{escape(system)}: final state at t = {final['t']:g}")
         t.add_column("quantity")
         t.add_column("value")
         for k, v in final.items():
-            t.add_row(k, np.array2string(np.asarray(v), precision=8) if not isinstance(v, bool) else str(v))
+            t.add_row(escape(k), escape(np.array2string(np.asarray(v), precision=8)) if not isinstance(v, bool) else str(v))
         console.print(t)
         if out is not None:
-            console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""))
+            console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False)
     if not final["solver_ok"]:
         err_console.print(f"[red]solver failed (diffrax status {ds.attrs['solver_status']})[/red]")
         raise typer.Exit(1)
@@ -323,19 +336,20 @@ def theory(
     if as_json:
         console.print_json(json.dumps(jsonable(res)))
         return
-    t = Table(title=f"{system}: theorems at the given parameters")
+    t = Table(title=f"{escape(system)}: theorems at the given parameters")
     for col in ("predicate", "holds", "margin", "statement"):
         t.add_column(col, overflow="fold")
     for k, v in res["predicates"].items():
         mark = "[green]yes[/green]" if v["ok"] else "[red]no[/red]"
-        t.add_row(k + (" (main)" if k == th.main else ""), mark, np.array2string(v["margin"], precision=6), v["statement"])
+        t.add_row(escape(k + (" (main)" if k == th.main else "")), mark, escape(np.array2string(v["margin"], precision=6)),
+                  escape(str(v["statement"])))
     console.print(t)
     if res["derived"]:
         d = Table(title="derived quantities")
         for col in ("name", "value", "meaning"):
             d.add_column(col, overflow="fold")
         for k, v in res["derived"].items():
-            d.add_row(k, np.array2string(v["value"], precision=6), v["meaning"])
+            d.add_row(escape(k), escape(np.array2string(v["value"], precision=6)), escape(str(v["meaning"])))
         console.print(d)
 
 
@@ -357,34 +371,45 @@ def sweep(
                                           "(default: cores // workers locally)"),
     oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
                                        "(or more local workers than GPUs)"),
+    connect_timeout: float = typer.Option(10.0, "--connect-timeout", help="seconds to wait for the Dask scheduler "
+                                          "(--scheduler) before giving up with an error"),
     force: bool = ForceOpt,
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
 
-    A spec with a [refine] section brackets the boundary between outcomes adaptively instead."""
+    A spec with a [refine] section brackets the boundary between outcomes adaptively instead.
+    Exit status: 0 every trajectory classified, 1 some failed (the result is written and says which),
+    2 bad input, 130/143/129 interrupted (finished chunks kept: the same command resumes)."""
+    from . import validate
+    from .errors import ValidationError
     from .spec import load_spec, make_plan, spec_json
     from .sweep import default_store, run_plan
 
     if threads is not None and scheduler is None and workers is None:
-        from .errors import ValidationError
-
         raise ValidationError("--threads", "applies to Dask workers: give --workers N or --scheduler ADDRESS "
                               "(a local run uses $STABJAX_THREADS)")
+    validate.number(connect_timeout, "--connect-timeout", lo=0.0, lo_open=True, hi=3600.0)
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
+    inputs = input_files(spec, system=plan.system)
     this_spec = json.loads(spec_json(plan.spec))
-    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=(spec,), force=force,
+    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
                               same=lambda p: _result_spec(p) == this_spec,
                               what="a result of this spec (with this --t1)")
     if plot:  # the map follows its result: replaced with it, else only with --force
         png = out.with_suffix(".png")
-        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=(spec,), force=force or replacing,
+        _check_output(png, "--out", IMAGE_SUFFIXES, inputs=inputs, force=force or replacing,
                       same=lambda p: _png_spec(p) == _spec_digest(this_spec),
                       what="the map of a previous result of this spec")
-    if replacing:
-        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"))
     store = store or default_store(out)
+    check_store_path(store, inputs)
+    if replacing:
+        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
+                          markup=False)
+    note = plan.outcomes.decl.default_distance_note() if plan.outcomes is not None and plan.outcomes.decl else ""
+    if note:
+        err_console.print(f"note: {note}", markup=False)
     executor = None
     if scheduler is not None or workers is not None:
         import os
@@ -393,62 +418,142 @@ def sweep(
 
         # this process only collects results: keep a GPU's memory for the workers
         os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-        executor = DaskExecutor(scheduler=scheduler, workers=workers, threads=threads, oversubscribe=oversubscribe)
+        executor = DaskExecutor(scheduler=scheduler, workers=workers, threads=threads, oversubscribe=oversubscribe,
+                                timeout=connect_timeout)
     try:
         if executor is not None:
-            executor.start()
+            _start_executor(executor, scheduler, connect_timeout)
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
             from .refine import run_cli
 
-            return run_cli(plan, out, plot=plot, console=console, batch_size=batch_size, progress=progress,
-                           restart=restart, store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1})
+            ds = run_cli(plan, out, plot=plot, console=console, batch_size=batch_size, progress=progress,
+                         restart=restart, store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1})
+            raise typer.Exit(_run_status(ds, out))
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
                       keep_partial=keep_store, executor=executor, overrides={"t1": t1})
-    except KeyboardInterrupt:
-        err_console.print(f"[yellow]interrupted: finished chunks are kept in {store}; "
-                          "run the same command to resume[/yellow]")
-        raise typer.Exit(130)
+    except KeyboardInterrupt as exc:
+        status = getattr(exc, "status", 130)
+        by = f" by {exc.name}" if hasattr(exc, "name") else ""
+        err_console.print(f"interrupted{by}: finished chunks are kept in {store}; run the same command to resume",
+                          style="yellow", markup=False)
+        raise typer.Exit(status)
     finally:
         if executor is not None:
             executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
-                  f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})")
-    _report(ds, out.with_suffix(".png") if plot else None)
+                  f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})", markup=False)
+    _report(ds, out.with_suffix(".png") if plot else None, result=out)
+    status = _run_status(ds, out)  # the last line: how many failed, when any did
+    if status:
+        raise typer.Exit(status)
 
 
-def _report(ds, png: Optional[Path], replaced: bool = False):
-    """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory."""
+def _start_executor(executor, scheduler: str | None, timeout: float) -> None:
+    """Connect to the Dask scheduler (or start the local cluster) within ``timeout`` seconds; any failure
+    is one line naming the option, never a traceback (a port that answers but is not a Dask scheduler
+    made distributed allocate exabytes)."""
+    from .errors import StabjaxError, ValidationError
+
+    try:
+        executor.start()
+    except StabjaxError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - distributed raises many types for a bad address
+        field = "--scheduler" if scheduler is not None else "--workers"
+        what = f"cannot reach a Dask scheduler at {scheduler}" if scheduler is not None else "cannot start the local cluster"
+        msg = str(exc).splitlines()[0][:200] if str(exc) else ""
+        raise ValidationError(field, f"{what} within {timeout:g} s ({type(exc).__name__}{': ' + msg if msg else ''}); "
+                                     "check the address, or raise --connect-timeout") from None
+
+
+def _run_status(ds, out: Optional[Path] = None) -> int:
+    """The exit status a finished sweep deserves: 0 when every trajectory is classified, 1 (said in one
+    line) when some failed (the solver did not reach t1), or when named outcomes classified none."""
+    from . import verdict as V
+
+    if ds is None:
+        return 0
+    n = int(ds.attrs.get("n_trajectories", 0)) or None
+    where = f" (see solver_status in {out})" if out is not None else ""
+    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
+        names = str(ds["outcome"].attrs.get("flag_meanings", "")).split()
+        codes = np.asarray(ds["outcome"].values).ravel()
+        n = n or codes.size
+        failed = int((codes == names.index("failed")).sum()) if "failed" in names else 0
+        unclassified = int((codes == names.index("unclassified")).sum()) if "unclassified" in names else 0
+        if failed:
+            err_console.print(f"{failed} of {n} trajectories failed: the solver did not reach t1{where}; "
+                              "exit status 1", style="red", markup=False)
+            return 1
+        if n and unclassified == n:
+            err_console.print(f"no trajectory was classified: all {n} are unclassified (no rule holds and no "
+                              "template is near); exit status 1", style="red", markup=False)
+            return 1
+        return 0
+    if "verdict" not in ds:
+        return 0
+    v = np.asarray(V.at_t1(ds["verdict"]).values).ravel()
+    n = n or v.size
+    failed = int((v == V.NAMES.index("failed")).sum())
+    if failed:
+        err_console.print(f"{failed} of {n} trajectories failed: the solver did not reach t1{where}; exit status 1",
+                          style="red", markup=False)
+        return 1
+    return 0
+
+
+def _report(ds, png: Optional[Path], replaced: bool = False, result: Optional[Path] = None):
+    """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory.
+
+    The map is drawn into a temporary file beside ``png`` and renamed over it, so a full disk leaves the
+    previous map (or nothing), never half an image, and is reported in one line (exit 1) with the way
+    to draw it again; ``result``: the netCDF file the map is drawn from, for that message."""
     from .plotting import format_confusion, plot_sweep
 
     if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
         from .basin_plot import format_summary, plot_basin
 
-        console.print(format_summary(ds), highlight=False)
-        if png is not None:
-            plot_basin(ds, png)
+        console.print(format_summary(ds), highlight=False, markup=False)
+        draw = plot_basin
     else:
-        console.print(format_confusion(ds), highlight=False)
+        console.print(format_confusion(ds), highlight=False, markup=False)
         if "basin_fraction" in ds:
             from .basin_plot import format_summary
 
-            console.print(format_summary(ds), highlight=False)
-        if png is not None:
-            plot_sweep(ds, png)
-    if png is not None:
-        _stamp_png(png, ds)
-        console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""))
+            console.print(format_summary(ds), highlight=False, markup=False)
+        draw = plot_sweep
+    if png is None:
+        return
+    write_image(png, lambda tmp: (draw(ds, tmp), _stamp_png(tmp, ds)), result)
+    console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)
 
 
 @app.command()
 def export(
     store: Path = typer.Argument(..., help="a finished chunk store (the zarr directory of a sweep)"),
     out: Path = typer.Option(..., help="netCDF file to write"),
+    force: bool = ForceOpt,
 ):
-    """Write the netCDF file of a finished chunk store (e.g. one kept with --keep-store)."""
+    """Write the netCDF file of a finished chunk store (e.g. one kept with --keep-store).
+
+    An existing OUT is replaced only when it is a result of the same spec (an earlier export of this
+    store, or the sweep's own output); any other file needs --force."""
+    from .spec import spec_json
+    from .store import finished_store
     from .sweep import export_store
 
+    _, plan = finished_store(store)
+    this_spec = json.loads(spec_json(plan.spec))
+    replacing = _check_output(out, "--out", RESULT_SUFFIXES, inputs=input_files(system=plan.system), force=force,
+                              same=lambda p: _result_spec(p) == this_spec,
+                              what="a result of the spec of this store")
+    if out.resolve().is_relative_to(Path(store).resolve()):
+        from .errors import ValidationError
+
+        raise ValidationError("--out", f"{out} is inside the store {store}; write the file outside it")
     ds = export_store(store, out)
-    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, engine {ds.attrs['engine']})")
+    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, engine {ds.attrs['engine']})"
+                  + (" (replaced the previous file)" if replacing else ""), markup=False)
 
 
 @app.command("plot")
@@ -466,10 +571,10 @@ def plot_cmd(
     _warn_changed_model(ds)
     out = out or file.with_suffix(".png")
     # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
-    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=(file,), force=force,
+    replacing = _check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
                               same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
                               what=f"the map of {file}")
-    _report(ds, out, replaced=replacing)
+    _report(ds, out, replaced=replacing, result=file)
 
 
 def _warn_changed_model(ds):
@@ -480,8 +585,8 @@ def _warn_changed_model(ds):
     if f and sha and sha != "unknown" and Path(f).exists():
         now = hashlib.sha256(Path(f).read_bytes()).hexdigest()
         if now != sha:
-            err_console.print(f"[yellow]warning: the model file {f} has changed since this result was computed "
-                              f"(sha256 {sha[:12]} then, {now[:12]} now)[/yellow]")
+            err_console.print(f"warning: the model file {f} has changed since this result was computed "
+                              f"(sha256 {sha[:12]} then, {now[:12]} now)", style="yellow", markup=False)
 
 
 @app.command("horizon-check")
@@ -529,19 +634,23 @@ def reproduce(
     name: str = typer.Argument(..., help="at2019 | saakyan | twobody | gyrodyne"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="default results/<name>"),
     quick: bool = typer.Option(False, help="short horizons and small grids (smoke test)"),
+    force: bool = typer.Option(False, "--force", help="replace existing files in --out-dir that this command did "
+                                                      "not write there (e.g. the figures shipped in results/)"),
 ):
-    """Reproduce a paper's figures/examples (and what longer horizons show)."""
+    """Reproduce a paper's figures/examples (and what longer horizons show).
+
+    The files are made in a staging folder inside --out-dir and moved into it at the end. A file already
+    there is replaced only when an earlier `stabjax reproduce NAME` wrote it and it is unchanged since
+    (recorded in --out-dir/.stabjax-reproduce.json); any other figure, table or result there (the figures
+    tracked in the repository, a file you edited) needs --force, and is refused before anything is
+    computed. A conflict found only after the run leaves the new files in the staging folder."""
+    from .outputs import reproduce_into
     from .registry import get_reproducer
 
     fn = get_reproducer(name)
     out_dir = out_dir or Path("results") / name
-    if out_dir.exists() and not out_dir.is_dir():
-        from .errors import ValidationError
-
-        raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
-    files = fn(out_dir, quick=quick)
-    for f in files:
-        console.print(f"wrote {f}")
+    for dest, replaced in reproduce_into(out_dir, name, fn, quick=quick, force=force):
+        console.print(f"wrote {dest}" + (" (replaced)" if replaced else ""), markup=False)
 
 
 @app.command()
@@ -569,7 +678,8 @@ def bench(
     if suite == "engines":  # every input checked before the checkout is looked for
         n = _int_list(sizes, "--sizes")
         validate.number(t1, "--t1", lo=0.0, lo_open=True)
-        _check_output(out, "--out", (".json",), force=force, same=_is_bench_record, what="a previous benchmark record")
+        _check_output(out, "--out", (".json",), inputs=input_files(), force=force, same=_is_bench_record,
+                      what="a previous benchmark record")
         _benchmark("bench").main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
     elif suite == "models":
         _benchmark("bench_models").main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
@@ -610,47 +720,83 @@ def _click_exception() -> type[Exception]:
     return next((c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"), typer.BadParameter)
 
 
+def _interrupt_status(exc: BaseException) -> tuple[int, str]:
+    """(exit status, what) of an interruption: 128 + the signal (SIGTERM 143, SIGHUP 129), Ctrl-C 130.
+    click turns a KeyboardInterrupt into ``Abort``: the signal is found on the exception's chain."""
+    from . import signals
+
+    sig = signals.last_raised()
+    if sig is not None:
+        return sig.status, f" by {sig.name}"
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if hasattr(exc, "status") and hasattr(exc, "name"):
+            return exc.status, f" by {exc.name}"
+        exc = exc.__cause__ or exc.__context__
+    return 130, ""
+
+
+def _error(message: str) -> None:
+    """``error: <message>`` on one line of stderr; the message is never read as Rich markup."""
+    err_console.print("[bold red]error:[/bold red] " + escape(message), highlight=False)
+
+
 def main(argv: list[str] | None = None):
     """Entry point: runs the app and turns every outcome into an exit status that tells the truth.
 
-    0 success; 1 a run that failed (a solver failure reported by ``simulate``, an I/O error);
-    2 bad input (a usage error -- unknown option or command, extra argument, a value of the wrong
-    type -- printed with the usage, or a :class:`~stabjax.errors.StabjaxError` naming the field);
-    130 interrupted (Ctrl-C).
+    0 success (a sweep: every trajectory classified); 1 a run that failed (failed trajectories, a
+    solver failure reported by ``simulate``, an I/O error such as a full disk); 2 bad input (a usage
+    error -- unknown option or command, extra argument, a value of the wrong type -- printed with the
+    usage, or a :class:`~stabjax.errors.StabjaxError` naming the field, an environment variable
+    included); 128 + N interrupted by signal N: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (both handled like
+    Ctrl-C, :mod:`stabjax.signals`).
     """
     import matplotlib
 
+    from . import signals
     from .config import setup_jax
     from .errors import StabjaxError
 
     # the CLI only writes figures to files: a non-interactive backend, chosen here and not on import of the
     # plotting modules (a user importing stabjax.plotting in Jupyter keeps inline figures)
     matplotlib.use("Agg")
-    setup_jax()
+    previous = signals.install()
     click_exception = _click_exception()
     try:
+        setup_jax()  # validates the environment: a bad variable is an error naming it, not a traceback
         # standalone_mode=False: errors come back to this function instead of exiting inside typer;
         # typer then *returns* the status of a ``typer.Exit`` (and 130 for Ctrl-C) instead of raising it
         rv = app(args=argv, standalone_mode=False)
     except StabjaxError as exc:
-        err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
+        _error(str(exc))
         sys.exit(getattr(exc, "exit_code", 2))  # 2: bad input / refused; 1: I/O failure (store.StoreIOError)
-    except KeyboardInterrupt:
-        err_console.print("[yellow]interrupted[/yellow]")
-        sys.exit(130)
+    except KeyboardInterrupt as exc:
+        status, by = _interrupt_status(exc)
+        err_console.print(f"interrupted{by}", style="yellow", markup=False)
+        sys.exit(status)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except typer.Abort:  # Ctrl-C or end of input at a prompt
-        err_console.print("[yellow]aborted[/yellow]")
-        sys.exit(130)
+    except typer.Abort as exc:  # Ctrl-C (or a signal) in typer's hands, or end of input at a prompt
+        status, by = _interrupt_status(exc)
+        err_console.print(f"interrupted{by}" if by else "aborted", style="yellow", markup=False)
+        sys.exit(status)
     except click_exception as exc:  # usage errors: the usage line, the error, status 2
         exc.show()
         sys.exit(exc.exit_code)
-    except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
-        err_console.print(f"[bold red]error:[/bold red] {exc.filename}: {exc.strerror}", highlight=False)
+    except OSError as exc:  # a file we could not read or write (a full disk, no permission): status 1
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        _error(f"{where}{exc.strerror or exc}")
         sys.exit(1)
+    finally:
+        signals.restore(previous)
     if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
-        sys.exit(rv)
+        # typer returns 130 for any KeyboardInterrupt a command did not handle: a SIGTERM/SIGHUP gets its own
+        # status back here (the sweep handles its interruptions itself and returns 128 + signal)
+        sig = signals.last_raised() if rv == 130 else None
+        if sig is not None:
+            err_console.print(f"interrupted by {sig.name}", style="yellow", markup=False)
+        sys.exit(sig.status if sig is not None else rv)
 
 
 if __name__ == "__main__":

@@ -208,30 +208,101 @@ def versions() -> dict[str, str]:
 
 _SETUP: dict[str, bool] = {}
 
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def env_int(name: str, lo: int = 1, hi: int = 4096) -> int | None:
+    """An integer environment variable (None when unset or empty), refused naming it otherwise:
+    ``STABJAX_THREADS=abc`` used to be ignored without a word."""
+    raw = os.environ.get(name, "").strip()
+    if not raw:
+        return None
+    try:
+        n = int(raw)
+    except ValueError:
+        raise ValidationError(name, f"must be an integer from {lo} to {hi}, got {raw!r}") from None
+    if not lo <= n <= hi:
+        raise ValidationError(name, f"must be an integer from {lo} to {hi}, got {n}")
+    return n
+
+
+def check_environment() -> None:
+    """Validate every environment variable stabjax reads, each error naming the variable.
+
+    ``STABJAX_X64`` (float64 only: 1/true/yes/on or unset; float32 is refused, see :func:`x64_wanted`),
+    ``STABJAX_THREADS`` and ``STABJAX_CPU_DEVICES`` (positive integers; empty: unset),
+    ``STABJAX_CACHE_DIR`` (not an existing file; empty: the default), ``CC`` (a program on PATH),
+    ``EQX_ON_ERROR`` (``nan``: a solver error must become a status code, not an exception). Variables read by JAX, XLA and CUDA
+    themselves (``XLA_FLAGS``, ``CUDA_VISIBLE_DEVICES``, ``JAX_*``) are theirs to check.
+    """
+    import shutil
+
+    x64_wanted()
+    env_int("STABJAX_THREADS")
+    env_int("STABJAX_CPU_DEVICES", hi=64)
+    cache = os.environ.get("STABJAX_CACHE_DIR", "").strip()
+    if cache:  # empty: the default, as the native engine and the Dask cache read it
+        from pathlib import Path
+
+        p = Path(cache).expanduser()
+        if p.exists() and not p.is_dir():
+            raise ValidationError("STABJAX_CACHE_DIR", f"{cache} exists and is not a directory")
+    cc = os.environ.get("CC")
+    if cc is not None and cc.strip() and shutil.which(cc.strip()) is None:
+        raise ValidationError("CC", f"{cc!r} is not a program on PATH (the native engine's C compiler); "
+                                    "unset CC to use cc/gcc")
+    eqx = os.environ.get("EQX_ON_ERROR")
+    if eqx is not None and eqx.strip() != "nan":
+        raise ValidationError("EQX_ON_ERROR", f"stabjax needs 'nan' (a solver error becomes a status code of the "
+                                              f"trajectory, not an exception that ends the sweep); got {eqx!r}")
+    delay = os.environ.get("_STABJAX_TEST_CHUNK_SLEEP", "").strip()  # tests only
+    if delay:
+        try:
+            ok = float(delay) >= 0
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValidationError("_STABJAX_TEST_CHUNK_SLEEP", f"must be seconds >= 0, got {delay!r}")
+
 
 def setup_jax(x64: bool | None = None) -> None:
     """Set JAX's global options for stabjax, once per process (later calls do nothing).
 
-    * float64 (``jax_enable_x64``): on, unless ``x64=False`` or the environment variable
-      ``STABJAX_X64=0`` (the monoaxial instability of paper A is algebraic and invisible in float32);
+    The environment is validated first (:func:`check_environment`; a bad variable raises a
+    :class:`~stabjax.errors.ValidationError` naming it, on every call until it is fixed).
+
+    * float64 (``jax_enable_x64``), always: the monoaxial instability of paper A is algebraic and
+      invisible in float32, and the engines assume float64 (``x64=False`` and ``STABJAX_X64=0`` once
+      promised float32 and crashed every sweep with an OverflowError; they are refused instead);
     * ``EQX_ON_ERROR=nan`` unless set: a solver error becomes NaN and a status code, not an exception;
     * one JAX CPU device per core (the fused engine runs one loop per device), only if the user has
       not chosen (``jax_num_cpu_devices``, an ``XLA_FLAGS`` host device count, or
       ``STABJAX_CPU_DEVICES``, where 1 switches it off) and JAX has not started its backends.
     """
+    if x64 is not None and not x64:
+        raise ValidationError("x64", "float32 is not supported: stabjax computes in float64")
+    check_environment()
     if _SETUP.get("done"):
         return
     _SETUP["done"] = True
     os.environ.setdefault("EQX_ON_ERROR", "nan")
     import jax
 
-    jax.config.update("jax_enable_x64", x64_wanted() if x64 is None else bool(x64))
+    jax.config.update("jax_enable_x64", True)
     _host_devices(jax)
 
 
 def x64_wanted() -> bool:
-    """float64 unless the environment variable ``STABJAX_X64`` is 0, false, no or off."""
-    return os.environ.get("STABJAX_X64", "1").strip().lower() not in ("0", "false", "no", "off")
+    """True when ``STABJAX_X64`` is unset or 1/true/yes/on; 0/false/no/off (float32) and anything else
+    are refused naming the variable. Kept so that a user who set the once-documented opt-out learns
+    why it is gone instead of meeting an OverflowError deep in an engine."""
+    raw = os.environ.get("STABJAX_X64")
+    if raw is None or raw.strip().lower() in _TRUE:
+        return True
+    if raw.strip().lower() in _FALSE:
+        raise ValidationError("STABJAX_X64", f"float32 is not supported ({raw!r}): stabjax computes in float64 "
+                                             "(paper A's instability is invisible in float32); unset it")
+    raise ValidationError("STABJAX_X64", f"must be 1 (float64, the default) or unset, got {raw!r}")
 
 
 def _host_devices(jax) -> None:
@@ -241,10 +312,13 @@ def _host_devices(jax) -> None:
     try:
         if jax.config.jax_num_cpu_devices not in (-1, None) and want is None:
             return
-        n = int(want) if want else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        want = env_int("STABJAX_CPU_DEVICES", hi=64)
+        n = want if want else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         n = max(1, min(n, 64))
         if n > 1 or want:
             jax.config.update("jax_num_cpu_devices", n)
+    except ValidationError:
+        raise
     except Exception:  # backends already initialised, or an older JAX without the option
         pass
 

@@ -93,7 +93,11 @@ class Rule:
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
                 raise self._err(f"only numbers are allowed as constants, got {node.value!r}")
-            if not math.isfinite(float(node.value)):
+            try:
+                finite = math.isfinite(float(node.value))
+            except OverflowError:  # an integer literal beyond any double
+                finite = False
+            if not finite:
                 raise self._err("non-finite constant")
             return "num"
         if isinstance(node, ast.Name):
@@ -130,6 +134,7 @@ class Rule:
                 raise self._err("only + - * / ** are allowed")
             if self._check(node.left) != "num" or self._check(node.right) != "num":
                 raise self._err("arithmetic on a condition")
+            self._constant_is_finite(node)
             return "num"
         if isinstance(node, ast.Compare):
             for op in node.ops:
@@ -146,15 +151,29 @@ class Rule:
             return "bool"
         raise self._err(f"unsupported syntax ({type(node).__name__})")
 
+    def _constant_is_finite(self, node) -> None:
+        """Refuse arithmetic on constants alone that is not finite (``1/0``, ``10.0**400``): evaluated
+        here, statically, it would otherwise make the rule always true or always false without a word."""
+        if any(isinstance(n, ast.Call) or (isinstance(n, ast.Name) and n.id not in _CONST) for n in ast.walk(node)):
+            return
+        if any(isinstance(n, ast.Name) and not math.isfinite(_CONST[n.id]) for n in ast.walk(node)):
+            return  # ``inf`` written on purpose
+        with np.errstate(all="ignore"):
+            v = self._eval(node, None, None)
+        if not np.isfinite(v):
+            raise self._err(f"{ast.unparse(node)} evaluates to {float(v)}, not a finite number")
+
     def __call__(self, feat, params) -> np.ndarray:
         with np.errstate(all="ignore"):
             return np.asarray(self._eval(self.tree, feat, params))
 
     def _eval(self, node, feat, params):
+        # numpy scalars, not Python floats: 1/0 on features is inf (numpy), never a ZeroDivisionError
+        # raised after the whole integration
         if isinstance(node, ast.Constant):
-            return float(node.value)
+            return np.float64(node.value)
         if isinstance(node, ast.Name):
-            return _CONST[node.id] if node.id in _CONST else params(node.id)
+            return np.float64(_CONST[node.id]) if node.id in _CONST else params(node.id)
         if isinstance(node, ast.Call):
             if node.func.id == "abs":
                 return np.abs(self._eval(node.args[0], feat, params))
@@ -182,6 +201,17 @@ class Rule:
                 out = f(out, v)
             return out
         raise AssertionError(type(node))
+
+
+def _trial(rule: Rule, observables: tuple[str, ...], params: tuple[str, ...]) -> None:
+    """Evaluate a rule once on made-up features and parameters, before anything is integrated: an
+    expression that cannot be evaluated fails here, naming its field, not after the whole run."""
+    probe = np.array([-2.0, -0.5, 0.0, 0.5, 2.0])
+    try:
+        out = rule(lambda stat, obs: probe, lambda name: probe)
+        np.broadcast_to(out, probe.shape)
+    except Exception as exc:  # noqa: BLE001 - any failure of a user's expression is a bad input
+        raise ValidationError(rule.field, f"{rule.text!r} cannot be evaluated ({type(exc).__name__}: {exc})") from None
 
 
 @functools.lru_cache(maxsize=256)
@@ -267,21 +297,38 @@ class Outcomes:
         if not (isinstance(self.window, (int, float)) and 0 < self.window <= 1):
             raise ValidationError(f"{where}.window", f"must be in (0, 1], got {self.window!r}")
         for name, text in self.rules.items():
-            parse(text, obs, scalars, f"{where}.rules.{name}")
+            _trial(parse(text, obs, scalars, f"{where}.rules.{name}"), obs, scalars)
         if self.templates:
             if not self.features:
                 raise ValidationError(f"{where}.features", "templates need features, e.g. [\"max(x)\", \"std(x)\"]")
             for i, text in enumerate(self.features):
-                parse(text, obs, scalars, f"{where}.features[{i}]", boolean=False)
+                _trial(parse(text, obs, scalars, f"{where}.features[{i}]", boolean=False), obs, scalars)
+            seen: dict[str, str] = {}
             for name, over in self.templates.items():
                 if not isinstance(over, Mapping) or not over:
                     raise ValidationError(f"{where}.templates.{name}", "must be a table of parameter overrides")
                 try:
-                    system.params.resolve(over)
+                    resolved = system.params.resolve(over)
                 except ValidationError as exc:
                     raise ValidationError(f"{where}.templates.{name}.{exc.field}", exc.message) from None
+                # the same initial condition twice: the two feature vectors coincide at every grid point
+                key = repr(sorted((k, np.asarray(resolved[k]).tolist()) for k in over))
+                if key in seen:
+                    raise ValidationError(f"{where}.templates.{name}", f"the same initial condition as "
+                                          f"{where}.templates.{seen[key]} (feature distance 0): the two templates "
+                                          "coincide and no trajectory could be told between them; drop one")
+                seen[key] = name
         if self.max_distance is not None and not self.max_distance > 0:
             raise ValidationError(f"{where}.max_distance", f"must be > 0, got {self.max_distance}")
+
+    def default_distance_note(self, where: str = "outcomes") -> str:
+        """One line for the user when the template distance is unbounded ("" otherwise): with a single
+        template and no ``max_distance``, every trajectory that no rule claims is assigned to it."""
+        if len(self.templates) == 1 and self.max_distance is None:
+            (name,) = self.templates
+            return (f"{where}: one template ({name}) and no max_distance: the default distance is unbounded, so "
+                    f"every trajectory that no rule claims is counted as {name}; set {where}.max_distance to bound it")
+        return ""
 
 
 @dataclass(frozen=True)
@@ -373,8 +420,36 @@ def min_template_spacing(tf: np.ndarray) -> np.ndarray:
     if t < 2:
         return np.full(tf.shape[:-2], np.inf)
     d = np.linalg.norm(tf[..., :, None, :] - tf[..., None, :, :], axis=-1)
-    d = np.where(np.eye(t, dtype=bool), np.inf, d)
+    # a template that failed at a point (NaN features) is far from everything: it must not make the
+    # spacing NaN, which would leave every trajectory there unclassified
+    d = np.where(np.eye(t, dtype=bool) | ~np.isfinite(d), np.inf, d)
     return d.min(axis=(-1, -2))
+
+
+COINCIDE_RTOL = 1e-6  # feature vectors this close (relative to their size) are one attractor
+
+
+def coinciding_templates(decl: Outcomes, tf: np.ndarray) -> tuple[int, str, str, float] | None:
+    """The first (point, template a, template b, distance) where two templates' feature vectors
+    coincide (distance <= COINCIDE_RTOL (1 + |feature vector|)), or None.
+
+    Coinciding templates make the default ``max_distance`` (half the smallest spacing) zero, and
+    every trajectory near them would end "unclassified" without a word; with a given ``max_distance``
+    the choice between the two is arbitrary. Either way the plan is refused before it runs.
+    """
+    t = tf.shape[-2]
+    if t < 2:
+        return None
+    names = list(decl.templates)
+    d = np.linalg.norm(tf[:, :, None, :] - tf[:, None, :, :], axis=-1)  # (P, T, T)
+    size = np.linalg.norm(tf, axis=-1)
+    scale = 1.0 + np.maximum(size[:, :, None], size[:, None, :])
+    with np.errstate(invalid="ignore"):
+        close = (d <= COINCIDE_RTOL * scale) & ~np.eye(t, dtype=bool)
+    if not close.any():
+        return None
+    p, a, b = (int(x[0]) for x in np.nonzero(close))
+    return p, names[a], names[b], float(d[p, a, b])
 
 
 # ---- basin stability ---------------------------------------------------------------------------------

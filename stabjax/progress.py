@@ -18,7 +18,10 @@ class Bar:
         self.task = self.progress.add_task(self._desc(), total=total, rate="")
 
     def _desc(self) -> str:
-        return f"{self.name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else self.name
+        from rich.markup import escape  # the description is read as markup: a name "[x]" must survive
+
+        name = escape(self.name)
+        return f"{name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else name
 
     def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
         """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""

@@ -35,8 +35,9 @@ from .models import model_fingerprint, resolve as resolve_system
 from .outcomes import OutcomeScheme, Outcomes, scheme
 from .system import System
 
-TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "run",
-            "refine"}
+# every top-level key is read by something: a section nothing reads (formerly ``[run]``, accepted with
+# any content) is refused like any unknown key, so a setting the user believes in is never ignored
+TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "refine"}
 _NAME = re.compile(r"^(?![.\-\s])[^/\\\x00-\x1f]{1,128}$")  # a file stem: no path, no hidden file
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
@@ -180,6 +181,8 @@ def load_spec(path: str | Path) -> dict:
         raise ValidationError("spec", f"file not found: {path}")
     if path.is_dir():
         raise ValidationError("spec", f"{path} is a directory, not a TOML file")
+    if not path.is_file():  # a FIFO would block the read forever, a device never end
+        raise ValidationError("spec", f"{path} is not a regular file (a pipe, device or socket); give a TOML file")
     try:
         with open(path, "rb") as f:
             spec = tomllib.load(f)
@@ -243,6 +246,23 @@ def _axis_values(key: str, raw: Any, prm: Param, index) -> tuple[np.ndarray, boo
         except ValidationError as exc:
             raise ValidationError(f"{field_name}[{i}]", exc.message) from None
     return np.stack(vals), False
+
+
+def _check_distinct(key: str, raw: Any, vals: np.ndarray) -> None:
+    """Refuse an axis with a value twice: the same trajectories would be run twice and the result
+    would have a coordinate that does not identify its points (``sel`` picks one of them)."""
+    flat = vals.reshape(len(vals), -1)
+    _, first, inverse = np.unique(flat, axis=0, return_index=True, return_inverse=True)
+    inverse = np.ravel(inverse)
+    for i in range(len(flat)):
+        j = int(first[inverse[i]])
+        if j != i:
+            if isinstance(raw, Mapping):
+                raise ValidationError(f"grid.{key}", f"the range gives the value {flat[i].tolist()[0]!r} twice "
+                                                     f"(points {j} and {i}): start and stop must differ by more "
+                                                     "than rounding, or use num = 1")
+            raise ValidationError(f"grid.{key}[{i}]", f"{np.asarray(vals[i]).tolist()!r} repeats grid.{key}[{j}]; "
+                                                      "each value of an axis once")
 
 
 def _unit(v):
@@ -369,7 +389,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
                                       "no '/' or '\\', not starting with '.', '-' or a space, at most 128 characters")
     if "description" in spec:
         V.string(spec["description"], "description")
-    for table in ("params", "grid", "sample", "integrate", "verdict", "run"):
+    for table in ("params", "grid", "sample", "integrate", "verdict"):
         if table in spec:
             V.table(spec[table], table)
     given = dict(spec.get("params") or {})
@@ -385,6 +405,15 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     # sizes first, from the spec alone: nothing of the plan's size is allocated before they pass
     grid_spec = dict(spec.get("grid") or {})
     sample_spec = dict(spec.get("sample") or {})
+    # a parameter both fixed and swept (or sampled): the fixed value is never used, yet it would be
+    # recorded as a fixed parameter of the result (fixed_params_json). One entry swept ("J[0]") with
+    # the whole vector fixed is fine: the other entries come from [params].
+    for pname in given:
+        for where, keys in (("grid", grid_spec), ("sample", sample_spec)):
+            if pname in keys:
+                raise ValidationError(f"params.{pname}", f"is also {'swept by' if where == 'grid' else 'sampled by'} "
+                                                         f"{where}.{pname}; a parameter is either fixed or varied: "
+                                                         f"remove one of them")
     sizes = [_axis_size(key, raw) for key, raw in grid_spec.items()]
     n_sample = 0
     if sample_spec:
@@ -420,6 +449,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         prev.append((index, key))
         V.check_allocation(f"grid.{key}", size * 8 * (1 if index is not None else prm.size), "the axis values")
         vals, log = _axis_values(key, raw, prm, index)
+        _check_distinct(key, raw, vals)
         name = pname if index is None else pname + "_" + "_".join(map(str, index))
         grid.append(Axis(key, name, prm, index, vals, log))
 

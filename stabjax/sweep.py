@@ -11,7 +11,7 @@ The runner is one loop (``_run_chunks``) with two doors: :func:`run_plan` for a 
 boundary refinement (:mod:`stabjax.refine`) runs each round: the same engine, chunking, store, resume and
 Dask path as a sweep.
 
-Size (~520 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
+Size (~560 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
 the one path from a plan to a dataset; the store, the Dask executor, the progress bar and the horizon
 check are modules of their own.
 """
@@ -30,11 +30,12 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
+from . import engines, signals
 from . import verdict as V
-from . import engines
 from .config import setup_jax, versions
 from .engines.base import N_SUMMARY_FIELDS
-from .errors import ValidationError
+from .errors import OutputError, ValidationError
+from .outputs import write_reason
 from .progress import progress_bar
 from .status import verdicts as status_verdicts
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
@@ -171,17 +172,19 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
     n = plan.size
-    sink, batch, overrides = _open_sink(plan, store_path, batch_size, memory_limit, restart, overrides)
+    sink, batch, overrides, tf = _open_sink(plan, store_path, batch_size, memory_limit, restart, overrides,
+                                            templates=True)
     try:
         run_attrs = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
                                 overrides=overrides)
         executor_name = executor.describe() if executor is not None else "local"
         if isinstance(sink, _Memory):
-            ds = assemble(plan, sink.results, **run_attrs)
+            ds = assemble(plan, sink.results, template_features=tf, **run_attrs)
             _engine_attrs(ds, sink.manifest, executor_name, plan.engine_note)
             return ds
         lazy = n > LAZY_ABOVE
-        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, **run_attrs)
+        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, template_features=tf,
+                            **run_attrs)
         ds.attrs["engine_note"] = plan.engine_note
         if not lazy:
             ds = ds.load()
@@ -190,6 +193,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         try:
             write(ds, out)
         except OSError as exc:
+            exc = exc.reason if isinstance(exc, OutputError) else exc
             raise S.StoreIOError(f"could not write {out}: {exc}. Every chunk is finished and kept in {store_path}; "
                                  f"write the file with: stabjax export {store_path} --out {out}") from None
         if not keep_partial:
@@ -232,8 +236,8 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
         batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if per_shape else b
     digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
     overrides = {**(overrides or {}), "points": f"{len(values)} points, sha256 {digest}"}
-    sink, batch, overrides = _open_sink(plan, None if store is None else Path(store), batch_size, memory_limit,
-                                        restart, overrides)
+    sink, batch, overrides, _ = _open_sink(plan, None if store is None else Path(store), batch_size, memory_limit,
+                                           restart, overrides)
     try:
         info = _run_chunks(plan, sink, batch, progress=progress, executor=executor, overrides=overrides)
         if isinstance(sink, _Memory):
@@ -253,19 +257,22 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
 
 
 def _open_sink(plan: Plan, store_path: Path | None, batch_size: int | None, memory_limit: int | None, restart: bool,
-               overrides: Mapping[str, Any] | None):
-    """The chunk sink of a run (a chunk store at ``store_path``, else memory), its chunk size, and the overrides
-    recorded in the store's identity. A resume keeps the chunking it started with."""
+               overrides: Mapping[str, Any] | None, templates: bool = False):
+    """The chunk sink of a run (a chunk store at ``store_path``, else memory), its chunk size, the overrides
+    recorded in the store's identity, and (``templates``) the outcome templates' features, integrated and
+    checked before the store exists, so that a refusal leaves nothing behind. A resume keeps the chunking
+    it started with."""
     from . import store as S
 
     if batch_size is None and store_path is not None and not restart:
         batch_size = S.stored_batch(store_path)
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
+    tf = templates_first(plan) if templates else None
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
         else _Memory(plan, batch)
-    return sink, batch, overrides
+    return sink, batch, overrides, tf
 
 
 def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
@@ -284,6 +291,7 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
             bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
                        steps=0, chunks=n_resumed)
         steps_run = 0
+        signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
         if executor is None:
             for i in pending:
                 lo, hi = sink.bounds(i)
@@ -304,6 +312,7 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
                     bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
                 if on_chunk is not None:
                     on_chunk(i, n_chunks)
+                signals.checkpoint()
         else:
             for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
                 lo, hi = sink.bounds(i)
@@ -314,7 +323,9 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
                     bar.update(hi - lo, steps=steps_run, chunk_done=True)
                 if on_chunk is not None:
                     on_chunk(i, n_chunks)
+                signals.checkpoint()
     finally:
+        signals.release()
         if bar is not None:
             bar.close()
     return dict(wall=time.perf_counter() - t_start, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
@@ -332,7 +343,7 @@ def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str, no
 
 def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, Any], *, lazy: bool,
                    executor: str = "", wall: float | None = None, steps: int | None = None, batch: int | None = None,
-                   n_resumed: int | None = None) -> xr.Dataset:
+                   n_resumed: int | None = None, template_features: np.ndarray | None = None) -> xr.Dataset:
     """The sweep's Dataset from a complete store (arrays as dask arrays reading the store if ``lazy``)."""
     from .store import load_results
 
@@ -342,10 +353,34 @@ def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, An
                   wall=float(sum(c.get("seconds", 0.0) for c in chunks)) if wall is None else wall,
                   steps=int(sum(c.get("steps", 0) for c in chunks)) if steps is None else steps,
                   batch=int(manifest["batch_size"]) if batch is None else batch,
-                  n_resumed=0 if n_resumed is None else n_resumed)
+                  n_resumed=0 if n_resumed is None else n_resumed, template_features=template_features)
     _engine_attrs(ds, manifest, executor or "store")
     ds.attrs["store_created"] = manifest.get("created", "")
     return ds
+
+
+def templates_first(plan: Plan) -> np.ndarray | None:
+    """The template feature vectors at every grid point, integrated before any chunk of the sweep, or
+    None without templates. Two templates that coincide somewhere are refused here (naming them, the
+    point and their distance): otherwise the default ``max_distance`` is zero there and every
+    trajectory ends "unclassified" without a word, after the whole run (issue 22, item 6)."""
+    from .basin import template_features
+    from .outcomes import coinciding_templates
+
+    tf = template_features(plan)
+    if tf is None:
+        return None
+    hit = coinciding_templates(plan.outcomes.decl, tf)
+    if hit is not None:
+        p, a, b, d = hit
+        where = ""
+        if plan.grid:
+            idx = np.unravel_index(p, tuple(ax.size for ax in plan.grid))
+            where = " at " + ", ".join(f"{ax.name} = {np.asarray(ax.values[i]).tolist()}" for ax, i in zip(plan.grid, idx))
+        raise ValidationError("outcomes.templates", f"templates {a!r} and {b!r} coincide{where} (feature distance "
+                              f"{d:.3g}): they reach the same attractor, so no trajectory there could be told between "
+                              "them; drop one, or choose initial conditions in different basins")
+    return tf
 
 
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
@@ -394,7 +429,7 @@ def _theory_vars(plan: Plan, chunk: int = 262_144) -> dict[str, tuple[np.ndarray
 
 
 def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = float("nan"), steps: int = 0,
-             batch: int = 0, n_resumed: int = 0) -> xr.Dataset:
+             batch: int = 0, n_resumed: int = 0, template_features: np.ndarray | None = None) -> xr.Dataset:
     shape, dims = plan.shape, plan.dims
     coords: dict[str, Any] = {}
     data: dict[str, Any] = {}
@@ -431,7 +466,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
     if "solver_status" in results:
         from .basin import dataset_vars
 
-        bdata, bcoords = dataset_vars(plan, results)
+        bdata, bcoords = dataset_vars(plan, results, template_features)
         data.update(bdata)
         coords.update(bcoords)
     th = _theory_vars(plan)

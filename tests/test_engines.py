@@ -144,12 +144,18 @@ def test_loading_a_spec_imports_no_engine_and_import_changes_no_jax_setting():
     assert r.returncode == 0, r.stderr[-2000:]
 
 
-def test_x64_opt_out(monkeypatch):
+def test_x64_opt_out_is_refused(monkeypatch):
+    """float32 crashed every sweep (issue 22, item 9): STABJAX_X64=0 is refused naming the variable."""
     from stabjax.config import x64_wanted
+    from stabjax.errors import ValidationError
 
-    for value, want in (("0", False), ("off", False), ("1", True)):
+    for value in ("0", "off", "abc"):
         monkeypatch.setenv("STABJAX_X64", value)
-        assert x64_wanted() is want
+        with pytest.raises(ValidationError) as info:
+            x64_wanted()
+        assert info.value.field == "STABJAX_X64"
+    monkeypatch.setenv("STABJAX_X64", "1")
+    assert x64_wanted()
     monkeypatch.delenv("STABJAX_X64")
     assert x64_wanted()
 

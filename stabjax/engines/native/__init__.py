@@ -128,9 +128,11 @@ def warm(system, icfg, vcfg, params, *, static=None) -> float:
 def default_threads() -> int:
     """``$STABJAX_THREADS`` if set (a user's limit for a run in this process), else one
     thread per core available to this process. ``[integrate] threads`` overrides both."""
-    env = os.environ.get("STABJAX_THREADS", "").strip()
-    if env.isdigit() and int(env) > 0:
-        return int(env)
+    from ...config import env_int
+
+    env = env_int("STABJAX_THREADS")  # "abc" or 0: refused naming the variable, never ignored
+    if env:
+        return env
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:
