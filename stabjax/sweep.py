@@ -536,6 +536,13 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
         with dask.config.set(scheduler="synchronous"):
             ds.to_netcdf(tmp, engine="netcdf4")
         os.replace(tmp, out)
+    except (OSError, RuntimeError) as exc:
+        # a full disk reaches us from netCDF/HDF5 as ``RuntimeError: NetCDF: HDF error``: say which file
+        # failed and the likely reason, not a traceback (exit 1); ``out`` itself is untouched
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(out, write_reason(exc, out)) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
