@@ -15,7 +15,7 @@ from .registry import list_systems  # noqa: E402
 from .models import register, resolve as get_system  # noqa: E402  (names, files, modules, entry points)
 from .params import Param, ParamSet  # noqa: E402
 from .system import System  # noqa: E402
-from .outcomes import Outcomes  # noqa: E402
+from .outcomes import VERDICTS, Outcomes  # noqa: E402
 
 __all__ = ["StabjaxError", "ValidationError", "get_system", "list_systems", "register", "setup_jax", "Param", "ParamSet",
-           "System", "Outcomes", "__version__"]
+           "System", "Outcomes", "VERDICTS", "__version__"]

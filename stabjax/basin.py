@@ -58,7 +58,7 @@ def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | N
     params = plan.system.check(params)
     varied = set().union(*[set(t) for t in decl.templates.values()])
     static = [k for k in static_params(plan) if k not in varied]
-    res = solve_batch(plan.system, params, plan.icfg, plan.vcfg, static=static)
+    res = solve_batch(plan.integrated, params, plan.icfg, plan.vcfg, static=static)
     feat = O.feature_getter(res, tuple(plan.system.observables))
     n = g * len(names)
 
@@ -78,6 +78,11 @@ def point_outcomes(plan, params: Mapping[str, np.ndarray], results: Mapping[str,
     sch = plan.scheme
     if sch.from_verdicts:
         return O.assign(sch, plan.system, results, {})
+    if sch.decl.discover:
+        from .errors import ValidationError
+
+        raise ValidationError("outcomes.discover", "discovery groups a whole sweep's trajectories; refinement "
+                              "needs declared outcomes (rules or templates)")
     n = len(np.asarray(results["solver_status"]))
     ns = n // n_points
     tf = template_features_at(plan, {k: np.asarray(v)[::ns] for k, v in params.items()})
@@ -110,7 +115,13 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None 
     sch = plan.scheme
     shape, dims = plan.shape, plan.dims
     tf = template_features(plan) if tf is None else tf
-    codes = outcome_codes(plan, results, tf)
+    extra: tuple[dict, dict] = ({}, {})
+    if sch.decl is not None and sch.decl.discover:  # the outcomes are the attractors found (stabjax.discover)
+        from . import discover
+
+        codes, sch, *extra = discover.outcomes(plan, {k: np.asarray(v) for k, v in results.items()})
+    else:
+        codes = outcome_codes(plan, results, tf)
     flags = dict(flag_values=np.arange(len(sch.names), dtype=np.int8), flag_meanings=" ".join(sch.names),
                  flag_colors=" ".join(sch.colors))
     data: dict[str, Any] = {
@@ -118,6 +129,19 @@ def dataset_vars(plan, results: Mapping[str, np.ndarray], tf: np.ndarray | None 
     }
     coords: dict[str, Any] = {"outcome_name": ("outcome_name", np.array(sch.names, dtype=object),
                                           {"long_name": "outcome name (code = index)"})}
+    data.update(extra[0])
+    coords.update(extra[1])
+    from . import entropy, starts
+
+    data.update(starts.dataset_vars(plan, codes, list(sch.names)))
+
+    if entropy.applies(plan):  # one start per cell of a 2-D grid of initial conditions: Daza et al. (2016)
+        r = entropy.basin_entropy(codes.reshape(shape))
+        meta = {"box": r["box"], "boxes": r["n_boxes"], "boundary_boxes": r["n_boundary_boxes"],
+                "cells_used": r["cells_used"], "units": "nats"}
+        data["basin_entropy"] = ((), r["S_b"], {"long_name": "basin entropy S_b (Daza et al. 2016)", **meta})
+        data["boundary_basin_entropy"] = ((), r["S_bb"], {
+            "long_name": "boundary basin entropy S_bb (> ln 2: fractal boundary, sufficient condition)", **meta})
     if tf is not None:
         gdims = tuple(a.name for a in plan.grid)
         gshape = tuple(a.size for a in plan.grid)

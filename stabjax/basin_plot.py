@@ -42,6 +42,18 @@ def _legend(ax, names, colors, codes=None):
     ax.legend(handles=handles, fontsize=8, loc="upper right", framealpha=0.8)
 
 
+def _label(ds: xr.Dataset, name: str) -> str:
+    """An axis in words with its symbol and unit: a grid axis (its coordinate's description) or a
+    sampled parameter (``<name>_sample``'s); the bare name only when the result has no description."""
+    from .plotlabels import symbol, words
+    from .plotting import axis_label
+
+    if name in ds.coords:
+        return axis_label(ds, name)
+    doc = str(ds[f"{name}_sample"].attrs.get("long_name", "")) if f"{name}_sample" in ds else ""
+    return words(doc.removeprefix("sampled "), symbol(name))
+
+
 def _title(ds, what: str) -> str:
     name = ds.attrs.get("sweep_name", "")
     n = int(ds.sizes.get("sample", 0))
@@ -60,10 +72,10 @@ def plot_basin(ds: xr.Dataset, out: str | Path) -> Path:
         fig = _samples_only(ds, names, colors)
     elif has_sample and len(grid) == 1:
         fig = _fractions_along(ds, grid[0], names, colors)
-    elif has_sample and len(grid) == 2:
-        fig = _dominant_map(ds, grid, names, colors)
+    elif has_sample and len(grid) == 2:  # the second grid axis horizontal, as on the verdict map (plotting)
+        fig = _dominant_map(ds, grid[::-1], names, colors)
     elif not has_sample and len(grid) in (1, 2):
-        fig = _outcome_map(ds, grid, names, colors)
+        fig = _outcome_map(ds, grid[::-1], names, colors)
     else:
         fig = _bars_only(ds, names, colors)
     fig.savefig(out, dpi=130, bbox_inches="tight")
@@ -99,8 +111,8 @@ def _samples_only(ds, names, colors):
     cmap = ListedColormap(colors)
     a0.scatter(ds[f"{keys[0]}_sample"].values, ds[f"{keys[1]}_sample"].values, c=code, cmap=cmap,
                norm=BoundaryNorm(np.arange(len(names) + 1) - 0.5, len(names)), s=4, linewidths=0)
-    a0.set_xlabel(keys[0])
-    a0.set_ylabel(keys[1])
+    a0.set_xlabel(_label(ds, keys[0]))
+    a0.set_ylabel(_label(ds, keys[1]))
     a0.set_title("sampled starts, coloured by outcome (one dot = one trajectory)", fontsize=9)
     _legend(a0, names, colors, code)
     _bar(a1, ds, names, colors)
@@ -129,7 +141,7 @@ def _fractions_along(ds, dim, names, colors):
             continue
         lo, hi = ds["basin_ci_low"].isel(outcome_name=k).values, ds["basin_ci_high"].isel(outcome_name=k).values
         ax.errorbar(x, f, yerr=np.vstack([f - lo, hi - f]), color=c, marker="o", ms=3, capsize=2, label=n)
-    ax.set_xlabel(f"{dim} [{ds[dim].attrs.get('units', '')}]" if ds[dim].attrs.get("units") else dim)
+    ax.set_xlabel(_label(ds, dim))
     ax.set_ylabel("basin stability S (95% Wilson interval)")
     ax.set_ylim(-0.02, 1.02)
     if int(ds[dim].attrs.get("log_axis", 0)):
@@ -153,8 +165,8 @@ def _dominant_map(ds, dims, names, colors):
         for i in range(fr.shape[0]):
             for j in range(fr.shape[1]):
                 ax.text(float(x[j]), float(y[i]), f"{share[i, j]:.2f}", ha="center", va="center", fontsize=6)
-    ax.set_xlabel(dims[0])
-    ax.set_ylabel(dims[1])
+    ax.set_xlabel(_label(ds, dims[0]))
+    ax.set_ylabel(_label(ds, dims[1]))
     _legend(ax, names, colors, dom)
     fig.suptitle(_title(ds, "dominant outcome per cell (shade and number: its fraction S)"), fontsize=10)
     return fig
@@ -174,8 +186,8 @@ def _outcome_map(ds, dims, names, colors):
         x, y = ds[dims[0]].values, ds[dims[1]].values
         ax.imshow(code, origin="lower", aspect="auto", cmap=cmap, norm=norm, extent=_extent(x, y),
                   interpolation="nearest")
-        ax.set_ylabel(dims[1])
-    ax.set_xlabel(dims[0])
+        ax.set_ylabel(_label(ds, dims[1]))
+    ax.set_xlabel(_label(ds, dims[0]))
     _legend(ax, names, colors, code)
     fig.suptitle(_title(ds, "outcome (one cell = one trajectory)"), fontsize=10)
     return fig
@@ -210,4 +222,22 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    if "start_label_mcc" in ds:
+        lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
+                     f"Matthews correlation {float(ds['start_label_mcc']):.4f} "
+                     f"({ds['start_label_mcc'].attrs.get('mapping', '')})")
+    if "attractor_events" in ds:
+        import json
+
+        for e in json.loads(str(ds["attractor_events"].values)):
+            where = {k: v for k, v in e.items() if k not in ("attractor", "event", "index")}
+            lines.append(f"{e['attractor']}: {'born' if e['event'] == 'birth' else 'lost'} at "
+                         + ", ".join(f"{k} = {v:.6g}" for k, v in where.items()))
+    if "basin_entropy" in ds:
+        a = ds["basin_entropy"].attrs
+        sbb = float(ds["boundary_basin_entropy"])
+        lines.append(f"basin entropy S_b = {float(ds['basin_entropy']):.4f}, boundary basin entropy S_bb = {sbb:.4f} "
+                     f"nats ({a.get('box')} x {a.get('box')} cells per box, {a.get('boundary_boxes')} of "
+                     f"{a.get('boxes')} boxes on a boundary; S_bb {'>' if sbb > np.log(2) else '<='} ln 2"
+                     f"{': fractal boundary' if sbb > np.log(2) else ''})")
     return "\n".join(lines)

@@ -1,4 +1,5 @@
-"""Command-line interface: ``stabjax systems | simulate | theory | sweep | export | plot | horizon-check | reproduce | bench``.
+"""Command-line interface: ``stabjax systems | simulate | theory | sweep | export | plot | report | view |
+horizon-check | reproduce | bench | examples`` (and ``stabjax --version``).
 
 Every user error (:class:`stabjax.errors.StabjaxError`) is printed as ``error: <field>: <message>``
 and exits with status 2 (a failed write of the chunk store or the output, e.g. a full disk: status 1);
@@ -7,7 +8,7 @@ classified, 1 some failed (or a write failed), 2 usage or input error, 128 + N i
 (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP). Text that is not ours (messages, names, paths, docs) is printed
 without Rich markup, so brackets such as ``[refine]`` or ``grid.J[0]`` survive.
 
-Size (~750 lines): one function per command of the typer app plus the checks they share (usage
+Size (~900 lines): one function per command of the typer app plus the checks they share (usage
 errors, output paths, exit statuses); split by command, those checks would be imported back by each.
 What a command may write over (inputs, stores, reproductions, atomic maps) is :mod:`stabjax.outputs`.
 """
@@ -197,12 +198,37 @@ def _describe_system(sysm, source: str) -> dict:
             "params": sysm.describe()}
 
 
+def _version_callback(value: bool):
+    if value:
+        from . import __version__
+
+        console.print(f"stabjax {__version__}", highlight=False)
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                       help="print the version and exit")):
+    """stabjax: batch stability explorer for rigid-body attitude control."""
+
+
+def _system_line(nm: str, info: dict) -> str:
+    """One line of ``stabjax systems``: name, title, source (a system that does not load says why)."""
+    if not info["available"]:
+        return f"{nm}  -  not available: {info['reason']}  ({info['source']})"
+    return f"{nm}  -  {info['title']}  ({info['source']})"
+
+
 @app.command()
 def systems(
     name: Optional[str] = typer.Argument(None, help="describe one system: a name, 'file.py:Class' or 'module:Class'"),
     as_json: bool = typer.Option(False, "--json", help="machine-readable output"),
 ):
-    """List the systems (built in, registered, installed by packages), or describe one."""
+    """List the systems (built in, registered, installed by packages), one line each; describe one with NAME.
+
+    The list stays one line per system so it fits a screen and greps well; the parameters,
+    state, observables and outcomes of one system are shown with ``stabjax systems NAME``
+    (``--json`` gives everything for all of them)."""
     from .errors import ValidationError
     from .models import resolve
     from .registry import all_names, lookup
@@ -221,6 +247,11 @@ def systems(
             everything[nm] = _describe_system(sysm, lookup(nm))
     if as_json:
         console.print_json(json.dumps(jsonable(everything)))
+        return
+    if name is None:
+        for nm, info in everything.items():
+            console.print(_system_line(nm, info), highlight=False, markup=False, soft_wrap=True)
+        console.print(f"({len(everything)} systems; details: stabjax systems NAME)", highlight=False)
         return
     for nm, info in everything.items():
         if not info["available"]:
@@ -559,15 +590,26 @@ def export(
 @app.command("plot")
 def plot_cmd(
     file: Path = typer.Argument(..., help="sweep result (netCDF)"),
-    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with .png)"),
+    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with the --format extension)"),
+    fmt: Optional[str] = typer.Option(None, "--format", help="png | svg | pdf: vector output (svg, pdf) for a paper, "
+                                                            "beside the PNG (default: from --out, else png)"),
     force: bool = ForceOpt,
 ):
     """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
-    ds = _open_result_file(file)
-    if "verdict" not in ds:
+    if fmt is not None:
         from .errors import ValidationError
 
-        raise ValidationError("file", f"{file} is not a sweep result (no 'verdict' variable)")
+        if fmt.lower().lstrip(".") not in ("png", "svg", "pdf"):
+            raise ValidationError("--format", f"choose png, svg or pdf; got {fmt!r}")
+        fmt = fmt.lower().lstrip(".")
+        if out is not None and out.suffix.lower() != f".{fmt}":
+            raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
+        out = out or file.with_suffix(f".{fmt}")
+    ds = _open_result_file(file)
+    if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} is not a sweep result (no 'outcome' or 'verdict' variable)")
     _warn_changed_model(ds)
     out = out or file.with_suffix(".png")
     # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
@@ -575,6 +617,55 @@ def plot_cmd(
                               same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
                               what=f"the map of {file}")
     _report(ds, out, replaced=replacing, result=file)
+
+
+@app.command("report")
+def report_cmd(
+    file: Path = typer.Argument(..., help="a result (netCDF): a sweep, an example's basin result or a refinement"),
+    out: Optional[Path] = typer.Option(None, help="HTML page to write (default: FILE with .html)"),
+    force: bool = ForceOpt,
+):
+    """Write one self-contained HTML page of a result: what was run, outcomes with S ± SE and Wilson
+    intervals, figures, the theory's agreement and the warnings (for a lab notebook)."""
+    from .report import write_report
+
+    ds = _open_result_file(file)
+    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds:
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} is not a stabjax result (no verdict, outcome or refinement points)")
+    out = out or file.with_suffix(".html")
+    replacing = _check_output(out, "--out", (".html",), inputs=(file,), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(".html"),
+                              what=f"the report of {file}")
+    write_report(ds, out, source=str(file))
+    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False,
+                  soft_wrap=True)
+
+
+@app.command("view")
+def view_cmd(
+    result: Path = typer.Argument(..., help="a result (netCDF), or a running sweep's chunk store (RESULT.nc.zarr)"),
+    port: int = typer.Option(0, help="port on 127.0.0.1 (default: a free one)"),
+    browser: bool = typer.Option(True, "--browser/--no-browser", help="open the page in the default browser"),
+    quit_after: Optional[float] = typer.Option(None, "--quit-after", help="stop the server after this many seconds "
+                                                                          "(scripts, tests)"),
+):
+    """Explore a result in the browser: its map, a click re-simulates that trajectory (time series with the late
+    window, phase portrait, why it got its outcome), feature space, fractions with Wilson bands. Serves on
+    127.0.0.1 only; a running sweep's store refreshes as chunks land. Needs: pip install 'stabjax[view]'."""
+    from . import validate
+    from .view import serve
+
+    validate.integer(port, "--port", lo=0, hi=65535)
+    if quit_after is not None:
+        validate.number(quit_after, "--quit-after", lo=0.0, lo_open=True)
+    if not result.exists():
+        from .errors import ValidationError
+
+        raise ValidationError("result", f"not found: {result}")
+    serve(result, port=port, show=browser, quit_after=quit_after,
+          announce=lambda text: console.print(text, markup=False, highlight=False, soft_wrap=True))
 
 
 def _warn_changed_model(ds):
@@ -609,6 +700,11 @@ def horizon_check_cmd(
     validate.integer(n, "--n", lo=1)
     validate.integer(seed, "--seed", lo=0)
     ds = _open_result_file(file)
+    if "verdict" not in ds:
+        from .errors import ValidationError
+
+        raise ValidationError("file", f"{file} holds named outcomes, not attitude verdicts: horizon-check compares "
+                                      "verdicts (rerun the sweep with a longer --t1 to compare outcomes)")
     if "horizon" in ds.dims and not as_json:
         for j, T in enumerate(ds["horizon"].values):
             c = V.counts(ds["verdict"].isel(horizon=j).values)
@@ -704,6 +800,26 @@ def _benchmark(module: str):
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
     return importlib.import_module(f"benchmarks.{module}")
+
+
+@app.command("examples")
+def examples_cmd(
+    dest: Path = typer.Argument(..., help="folder to copy the examples into (made if missing)"),
+    force: bool = typer.Option(False, "--force", help="replace example files that already exist in DEST"),
+):
+    """Copy the shipped examples (user models outside attitude control: spec + model + figure) out of the
+    installed package, so a wheel's user can run them: ``stabjax sweep DEST/duffing/spec.toml``."""
+    from .errors import ValidationError
+    from .reproduce import copy_examples
+
+    if dest.exists() and not dest.is_dir():
+        raise ValidationError("dest", f"{dest} exists and is not a directory")
+    written = copy_examples(dest, force=force)
+    for f in written:
+        console.print(f"wrote {f}", markup=False, soft_wrap=True)
+    names = sorted({f.parent.name for f in written})
+    console.print(f"run one with: stabjax sweep {dest / names[0] / 'spec.toml'}" if names else "", markup=False,
+                  soft_wrap=True)
 
 
 def _is_bench_record(path: Path) -> bool:

@@ -299,9 +299,9 @@ def validate_system(system):
         raise ValidationError(f"{where}.rhs", f"cannot be traced by JAX (use jnp.where instead of Python "
                                               f"if on values): {_last_line(exc)}") from None
     outcomes = getattr(system, "outcomes", None)
-    if outcomes is not None:
-        from .outcomes import Outcomes
+    from .outcomes import VERDICTS, Outcomes
 
+    if outcomes is not None and outcomes is not VERDICTS:
         if not isinstance(outcomes, Outcomes):
             raise ValidationError(f"{where}.outcomes", "must be a stabjax.Outcomes(...)")
         outcomes.check(system, where=f"{where}.outcomes")

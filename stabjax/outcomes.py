@@ -19,9 +19,10 @@ integer code, stored as the dataset variable ``outcome`` with CF ``flag_values``
 4. ``unclassified``: no rule holds and no template is near;
 5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
 
-Nothing is absorbed silently: 4 and 5 are always present. Systems that declare no outcomes
-(the attitude models) use their verdicts as outcomes (converged, flipped, diverged, undecided,
-failed), with the same codes as ``verdict``.
+Nothing is absorbed silently: 4 and 5 are always present. A system that declares no outcomes gets
+its attractors discovered (:mod:`stabjax.discover`: ``fixed_point_1``, ``limit_cycle_1``,
+``chaotic_1``, ...). The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
+outcomes (converged, flipped, diverged, undecided, failed), with the same codes as ``verdict``.
 
 Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
 sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
@@ -42,12 +43,15 @@ from .errors import ValidationError
 from .status import ESCAPED as STATUS_ESCAPED  # noqa: F401  (the name this module exported)
 
 FEATURES = ("max", "min", "mean", "std", "final")
+LYAPUNOV = "lyapunov"  # bare name in rules and features: the largest Lyapunov exponent (stabjax.lyapunov)
 UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 MAX_RULE_CHARS = 500
 
-PALETTE = ("#2a9d8f", "#e76f51", "#264653", "#e9c46a", "#8ab17d", "#9b5de5", "#f15bb5", "#00bbf9", "#fee440",
-           "#5f0f40")
+# named outcomes, in declaration order: Okabe & Ito's colour-blind-safe palette (blue, vermillion, bluish
+# green, reddish purple, orange, sky blue, yellow), then darker tones; greys stay for unclassified/failed
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#5f0f40", "#264653",
+           "#8d6e00")
 GREY_UNCLASSIFIED, GREY_FAILED, COLOR_ESCAPED = "#adb5bd", "#6c757d", "#8d0801"
 
 
@@ -102,6 +106,9 @@ class Rule:
             return "num"
         if isinstance(node, ast.Name):
             if node.id in _CONST or node.id in self.params:
+                return "num"
+            if node.id == LYAPUNOV:  # the largest Lyapunov exponent over the window (stabjax.lyapunov)
+                self.used.add(("final", LYAPUNOV))
                 return "num"
             raise self._err(f"unknown name {node.id!r}; use a feature such as max({node.id}) for observables, "
                             f"or one of the parameters {', '.join(self.params)}")
@@ -173,7 +180,9 @@ class Rule:
         if isinstance(node, ast.Constant):
             return np.float64(node.value)
         if isinstance(node, ast.Name):
-            return np.float64(_CONST[node.id]) if node.id in _CONST else params(node.id)
+            if node.id in _CONST:
+                return np.float64(_CONST[node.id])
+            return params(node.id) if node.id in self.params else feat("final", LYAPUNOV)
         if isinstance(node, ast.Call):
             if node.func.id == "abs":
                 return np.abs(self._eval(node.args[0], feat, params))
@@ -228,6 +237,22 @@ def _names(system) -> tuple[tuple[str, ...], tuple[str, ...]]:
 # ---- declarations ----------------------------------------------------------------------------------
 
 
+class _Verdicts:
+    """The declaration ``outcomes = VERDICTS``: the outcomes are the attitude verdicts (converged,
+    flipped, diverged, undecided, failed) of :mod:`stabjax.verdict`, whose rules read observable 0
+    as an error metric and observable 1 as a size. The built-in attitude systems declare it; a model
+    that declares nothing gets its attractors discovered (:mod:`stabjax.discover`) instead."""
+
+    def __repr__(self):
+        return "VERDICTS"
+
+    def __reduce__(self):
+        return "VERDICTS"
+
+
+VERDICTS = _Verdicts()
+
+
 @dataclass
 class Outcomes:
     """A system's outcome declaration (see the module docstring).
@@ -246,8 +271,30 @@ class Outcomes:
     max_distance: float | None = None
     window: float = 0.5
     escape: str = ESCAPED_NAME
+    discover: bool = False
+    lyapunov: bool = False
+    discovery: Mapping[str, Any] = field(default_factory=dict)
 
-    KEYS = ("rules", "templates", "features", "max_distance", "window", "escape")
+    KEYS = ("rules", "templates", "features", "max_distance", "window", "escape", "discover", "lyapunov",
+            "discovery")
+
+    def uses_lyapunov(self, system) -> bool:
+        """Whether the tangent dynamics must be integrated: asked for (``lyapunov = true``), used by a
+        rule or a template feature, or discovery (which types attractors by the exponent unless
+        ``[outcomes.discovery] lyapunov = false``)."""
+        if self.lyapunov:
+            return True
+        if self.discover and self.discovery.get("lyapunov", True):
+            return True
+        obs, scalars = _names(system)
+        texts = [(t, True) for t in self.rules.values()] + [(t, False) for t in (self.features if self.templates else ())]
+        for t, boolean in texts:
+            try:
+                if ("final", LYAPUNOV) in parse(t, obs, scalars, "outcomes", boolean).used:
+                    return True
+            except ValidationError:
+                pass  # reported by check()
+        return False
 
     @classmethod
     def from_spec(cls, table: Any, base: "Outcomes | None" = None, section: str = "outcomes") -> "Outcomes":
@@ -276,6 +323,21 @@ class Outcomes:
                 kw[k] = float(v)
         if "escape" in table:
             kw["escape"] = table["escape"]
+        for k in ("discover", "lyapunov"):
+            if k in table:
+                if not isinstance(table[k], bool):
+                    raise ValidationError(f"{section}.{k}", f"must be true or false, got {table[k]!r}")
+                kw[k] = table[k]
+        if "discovery" in table:
+            from .discover import DiscoveryConfig
+
+            DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
+            kw["discovery"] = dict(table["discovery"])
+            kw["discover"] = kw["discover"] or "discover" not in table
+        if ("rules" in table or "templates" in table) and "discover" not in table:
+            kw["discover"] = False  # declared outcomes replace a discovering base declaration
+        if kw["discover"] and "rules" not in table and "templates" not in table:
+            kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
         return cls(**kw)
 
     def names(self, escape: bool) -> tuple[str, ...]:
@@ -285,8 +347,11 @@ class Outcomes:
     def check(self, system, where: str = "outcomes", escape: bool = False) -> None:
         """Validate names, rules, templates and features against the system."""
         obs, scalars = _names(system)
-        if not (self.rules or self.templates):
-            raise ValidationError(where, "declares no outcome (give rules and/or templates)")
+        if not (self.rules or self.templates or self.discover):
+            raise ValidationError(where, "declares no outcome (give rules and/or templates, or discover = true)")
+        if self.discover and (self.rules or self.templates):
+            raise ValidationError(f"{where}.discover", "discovery finds the outcomes itself: give no rules or "
+                                  "templates with discover = true")
         names = self.names(escape=True)
         for n in names:
             if not isinstance(n, str) or not n.isidentifier():
@@ -363,6 +428,10 @@ def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ..
     index = {o: i for i, o in enumerate(observables)}
 
     def feat(stat, obs):
+        if obs == LYAPUNOV and obs not in index:
+            if LYAPUNOV not in results:
+                raise ValueError("the rules use the Lyapunov exponent but it was not integrated")
+            return np.asarray(results[LYAPUNOV])
         return np.asarray(results[f"feat_{stat}"])[:, index[obs]]
 
     return feat

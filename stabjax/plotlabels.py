@@ -25,6 +25,23 @@ def symbol(name: str) -> str:
     return f"${b}_{{{subs}}}$" if subs else f"${b}$"
 
 
+def words(doc: str, name: str, unit: str = "", limit: int = 44) -> str:
+    """An axis label a reader knows: the parameter's description in words (its first clause, at
+    most ``limit`` characters), its symbol's name and its unit -- "perturbation order (sigma)",
+    "initial angle (theta0) [rad]". A bare name when there is no description."""
+    doc = re.split(r";|: | - ", str(doc or ""), maxsplit=1)[0].strip()
+    doc = re.sub(r"\s*\([^()]*\)?$", "", doc).strip().rstrip(",.")  # a trailing remark in parentheses
+    doc = re.sub(r"\s+(in|of|for|at)$", "", doc)
+    if re.fullmatch(r"[\d\s.,]*", doc):  # a choice list ("0: ..., 1: ...") is no description
+        doc = ""
+    if len(doc) > limit:
+        doc = doc[:limit].rsplit(" ", 1)[0] + "…"
+    if not name:
+        return doc
+    text = f"{doc} ({name})" if doc and doc.lower() != name.lower() else name
+    return text + (f" [{unit}]" if unit and unit not in ("-", "1", "dimensionless") else "")
+
+
 def _param(ds: xr.Dataset, dim: str):
     """The system's Param behind grid axis ``dim`` (None when unknown, e.g. a dataset of another version)."""
     from .models import resolve as get_system

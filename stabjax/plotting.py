@@ -22,8 +22,19 @@ from .plotlabels import categories, category_axis, cell_note, fixed_note, symbol
 
 
 def axis_label(ds: xr.Dataset, dim: str) -> str:
-    units = ds[dim].attrs.get("units", "") if dim in ds.coords else ""
-    return symbol(dim) + (f" [{units}]" if units else "")
+    """The axis in words a reader knows, with its symbol and unit: "perturbation order sigma ($\\sigma$)"."""
+    from .plotlabels import words
+
+    a = ds[dim].attrs if dim in ds.coords else {}
+    return words(str(a.get("long_name", "")), symbol(dim), str(a.get("units", "")))
+
+
+def theory_words(ds: xr.Dataset, main: str) -> str:
+    """What the theory's main predicate says, in words (its description, not its variable name)."""
+    from .plotlabels import words
+
+    doc = str(ds[f"theory_{main}"].attrs.get("long_name", "")) if f"theory_{main}" in ds else ""
+    return words(doc, "", limit=60) or main
 
 
 def grid_dims(ds: xr.Dataset) -> list[str]:
@@ -62,26 +73,54 @@ def horizon_boundaries(ds: xr.Dataset, dim: str | None = None) -> dict[float, li
     return out
 
 
-_HCOLORS = ("#1d3557", "#457b9d", "#8338ec", "#ff006e", "#fb5607", "#3a86ff", "#06d6a0", "#000000")
+# Okabe & Ito's colour-blind-safe qualitative palette (blue, vermillion, reddish purple, sky blue, ...)
+_HCOLORS = ("#0072B2", "#D55E00", "#CC79A7", "#56B4E9", "#E69F00", "#009E73", "#000000")
+
+
+def _long_paths(cs, min_len: float, cell: tuple[float, float]) -> None:
+    """Remove the contour pieces shorter than ``min_len`` cells (``cell``: one cell's width and
+    height in data units): at a coarse horizon the converged indicator is speckled, and islands of
+    one or two cells are noise, not a boundary."""
+    from matplotlib.path import Path as MPath
+
+    for path in cs.get_paths():
+        if not len(path.vertices):
+            continue
+        segs = path.to_polygons(closed_only=False)
+        good = [sg for sg in segs if len(sg) > 1 and
+                np.sum(np.hypot(np.diff(sg[:, 0]) / cell[0], np.diff(sg[:, 1]) / cell[1])) >= min_len]
+        if len(good) == len(segs):
+            continue
+        if good:
+            path.vertices = np.concatenate(good)
+            path.codes = np.concatenate([[MPath.MOVETO] + [MPath.LINETO] * (len(g) - 1) for g in good])
+        else:
+            path.vertices, path.codes = np.zeros((0, 2)), None
 
 
 def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
-    """Empirical converged-region boundary at each horizon (dashed), over the t1 map."""
+    """The edge of the converged region had the runs stopped at the last horizon before t1 (dashed):
+    where it differs from the t1 map, the verdicts there still depend on the horizon. Earlier
+    horizons are left out of the map (their counts are in the printed table): at T = t1/100 most
+    runs are still undecided and their edge is noise."""
     if "horizon" not in full.dims or full.sizes["horizon"] < 2:
         return []
     handles = []
     hs = full["horizon"].values
-    for j, T in enumerate(hs):
+    for j, T in list(enumerate(hs))[-2:-1] if len(dims) == 2 else enumerate(hs):
         col = _HCOLORS[j % len(_HCOLORS)]
         c = _converged_indicator(full.isel(horizon=j))
-        lab = f"converged boundary at T = {T:.3g}"
+        lab = f"converged region's edge at T = {T:,.4g}" if len(dims) != 2 else \
+            f"converged region's edge, runs stopped at T = {T:,.4g}"
         if len(dims) == 2:
             xd, yd = dims[1], dims[0]
             m = c.transpose(yd, xd).values
             if np.nanmin(m) < 0.5 < np.nanmax(m) and full.sizes[xd] > 1 and full.sizes[yd] > 1:
-                ax.contour(full[xd].values, full[yd].values, m, levels=[0.5], colors=[col], linewidths=1.4,
-                           linestyles="--")
-                handles.append(Line2D([], [], color=col, lw=1.4, ls="--", label=lab))
+                x, y = np.asarray(full[xd].values, float), np.asarray(full[yd].values, float)
+                cs = ax.contour(x, y, m, levels=[0.5], colors=[col], linewidths=1.6, linestyles="--")
+                if not (log.get(xd) or log.get(yd)):
+                    _long_paths(cs, 4.0, (np.ptp(x) / (len(x) - 1), np.ptp(y) / (len(y) - 1)))
+                handles.append(Line2D([], [], color=col, lw=1.6, ls="--", label=lab))
         elif len(dims) == 1:
             br = horizon_boundaries(full.isel(horizon=[j]), dims[0])[float(T)]
             for i, (a, b) in enumerate(br):
@@ -153,6 +192,19 @@ def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
     rects = [Rectangle((xe[j], ye[i]), xe[j + 1] - xe[j], ye[i + 1] - ye[i]) for i, j in zip(iy, ix)]
     ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="0.2", hatch="///", linewidth=0,
                                       alpha=0.45))
+
+
+def _label_region(ax, x, y, ok, logx: bool, logy: bool):
+    """Write "theory guarantees stability" inside the guaranteed region, at its cell farthest
+    from the region's edge (so the words sit clearly on the right side of the boundary line)."""
+    if not ok.any() or ok.all():
+        return
+    from scipy.ndimage import distance_transform_edt
+
+    d = distance_transform_edt(np.pad(ok, 1, constant_values=False))[1:-1, 1:-1]
+    iy, ix = np.unravel_index(np.argmax(d), d.shape)
+    ax.text(x[ix], y[iy], "theory guarantees\nstability here", ha="center", va="center", fontsize=9,
+            bbox=dict(boxstyle="round,pad=0.3", facecolor="white", edgecolor="0.3", alpha=0.85))
 
 
 def _title(ds: xr.Dataset) -> str:
@@ -227,15 +279,21 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                     handles.append(Line2D([], [], color="k", marker="x", ls="", label="theory says stable, simulation not"))
         if margin is not None and len(x) > 1 and len(y) > 1:
             m = margin.transpose(yd, xd).values
-            if np.nanmin(m) < 0 < np.nanmax(m) and not (cats[xd] or cats[yd]):  # no contour across categories
-                ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
             ok = ds[f"theory_{main}"]
             ok = (ok.isel(sample=0) if sampled else ok).transpose(yd, xd).values.astype(bool)
-            _hatch_cells(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
-            if not (cats[xd] or cats[yd]):
-                handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary ({main})"))
-            handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
-                                 label=f"theory guarantees stability ({main})"))
+            said = theory_words(ds, main)
+            if np.nanmin(m) < 0 < np.nanmax(m) and not (cats[xd] or cats[yd]):  # no contour across categories
+                # the boundary line says where; a label in the region says which side (no hatching over it)
+                ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
+                handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary: {said}"))
+                _label_region(ax, x, y, ok, log[xd], log[yd])
+            elif ok.any() and not ok.all():  # categories: no line to draw, so the guaranteed cells are hatched
+                _hatch_cells(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
+                handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
+                                     label=f"hatched: theory guarantees stability ({said})"))
+            elif ok.all():
+                handles.append(Patch(facecolor="none", edgecolor="none", label=f"theory guarantees stability "
+                                                                                f"everywhere here ({said})"))
         handles += _draw_horizons(ax, full, dims, log)
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
@@ -248,7 +306,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         elif log[yd]:
             ax.set_yscale("log")
         if handles:
-            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
+            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
     elif len(dims) == 1:
         xd = dims[0]
         x = np.arange(ds.sizes[xd], dtype=float) if cats[xd] else ds[xd].values
@@ -272,7 +330,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             ax.set_ylabel(f"{metric} at t1" if "horizon" in full.dims else metric)
         if margin is not None:
             for i, xc in enumerate([] if cats[xd] else zero_crossings(x, margin.values)):
-                ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
+                ax.axvline(xc, color="k", lw=2, label=f"theory boundary: {theory_words(ds, main)}" if i == 0 else None)
             okx = ds[f"theory_{main}"].values.astype(bool)
             if sampled:
                 okx = okx.reshape(len(x), -1)[:, 0]

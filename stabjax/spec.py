@@ -32,7 +32,7 @@ from . import verdict as VD
 from .errors import ValidationError
 from .params import Param, parse_value
 from .models import model_fingerprint, resolve as resolve_system
-from .outcomes import OutcomeScheme, Outcomes, scheme
+from .outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
 from .system import System
 
 # every top-level key is read by something: a section nothing reads (formerly ``[run]``, accepted with
@@ -80,6 +80,8 @@ class Plan:
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     model_sha256: str = ""  # hash of the file defining the system's class
+    lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
+    start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.starts), or None
     # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
     # the axes' cartesian product (a refinement round: an explorer's points through the sweep's runner)
     points: np.ndarray | None = None
@@ -91,6 +93,17 @@ class Plan:
     def escape_radius(self) -> float | None:
         r = self.icfg.escape_radius
         return r if r is not None else self.system.escape_radius
+
+    @property
+    def integrated(self) -> System:
+        """The system the engines integrate: the model, or with ``lyapunov`` the model with its tangent
+        dynamics (:class:`stabjax.lyapunov.TangentSystem`, window = the outcome features' window)."""
+        if not self.lyapunov:
+            return self.system
+        from .lyapunov import tangent, window_start
+
+        return tangent(self.system, window_start(self.icfg.t0, self.icfg.t1, self.vcfg.feature_window),
+                       float(self.icfg.t1))
 
     @property
     def scheme(self) -> OutcomeScheme:
@@ -416,6 +429,15 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
                                                          f"remove one of them")
     sizes = [_axis_size(key, raw) for key, raw in grid_spec.items()]
     n_sample = 0
+    from_file = None
+    if "from" in sample_spec:  # the starts of a file (stabjax.starts): their number is the file's
+        from . import starts as ST
+
+        from_file = ST.load(sample_spec, system, base_dir,
+                            {re.sub(r"\[.*", "", k) for k in grid_spec})
+        sample_spec = {"n": len(next(iter(from_file[0].values())))}
+        # the file's content is part of what runs: a changed file is a different sweep (fingerprint)
+        spec["sample"] = {**dict(spec["sample"]), "__sha256__": ST.sha256(from_file[2])}
     if sample_spec:
         if "n" not in sample_spec:
             raise ValidationError("sample.n", "required: number of random draws")
@@ -454,7 +476,9 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         grid.append(Axis(key, name, prm, index, vals, log))
 
     sample = {}
-    if n_sample:
+    if from_file is not None:
+        sample = {k: np.asarray(v, float) for k, v in from_file[0].items()}
+    elif n_sample:
         seed = V.integer(sample_spec.pop("seed", 0), "sample.seed", lo=0, hi=2**128 - 1)
         if not sample_spec:
             raise ValidationError("sample", "no parameter to sample (add e.g. s0 = {dist = \"sphere\"})")
@@ -492,7 +516,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     if horizons is not None and not isinstance(horizons, (list, tuple)):
         raise ValidationError("verdict.horizons", f"must be a list of times, got {horizons!r}")
     vcfg = verdict_config(system, vtab)
-    decl = system.outcomes
+    # VERDICTS (the attitude systems): the verdicts are the outcomes; no declaration: discovery
+    decl = None if system.outcomes is VERDICTS else (system.outcomes or Outcomes(discover=True))
     if "outcomes" in spec:
         decl = Outcomes.from_spec(spec["outcomes"], base=decl)
     outcomes = None
@@ -502,11 +527,18 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         outcomes = scheme(system, decl, escape)
         # the fold also keeps late-window statistics of every observable, for the outcome rules
         vcfg = vcfg.replace(features=True, feature_window=float(decl.window))
+    # the tangent dynamics only when a rule, a feature, discovery or the user asks for the exponent
+    lyap = decl is not None and decl.uses_lyapunov(system)
+    n_obs = len(system.observables) + int(lyap)
     # windows and horizons become constants of the plan (verdict.bind); the last horizon is t1
-    vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=len(system.observables))
+    if lyap and n_obs > VD.MAX_FEATURE_OBS:
+        raise ValidationError("outcomes.lyapunov", f"the exponent is kept as an extra observable: at most "
+                              f"{VD.MAX_FEATURE_OBS - 1} observables beside it, {system.name} has {n_obs - 1}")
+    vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
-                model_sha256=model_fingerprint(system))
+                model_sha256=model_fingerprint(system), lyapunov=lyap,
+                start_labels=None if from_file is None else from_file[1])
     return plan
 
 

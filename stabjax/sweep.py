@@ -40,6 +40,10 @@ from .progress import progress_bar
 from .status import verdicts as status_verdicts
 from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
 
+# per-trajectory results that are not classifier summaries
+_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
+                    "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
+
 DEFAULT_MEMORY_FRACTION = 0.25
 
 
@@ -62,7 +66,7 @@ def default_batch(plan: Plan) -> int:
 
 def _engine(plan: Plan):
     """The plan's engine; for a plan not yet resolved, the first that accepts it (no translation)."""
-    return engines.get(plan.engine or engines.resolve(plan.system, plan.icfg).engine)
+    return engines.get(plan.engine or engines.resolve(plan.integrated, plan.icfg).engine)
 
 
 def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | None = None) -> int:
@@ -144,7 +148,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
         time.sleep(float(delay))
     lo, hi = i * batch, min(plan.size, (i + 1) * batch)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
-    res = engines.solve(plan.engine, plan.system, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
+    res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
                         static=static_params(plan), progress=progress)
     return {k: np.asarray(v)[: hi - lo] for k, v in res.items()}, plan.engine
 
@@ -447,6 +451,10 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
             data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
     results = dict(results)
+    if not plan.scheme.from_verdicts:
+        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
+        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
+        results = {k: v for k, v in results.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
     if "verdict" in results and "solver_status" in results:
         # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
         # (array operations only: in a big sweep these are dask arrays read lazily from the store)
@@ -455,7 +463,7 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
         # trailing dims (verdict.TRAILING_DIMS): e.g. verdicts at each horizon, features per observable
         extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
         extra += tuple(f"{k}_dim{i}" for i in range(len(extra), v.ndim - 1))
-        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, k)})
+        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, _DOC.get(k, k))})
         if "horizon" in extra and "horizon" not in coords:
             coords["horizon"] = ("horizon", V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1),
                                  {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})

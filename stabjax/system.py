@@ -59,7 +59,8 @@ class System:
     observable_doc: tuple[str, ...] = ("error metric", "size")
     verdict: VerdictConfig = VerdictConfig()
     default_t1: float = 100.0
-    # named outcomes (:class:`stabjax.outcomes.Outcomes`); None: the verdicts are the outcomes
+    # named outcomes (:class:`stabjax.outcomes.Outcomes`); ``stabjax.outcomes.VERDICTS``: the attitude
+    # verdicts are the outcomes (the built-in attitude systems); None: the attractors are discovered
     outcomes: Any = None
 
     # -- optional hooks (None: not provided; the engines test these, never probe with getattr) --
@@ -103,10 +104,18 @@ class System:
 
     def describe_outcomes(self) -> list[tuple[str, str]]:
         """(name, how it is assigned) for ``stabjax systems NAME``."""
-        if self.outcomes is None:
+        from .outcomes import VERDICTS
+
+        if self.outcomes is VERDICTS:
             from .config import VERDICT_NAMES
 
             return [(n, "verdict (see README: Verdicts)") for n in VERDICT_NAMES]
+        if self.outcomes is None:
+            rows = [("fixed_point_k, limit_cycle_k, chaotic_k", "discovered: grouped late-window features, "
+                                                               "typed by spread and Lyapunov exponent")]
+            if self.escape_radius is not None:
+                rows.append(("escaped", f"stopped once max|y_i| > {self.escape_radius:g}"))
+            return rows + [("unclassified", "in no group"), ("failed", "solver did not reach t1 / NaN")]
         o = self.outcomes
         rows = [(k, f"rule: {v}") for k, v in o.rules.items()]
         rows += [(k, f"nearest template {dict(v)} in features {list(o.features)}") for k, v in o.templates.items()]

@@ -20,6 +20,7 @@ from stabjax.status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_ST
 from stabjax.engines import diffrax_engine, fused, native
 from stabjax.params import Param, ParamSet
 from stabjax.spec import make_plan
+from stabjax.outcomes import VERDICTS
 from stabjax.system import System
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -30,6 +31,7 @@ class Growth(System):
     """dy/dt = k y, y(0) = y0: y = y0 e^{k t}."""
 
     name = "test_growth"
+    outcomes = VERDICTS  # tests the attitude verdicts on a toy model
     params = ParamSet((Param("k", 1.0, "rate"), Param("y0", 1.0, "initial value")))
     state = (("y", ()),)
     default_t1 = 20.0

@@ -22,6 +22,7 @@ from stabjax import verdict as V
 from stabjax.errors import ValidationError
 from stabjax.outcomes import Outcomes
 from stabjax.params import Param, ParamSet
+from stabjax.outcomes import VERDICTS
 from stabjax.system import Predicate, System, Theory, VerdictConfig
 
 T1 = 50.0
@@ -32,6 +33,7 @@ class DampedOscillator(System):
     """x'' + (c - k) x' + x = 0; the theorem below claims stability for k < c - 0.1 (conservative by 0.1)."""
 
     name = "test_oscillator"
+    outcomes = VERDICTS  # tests the attitude verdicts on a toy model
     title = "damped linear oscillator with a gain threshold"
     params = ParamSet((
         Param("k", 0.0, "gain (negative damping)"),

@@ -82,7 +82,7 @@ def resolve_plan(plan, static: Iterable[str] | None = None):
     if plan.engine:
         return plan
     probe = plan.params_for(0, min(plan.size, 2))
-    choice = resolve(plan.system, plan.icfg, plan.vcfg, probe, static)
+    choice = resolve(plan.integrated, plan.icfg, plan.vcfg, probe, static)
     if choice.note:
         log.warning(choice.note)
     return dataclasses.replace(plan, engine=choice.engine, engine_note=choice.note)
@@ -90,8 +90,14 @@ def resolve_plan(plan, static: Iterable[str] | None = None):
 
 def solve(name: str, system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Iterable[str] | None = None,
           progress: Progress | None = None) -> Result:
-    """Run engine ``name`` on one chunk."""
-    return get(name).solve(system, params, icfg, vcfg, static=static, progress=progress)
+    """Run engine ``name`` on one chunk. A :class:`stabjax.lyapunov.TangentSystem` (the model with its
+    tangent dynamics) comes back in the model's own layout plus the exponent (``lyapunov``)."""
+    from ..lyapunov import TangentSystem, split
+
+    res = get(name).solve(system, params, icfg, vcfg, static=static, progress=progress)
+    if isinstance(system, TangentSystem):
+        res = split(res, len(system.base.observables))
+    return res
 
 
 __all__ = ["Engine", "Unsupported", "Result", "Choice", "ORDER", "get", "chain", "resolve", "resolve_plan", "solve"]

@@ -137,8 +137,8 @@ class DiffraxEngine(Engine):
     def bytes_per_trajectory(self, plan) -> int:
         """The observables at every checkpoint dominate."""
         k = len(plan.icfg.checkpoints())
-        n_obs = len(plan.system.observables)
-        return 8 * (6 * k * n_obs + 64 * plan.system.state_size + 256)
+        n_obs = len(plan.integrated.observables)
+        return 8 * (6 * k * n_obs + 64 * plan.integrated.state_size + 256)
 
     def solve(self, system, params, icfg, vcfg, static=None, progress=None):
         return solve(system, params, icfg, vcfg)

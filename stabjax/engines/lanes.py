@@ -60,7 +60,7 @@ class NoRule(Exception):
 
 
 _ELEMENTWISE = frozenset("""
-add sub mul div rem pow max min atan2 nextafter and or xor not neg sign floor ceil round is_finite
+add add_any sub mul div rem pow max min atan2 nextafter and or xor not neg sign floor ceil round is_finite
 exp exp2 log log1p expm1 tanh logistic sin cos tan asin acos atan sinh cosh asinh acosh atanh sqrt
 rsqrt cbrt integer_pow square abs eq ne lt le gt ge convert_element_type select_n clamp erf erfc
 erf_inv lgamma digamma copy copy_p reduce_precision real imag conj shift_left shift_right_logical
@@ -119,6 +119,8 @@ class Lanes:
         return e
 
     def bind_elem(self, prim, params, es, in_dtypes):
+        if prim.name == "add_any":  # the sum of two tangents (JVPs, e.g. stabjax.lyapunov): an add
+            prim = lax.add_p
         if all(is_const(e) for e in es):
             with jax.ensure_compile_time_eval():
                 r = prim.bind(*[np.asarray(e, dtype=d) for e, d in zip(es, in_dtypes)], **params)

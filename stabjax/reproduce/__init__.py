@@ -31,3 +31,44 @@ def load_shipped(name: str) -> dict:
 
     with as_file(sweeps_dir() / f"{name}{SPEC_SUFFIX}") as path:
         return load_spec(path)
+
+
+EXAMPLE_FILES = (".toml", ".py", ".png")  # what an example folder holds: spec, model, its figure
+
+
+def examples_dir() -> Traversable:
+    """The shipped examples (package data; ``examples/`` at the top of a clone links here)."""
+    return files("stabjax") / "examples"
+
+
+def example_names() -> list[str]:
+    return sorted(p.name for p in examples_dir().iterdir() if p.is_dir() and (p / "spec.toml").is_file())
+
+
+def copy_examples(dest, *, force: bool = False) -> list:
+    """Copy every shipped example folder into ``dest`` (``dest/<name>/spec.toml, model.py, <name>.png``).
+
+    Read through importlib.resources so it works from a wheel. Every target is checked before
+    anything is written: an existing file is a ``ValidationError`` naming it unless ``force``,
+    so a user's edited copy is never overwritten by accident.
+    """
+    from pathlib import Path
+
+    from ..errors import ValidationError
+
+    dest = Path(dest)
+    plan = []
+    for name in example_names():
+        for f in sorted(examples_dir().joinpath(name).iterdir(), key=lambda t: t.name):
+            if f.is_file() and f.name.endswith(EXAMPLE_FILES):
+                plan.append((f, dest / name / f.name))
+    if not plan:
+        raise ValidationError("examples", "no examples found in the installed package")
+    existing = [str(t) for _, t in plan if t.exists()]
+    if existing and not force:
+        raise ValidationError("dest", f"{existing[0]} exists ({len(existing)} example files already there); "
+                                      "pass --force to replace them, or choose another folder")
+    for src, target in plan:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(src.read_bytes())
+    return [t for _, t in plan]

@@ -58,6 +58,7 @@ import numpy as np
 
 from ..params import Param, ParamSet, check_positive, require
 from ..system import System, VerdictConfig
+from ..outcomes import VERDICTS
 from ..errors import ValidationError
 from . import gyrodyne_theory as th
 from .. import verdict as V
@@ -78,6 +79,7 @@ def _mat(arr):
 
 
 class Gyrodyne(System):
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
     name = "gyrodyne"
     title = "Tetrahedral CMG cluster: forced oscillations and resonance 2 omega_01 ~ Omega_2"
     paper = "Khoroshilov (1983); eqs. (1.1)-(1.3), (2.1), (2.2), (3.1), (3.3)"

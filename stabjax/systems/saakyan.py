@@ -52,6 +52,7 @@ import numpy as np
 from .. import linalg as la
 from ..params import Param, ParamSet, check_positive, require
 from ..system import System, VerdictConfig
+from ..outcomes import VERDICTS
 from . import saakyan_theory as theory
 
 I_DEFAULT = (5.0, 6.0, 4.0)
@@ -117,6 +118,7 @@ _PROGRAM = (
 
 class SaakyanBase(System):
     """Common machinery: parameters, checks, initial state, observables, verdict thresholds."""
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
 
     paper = "L. S. Saakyan, Active stabilisation of the rotational motion of a rigid body, 1974"
     state = (("w", (3,)), ("S", (3,)))

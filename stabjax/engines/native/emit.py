@@ -61,7 +61,7 @@ def _lit(v, dtype) -> str:
     return flit(v)
 
 
-_INFIX = {"add": "+", "sub": "-", "mul": "*"}
+_INFIX = {"add": "+", "add_any": "+", "sub": "-", "mul": "*"}  # add_any: a sum of tangents (JVP)
 _CMP = {"eq": "==", "ne": "!=", "lt": "<", "le": "<=", "gt": ">", "ge": ">="}
 _LIBM1 = {n: n for n in ("exp", "log", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh",
                          "acosh", "atanh", "sqrt", "cbrt", "log1p", "expm1", "exp2", "erf", "erfc", "floor", "ceil",
