@@ -11,7 +11,7 @@ The runner is one loop (``_run_chunks``) with two doors: :func:`run_plan` for a 
 boundary refinement (:mod:`stabjax.refine`) runs each round: the same engine, chunking, store, resume and
 Dask path as a sweep.
 
-Size (~570 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
+Size (~580 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
 the one path from a plan to a dataset; the store, the Dask executor, the progress bar and the horizon
 check are modules of their own.
 """
