@@ -67,6 +67,7 @@ erf_inv lgamma digamma copy copy_p reduce_precision real imag conj shift_left sh
 shift_right_arithmetic population_count
 """.split())
 
+MAX_UNROLL = 64  # lax.scan / fori_loop steps unrolled by the lane engines (a longer loop goes to diffrax)
 _REDUCE = {"reduce_sum": "add", "reduce_max": "max", "reduce_min": "min", "reduce_prod": "mul",
            "reduce_and": "and", "reduce_or": "or"}
 
@@ -272,6 +273,10 @@ class Lanes:
             starts = [int(i[()]) for i in idx]
             starts = [min(max(s, 0), d - n) for s, d, n in zip(starts, a.shape, p["slice_sizes"])]
             return [a[tuple(slice(s, s + n) for s, n in zip(starts, p["slice_sizes"]))]]
+        if name == "stop_gradient":  # no derivative is taken through a model: the identity (jnp.linalg.solve uses it)
+            return [a]
+        if name == "scan":  # a loop with a static trip count (lax.fori_loop with constant bounds, lax.scan): unrolled
+            return self.scan(p, ins, out_avals)
         if name == "cond":
             branches = p["branches"]
             index = ins[0][()]
@@ -289,6 +294,27 @@ class Lanes:
                 res.append(o)
             return res
         raise NoRule(name)
+
+    def scan(self, p, ins, out_avals):
+        """``lax.scan`` unrolled: the body evaluated ``length`` times on the lanes' expressions (consts, carry,
+        the i-th slice of each scanned input), the per-step outputs stacked. Up to :data:`MAX_UNROLL` steps: a
+        model's small loops (over bodies, modes, a fixed-point iteration), not a long time loop."""
+        n_c, n_carry, length = p["num_consts"], p["num_carry"], int(p["length"])
+        if length > MAX_UNROLL:
+            raise NoRule(f"scan of {length} steps (loops of up to {MAX_UNROLL} are unrolled)")
+        consts, carry, xs = ins[:n_c], list(ins[n_c:n_c + n_carry]), ins[n_c + n_carry:]
+        steps = range(length - 1, -1, -1) if p["reverse"] else range(length)
+        ys = {}
+        for i in steps:
+            outs = self.eval_closed(p["jaxpr"], [*consts, *carry, *[x[i, ...] for x in xs]])
+            carry, ys[i] = list(outs[:n_carry]), outs[n_carry:]
+        stacked = []
+        for j, aval in enumerate(out_avals[n_carry:]):
+            o = obj(aval.shape)
+            for i in range(length):
+                o[i, ...] = ys[i][j]
+            stacked.append(o)
+        return [*carry, *stacked]
 
     def dot_general(self, x, y, p, eqn):
         (lc, rc), (lb, rb) = p["dimension_numbers"]
