@@ -117,9 +117,9 @@ PNG_KEY = "stabjax-spec"  # PNG text chunk: digest of the spec a map was drawn f
 
 
 def _spec_digest(spec_dict) -> str:
-    import hashlib
+    from .identity import spec_digest
 
-    return hashlib.sha256(json.dumps(spec_dict, sort_keys=True).encode()).hexdigest()[:16]
+    return spec_digest(spec_dict)
 
 
 def _png_spec(path: Path) -> str | None:
@@ -669,15 +669,13 @@ def view_cmd(
 
 
 def _warn_changed_model(ds):
-    """A result records its model file's hash; say so when the file on disk has changed since."""
-    import hashlib
+    """A result records its model file and the local modules it imports, with their hashes
+    (:mod:`stabjax.identity`); say so when one on disk has changed since."""
+    from .identity import changed_sources
 
-    f, sha = ds.attrs.get("model_file", ""), ds.attrs.get("model_sha256", "")
-    if f and sha and sha != "unknown" and Path(f).exists():
-        now = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-        if now != sha:
-            err_console.print(f"warning: the model file {f} has changed since this result was computed "
-                              f"(sha256 {sha[:12]} then, {now[:12]} now)", style="yellow", markup=False)
+    for what in changed_sources(ds.attrs):
+        err_console.print(f"warning: the model file {what} has changed since this result was computed",
+                          style="yellow", markup=False)
 
 
 @app.command("horizon-check")

@@ -3,8 +3,9 @@ cluster of worker processes (``--workers N``).
 
 What is sent to a worker is ``solve chunk i of plan P`` as plain data (the spec dict, the
 command-line t1, the effective integrate/verdict settings and the chunk size); the worker plans
-the spec itself (once per process: :data:`_PLANS`, keyed by the plan fingerprint), checks that its
-fingerprint matches the client's, and runs :func:`stabjax.sweep.solve_chunk`, the same function
+the spec itself (once per process: :data:`_PLANS`, keyed by the plan's identity), checks that its
+identity (:mod:`stabjax.identity`: spec, settings, parameter values, model files) matches the
+client's, and runs :func:`stabjax.sweep.solve_chunk`, the same function
 and engine choice as a local run, so results are bitwise those of a local run on the same
 hardware. Each worker compiles once per spec: its compiled kernels stay cached in the process,
 the native engine's C builds are cached on disk (``$STABJAX_CACHE_DIR``), and XLA's compilations
@@ -36,7 +37,7 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 
 from .errors import StabjaxError, ValidationError
-from .store import model_fingerprint
+from . import identity as I
 
 _PLANS: dict[str, Any] = {}  # per worker process: plan key -> Plan (so each spec is planned and compiled once)
 
@@ -67,70 +68,53 @@ def _setup_process():
         jax.config.update("jax_compilation_cache_dir", str(d))
 
 
-def plan_digest(plan) -> str:
-    """Hash of every parameter value a plan resolves to (grid axes, samples, fixed values: each small,
-    the cartesian product is not formed). A worker's re-planned plan must match it, so a Plan built
-    in code rather than from its spec is refused on the workers instead of silently recomputed."""
-    import hashlib
-
-    h = hashlib.sha256()
-    for name, arr in ([(f"grid:{a.key}", a.values) for a in plan.grid] + sorted((f"sample:{k}", v) for k, v in plan.sample.items())
-                      + sorted((f"fixed:{k}", v) for k, v in plan.fixed.items())):
-        a = np.ascontiguousarray(np.asarray(arr, dtype=float))
-        h.update(name.encode() + str(a.shape).encode() + a.tobytes())
-    return h.hexdigest()[:16]
-
-
 def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, threads: int | None = None) -> dict:
-    """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data)."""
+    """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data), with the
+    plan's identity (:mod:`stabjax.identity`) for the worker to compare its own plan with."""
     from dataclasses import asdict
 
     from .spec import jsonable
 
     return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
-            "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
-            "model": model_fingerprint(plan.system), "threads": threads,
+            "vcfg": asdict(plan.vcfg), "batch": int(batch), "identity": I.identity(plan), "threads": threads,
             "points": None if plan.points is None else np.asarray(plan.points, float).tolist()}  # explicit points
 
 
 def _plan_key(payload: Mapping[str, Any]) -> str:
-    import json
-
-    import hashlib
-
-    pts = payload.get("points")
-    pts = "" if pts is None else hashlib.sha256(np.ascontiguousarray(np.asarray(pts, float)).tobytes()).hexdigest()
-    return payload["fingerprint"] + payload["digest"] + pts + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True,
-                                                                         default=str)
+    return I.digest([payload["identity"], payload["icfg"], payload["vcfg"], payload.get("threads"),
+                     payload.get("points")])
 
 
 def worker_plan(payload: Mapping[str, Any]):
+    """The payload's plan, planned from its spec in this process (once) and checked against the
+    client's identity: a different model file or imported module, stabjax version, or a plan not
+    built from its spec is refused, naming what differs."""
     key = _plan_key(payload)
     plan = _PLANS.get(key)
     if plan is None:
         _setup_process()
         from dataclasses import replace
 
-        from .engine import IntegrateConfig
-        from .spec import Plan, make_plan
+        from .spec import make_plan
 
         plan = make_plan(payload["spec"], t1=payload["t1"])
         # the native engine's threads per worker: an [integrate] setting that changes no result
         threads = {"threads": int(payload["threads"])} if payload.get("threads") else {}
-        plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**{**payload["icfg"], **threads}),
-                       "vcfg": replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
-                                                     for k, v in payload["vcfg"].items()})})
-        if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
-            raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
-                               f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
-                               "versions or model files, or a plan not built from its spec)")
-        if payload.get("points") is not None:
+        plan = replace(plan, icfg=replace(plan.icfg, **{**payload["icfg"], **threads}),
+                       vcfg=replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
+                                                  for k, v in payload["vcfg"].items()}))
+        if payload.get("points") is not None:  # a plan over explicit grid points (a refinement round)
             plan = replace(plan, points=np.asarray(payload["points"], float))
-        mine = model_fingerprint(plan.system)
-        if mine != payload["model"]:
-            raise StabjaxError(f"worker {socket.gethostname()}: model source {mine['file']} differs from the client's "
-                               f"(sha256 {mine['sha256']} vs {payload['model']['sha256']}); install the same model files "
-                               "on every worker")
+        theirs, mine = payload["identity"], I.identity(plan)
+        refusals, _ = I.compare(theirs, mine)
+        host = socket.gethostname()
+        if theirs.get("model") != mine.get("model"):
+            raise StabjaxError(f"worker {host}: model source {mine['model'].get('file')} differs from the client's "
+                               f"({'; '.join(c for c in refusals if c.startswith('model'))}); install the same model "
+                               "files on every worker")
+        if refusals:
+            raise StabjaxError(f"worker {host}: the spec plans to a different run than the client's "
+                               f"({'; '.join(refusals)}): different stabjax versions, or a plan not built from its spec")
         _PLANS[key] = plan
     return plan
 

@@ -15,7 +15,6 @@ Sample distributions (per parameter, ``n`` draws, ``seed``):
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import re
@@ -31,7 +30,7 @@ from . import validate as V
 from . import verdict as VD
 from .errors import ValidationError
 from .params import Param, parse_value
-from .models import model_fingerprint, resolve as resolve_system
+from .models import resolve as resolve_system
 from .outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
 from .system import System
 
@@ -79,7 +78,6 @@ class Plan:
     icfg: IntegrateConfig = field(default_factory=IntegrateConfig)
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
-    model_sha256: str = ""  # hash of the file defining the system's class
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.starts), or None
     # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
@@ -124,13 +122,10 @@ class Plan:
         return int(np.prod(self.shape)) if self.shape else 1
 
     def fingerprint(self) -> str:
-        """Identity of the computation (spec + system + version): resume refuses on mismatch."""
-        from . import __version__
+        """Identity of the computation: :func:`stabjax.identity.fingerprint` (the one place it is computed)."""
+        from .identity import fingerprint
 
-        # the model file's hash: a resumed sweep or re-plot notices an edited model; t1: a --t1 override
-        blob = json.dumps({"spec": jsonable(self.spec), "system": self.system.name, "version": __version__,
-                           "model": self.model_sha256, "t1": self.icfg.t1}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+        return fingerprint(self)
 
     def params_for(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Every parameter for the flat trajectory indices [start, stop) (C order over ``shape``)."""
@@ -536,8 +531,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
                               f"{VD.MAX_FEATURE_OBS - 1} observables beside it, {system.name} has {n_obs - 1}")
     vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
-                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
-                model_sha256=model_fingerprint(system), lyapunov=lyap,
+                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
                 start_labels=None if from_file is None else from_file[1])
     return plan
 

@@ -1,19 +1,18 @@
 """Run a sweep plan in chunks of bounded memory, resumable, into a labelled xarray Dataset.
 
-Chunks all have the same size (the last is padded) so the vmapped solve compiles once per
-spec. With an output path, each finished chunk is written to a zarr store (``<out>.zarr``,
-:mod:`stabjax.store`) as it finishes; a killed sweep restarted with the same command continues
-from it, and a changed spec, model or command-line override is refused rather than silently
-mixed. Chunks run in this process or on Dask workers (:mod:`stabjax.distributed`).
+Chunks are blocks of the plan's grid (:class:`stabjax.store.Chunking`), padded to one size so the
+vmapped solve compiles once per spec. With an output path, each finished chunk is written to a
+zarr store (``<out>.zarr``, :mod:`stabjax.store`) as it finishes; a killed sweep restarted with the
+same command continues from it, and a changed spec, model or command-line override is refused
+rather than silently mixed (:mod:`stabjax.identity`). Chunks run in this process or on Dask
+workers (:mod:`stabjax.distributed`). The dataset's variables are defined in :mod:`stabjax.dataset`;
+the netCDF file is a copy of the finished store.
 
 The runner is one loop (``_run_chunks``) with two doors: :func:`run_plan` for a plan's whole grid, and
 :func:`run_points` for explicit grid points (``Plan.points``), through which an explorer such as the
 boundary refinement (:mod:`stabjax.refine`) runs each round: the same engine, chunking, store, resume and
-Dask path as a sweep.
-
-Size (~580 lines): the run loop, the in-memory and store sinks, dataset assembly and provenance are
-the one path from a plan to a dataset; the store, the Dask executor, the progress bar and the horizon
-check are modules of their own.
+Dask path as a sweep. The progress bar (:mod:`stabjax.progress`) and the horizon check
+(:mod:`stabjax.horizon`) are modules of their own.
 """
 from __future__ import annotations
 
@@ -22,7 +21,6 @@ import dataclasses
 import json
 import os
 import platform
-import subprocess
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -30,19 +28,16 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
+from . import dataset as D
 from . import engines, signals
 from . import verdict as V
-from .config import setup_jax, versions
+from .config import setup_jax
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import OutputError, ValidationError
 from .outputs import write_reason
 from .progress import progress_bar
-from .status import verdicts as status_verdicts
-from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_params
-
-# per-trajectory results that are not classifier summaries
-_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
-                    "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
+from .spec import Plan, check_plan, load_spec, make_plan, static_params
+from .store import Chunking
 
 DEFAULT_MEMORY_FRACTION = 0.25
 
@@ -94,31 +89,39 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
 
 
 class _Memory:
-    """Chunk results kept in memory (a sweep without an output file); the store's interface."""
+    """Chunk records kept in memory (a sweep without an output file); the store's interface."""
 
-    def __init__(self, plan: Plan, batch: int):
+    def __init__(self, plan: Plan, batch: int, template_features: np.ndarray | None = None):
+        self.plan = plan
+        self.chunking = Chunking(plan.shape, batch)
         self.batch, self.n = batch, plan.size
-        self.n_chunks = -(-self.n // batch)
+        self.n_chunks = self.chunking.n_chunks
         self.results: dict[str, np.ndarray] = {}
         self.manifest: dict[str, Any] = {"chunks": {}}
+        # before the first chunk: its outcomes need them
+        self.tf = template_features if template_features is not None else D.template_features(plan)
 
     def pending(self) -> list[int]:
         return [i for i in range(self.n_chunks) if str(i) not in self.manifest["chunks"]]
 
     def bounds(self, i: int) -> tuple[int, int]:
-        return i * self.batch, min(self.n, (i + 1) * self.batch)
+        return self.chunking.bounds(i)
 
     def steps(self) -> int:
         return int(sum(c["steps"] for c in self.manifest["chunks"].values()))
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         lo, hi = self.bounds(i)
-        for k, v in res.items():
+        for k, v in D.derive_chunk(self.plan, res, lo, hi, self.tf).items():
             if k not in self.results:
                 self.results[k] = np.empty((self.n, *v.shape[1:]), dtype=v.dtype)
             self.results[k][lo:hi] = v
         self.manifest["chunks"][str(i)] = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()),
                                            **(info or {})}
+
+    def dataset(self) -> xr.Dataset:
+        shape = self.plan.shape
+        return D.build(self.plan, {k: v.reshape(shape + v.shape[1:]) for k, v in self.results.items()}, self.tf)
 
     def close(self):
         pass
@@ -128,12 +131,14 @@ LAZY_ABOVE = 1 << 22  # trajectories: above this, the netCDF file is written fro
 
 
 def chunk_params(plan: Plan, batch: int, i: int) -> dict[str, np.ndarray]:
-    """Parameters of chunk ``i``; the last chunk is padded with copies of its last trajectory so every
-    chunk has the same shapes (one compile per spec)."""
-    lo, hi = i * batch, min(plan.size, (i + 1) * batch)
+    """Parameters of chunk ``i`` (:class:`stabjax.store.Chunking` of ``batch``), padded with copies of
+    its last trajectory to the chunking's size, so that every chunk has the same shapes (one compile
+    per spec)."""
+    ch = Chunking(plan.shape, batch)
+    lo, hi = ch.bounds(i)
     p = plan.params_for(lo, hi)
-    if hi - lo < batch:
-        p = {k: np.concatenate([v, np.repeat(v[-1:], batch - (hi - lo), axis=0)]) for k, v in p.items()}
+    if hi - lo < ch.size:
+        p = {k: np.concatenate([v, np.repeat(v[-1:], ch.size - (hi - lo), axis=0)]) for k, v in p.items()}
     return p
 
 
@@ -146,7 +151,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
     delay = os.environ.get("_STABJAX_TEST_CHUNK_SLEEP")  # tests only: widen the window for kill -9
     if delay:
         time.sleep(float(delay))
-    lo, hi = i * batch, min(plan.size, (i + 1) * batch)
+    lo, hi = Chunking(plan.shape, batch).bounds(i)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
     res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
                         static=static_params(plan), progress=progress)
@@ -174,22 +179,30 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
 
     setup_jax()
     plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
+
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
+    if batch_size is None and store_path is not None and not restart:
+        batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
+    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
+    check_plan(plan)
+    tf = templates_first(plan)  # before the store exists: a refusal leaves nothing behind
     n = plan.size
-    sink, batch, overrides, tf = _open_sink(plan, store_path, batch_size, memory_limit, restart, overrides,
-                                            templates=True)
+    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
+    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=tf) \
+        if store_path is not None else _Memory(plan, batch, tf)
     try:
-        run_attrs = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
-                                overrides=overrides)
-        executor_name = executor.describe() if executor is not None else "local"
+        run = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
+                          overrides=overrides)
+        attrs = {**D.run_attrs(**run),
+                 **D.engine_attrs(sink.manifest, executor.describe() if executor is not None else "local",
+                                  plan.engine_note)}
         if isinstance(sink, _Memory):
-            ds = assemble(plan, sink.results, template_features=tf, **run_attrs)
-            _engine_attrs(ds, sink.manifest, executor_name, plan.engine_note)
+            ds = sink.dataset()
+            ds.attrs.update(attrs)
             return ds
+        sink.finish(attrs)
         lazy = n > LAZY_ABOVE
-        ds = assemble_store(plan, store_path, sink.manifest, lazy=lazy, executor=executor_name, template_features=tf,
-                            **run_attrs)
-        ds.attrs["engine_note"] = plan.engine_note
+        ds = S.open_store(store_path)  # the netCDF file is a copy of the store, chunk by chunk
         if not lazy:
             ds = ds.load()
         if out is None:
@@ -206,7 +219,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         sink.close()
     if not keep_partial:
         with contextlib.suppress(OSError):
-            store_path.rmdir()
+            store_path.rmdir()  # only if empty: a user's file put in the store stays, and so does the folder
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
@@ -217,9 +230,9 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
                memory_limit: int | None = None, overrides: Mapping[str, Any] | None = None,
                executor=None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Integrate the plan's samples at explicit grid points ``values`` (P, n_axes) through the same runner as
-    :func:`run_plan` (chunks, engine, Dask workers, chunk store, resume): the per-trajectory results, point-major
+    :func:`run_plan` (chunks, engine, Dask workers, chunk store, resume): the per-trajectory records, point-major
     (each point's samples contiguous), and the run's record (``engines``, ``steps``, ``wall``, ``batch``,
-    ``n_resumed``). An explorer (:mod:`stabjax.refine`) hands each round's points here.
+    ``n_resumed``, ``n_chunks``). An explorer (:mod:`stabjax.refine`) hands each round's points here.
 
     With ``store`` the chunks go to a chunk store whose identity covers the points (a store of other points is
     refused, the same points resume); it is removed once read unless ``keep_store``. Without a batch size the
@@ -228,28 +241,32 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     """
     import hashlib
 
-    from .store import load_results, stored_batch
+    from . import store as S
 
     setup_jax()
     values = np.ascontiguousarray(np.asarray(values, float).reshape(-1, len(plan.grid)))
-    resolved = engines.resolve_plan(plan, static=static_params(plan))
-    plan = dataclasses.replace(resolved, points=values)
-    if batch_size is None and (store is None or restart or stored_batch(Path(store)) is None):
-        per_shape = _engine(plan).compiles_per_shape
+    plan = dataclasses.replace(engines.resolve_plan(plan, static=static_params(plan)), points=values)
+    if batch_size is None and store is not None and not restart:
+        batch_size = S.stored_batch(Path(store))  # a resume keeps the chunking it started with
+    if batch_size is None:
         b = choose_batch_size(plan, None, memory_limit)
-        batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if per_shape else b
+        batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if _engine(plan).compiles_per_shape \
+            else b
+    batch = choose_batch_size(plan, batch_size, memory_limit)
+    check_plan(plan)
     digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
-    overrides = {**(overrides or {}), "points": f"{len(values)} points, sha256 {digest}"}
-    sink, batch, overrides, _ = _open_sink(plan, None if store is None else Path(store), batch_size, memory_limit,
-                                           restart, overrides)
+    overrides = {**{k: v for k, v in (overrides or {}).items() if v is not None},
+                 "points": f"{len(values)} points, sha256 {digest}"}
+    sink = S.ChunkStore(store, plan, batch, overrides=overrides, restart=restart) if store is not None \
+        else _Memory(plan, batch)
     try:
         info = _run_chunks(plan, sink, batch, progress=progress, executor=executor, overrides=overrides)
         if isinstance(sink, _Memory):
             results = sink.results
         else:
-            results = {k: np.asarray(v) for k, v in load_results(sink.path, sink.manifest, lazy=False).items()}
+            results = {k: np.asarray(v) for k, v in S.load_results(sink.path, sink.manifest, lazy=False).items()}
         info["engines"] = sorted({c.get("engine", "?") for c in sink.manifest["chunks"].values()})
-        info["n_chunks"] = -(-plan.size // batch)
+        info["n_chunks"] = sink.n_chunks
         if store is not None and not keep_store:
             sink.discard()
     finally:
@@ -260,33 +277,15 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     return results, info
 
 
-def _open_sink(plan: Plan, store_path: Path | None, batch_size: int | None, memory_limit: int | None, restart: bool,
-               overrides: Mapping[str, Any] | None, templates: bool = False):
-    """The chunk sink of a run (a chunk store at ``store_path``, else memory), its chunk size, the overrides
-    recorded in the store's identity, and (``templates``) the outcome templates' features, integrated and
-    checked before the store exists, so that a refusal leaves nothing behind. A resume keeps the chunking
-    it started with."""
-    from . import store as S
-
-    if batch_size is None and store_path is not None and not restart:
-        batch_size = S.stored_batch(store_path)
-    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
-    check_plan(plan)
-    tf = templates_first(plan) if templates else None
-    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart) if store_path is not None \
-        else _Memory(plan, batch)
-    return sink, batch, overrides, tf
-
-
 def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
                 on_chunk: Callable[[int, int], None] | None = None, executor=None,
                 overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """Compute every pending chunk of ``plan`` into ``sink``, here or on the executor's workers; the run's
-    wall time, steps, chunk size and number of chunks resumed."""
+    """Compute every pending chunk of ``plan`` into ``sink``, here or on the executor's workers, the chunk in
+    flight written before a SIGTERM/SIGHUP stops the run: the run's wall time, steps, chunk size and number of
+    chunks resumed."""
     t_start = time.perf_counter()
     n = plan.size
-    n_chunks = -(-n // batch)
+    n_chunks = sink.n_chunks  # blocks of the grid of at most `batch` trajectories (store.Chunking)
     pending = sink.pending()
     n_resumed = n_chunks - len(pending)
     bar = progress_bar(progress, n, plan.name, n_chunks)
@@ -335,43 +334,14 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
     return dict(wall=time.perf_counter() - t_start, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
 
 
-def _engine_attrs(ds: xr.Dataset, manifest: Mapping[str, Any], executor: str, note: str = "") -> None:
-    from .store import engines_of
-
-    ds.attrs["engine_note"] = note  # why the plan's engine is not the first choice ("" when it is)
-    by = engines_of(manifest)
-    ds.attrs["engine"] = ",".join(sorted(by))  # the engines that computed the chunks, resumed ones included
-    ds.attrs["engine_chunks_json"] = json.dumps(by)  # engine -> [first, last] chunk runs
-    ds.attrs["executor"] = executor
-
-
-def assemble_store(plan: Plan, store_path: str | Path, manifest: Mapping[str, Any], *, lazy: bool,
-                   executor: str = "", wall: float | None = None, steps: int | None = None, batch: int | None = None,
-                   n_resumed: int | None = None, template_features: np.ndarray | None = None) -> xr.Dataset:
-    """The sweep's Dataset from a complete store (arrays as dask arrays reading the store if ``lazy``)."""
-    from .store import load_results
-
-    results = load_results(store_path, manifest, lazy=lazy)
-    chunks = manifest["chunks"].values()
-    ds = assemble(plan, results,
-                  wall=float(sum(c.get("seconds", 0.0) for c in chunks)) if wall is None else wall,
-                  steps=int(sum(c.get("steps", 0) for c in chunks)) if steps is None else steps,
-                  batch=int(manifest["batch_size"]) if batch is None else batch,
-                  n_resumed=0 if n_resumed is None else n_resumed, template_features=template_features)
-    _engine_attrs(ds, manifest, executor or "store")
-    ds.attrs["store_created"] = manifest.get("created", "")
-    return ds
-
-
 def templates_first(plan: Plan) -> np.ndarray | None:
     """The template feature vectors at every grid point, integrated before any chunk of the sweep, or
     None without templates. Two templates that coincide somewhere are refused here (naming them, the
     point and their distance): otherwise the default ``max_distance`` is zero there and every
     trajectory ends "unclassified" without a word, after the whole run (issue 22, item 6)."""
-    from .basin import template_features
     from .outcomes import coinciding_templates
 
-    tf = template_features(plan)
+    tf = D.template_features(plan)
     if tf is None:
         return None
     hit = coinciding_templates(plan.outcomes.decl, tf)
@@ -398,138 +368,19 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
                     overrides={"t1": None if t1 is None else float(t1)}, **kw)
 
 
-# ---- dataset assembly ------------------------------------------------------------------------
+# ---- dataset assembly: stabjax.dataset ------------------------------------------------------------
 
-
-def _theory_vars(plan: Plan, chunk: int = 262_144) -> dict[str, tuple[np.ndarray, dict]]:
-    # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
-    # alone are ~0.65 GB, and a concatenation would hold them twice
-    full: dict[str, np.ndarray] = {}
-    meta: dict[str, dict] = {}
-    main = ""
-
-    def put(key, lo, hi, val, dtype):
-        if key not in full:
-            full[key] = np.empty(plan.size, dtype=dtype)
-        full[key][lo:hi] = np.broadcast_to(val, (hi - lo,))
-
-    for lo in range(0, plan.size, chunk):
-        hi = min(plan.size, lo + chunk)
-        p = plan.system.check(plan.params_for(lo, hi))
-        th = plan.system.theory(p)
-        main = th.main
-        for name, pred in th.predicates.items():
-            put(f"theory_{name}", lo, hi, pred.ok, np.int8)
-            put(f"margin_{name}", lo, hi, pred.margin, float)
-            meta[f"theory_{name}"] = {"long_name": pred.doc, "flag_values": np.array([0, 1], np.int8),
-                                      "flag_meanings": "not_guaranteed guaranteed"}
-            meta[f"margin_{name}"] = {"long_name": f"signed margin of: {pred.doc} (> 0 inside)"}
-        for name, val in th.derived.items():
-            put(f"derived_{name}", lo, hi, val, float)
-            meta[f"derived_{name}"] = {"long_name": th.derived_doc.get(name, name)}
-    out = {k: (v, meta[k]) for k, v in full.items()}
-    out["_main"] = (np.array(main), {})
-    return out
+provenance = D.provenance
 
 
 def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = float("nan"), steps: int = 0,
              batch: int = 0, n_resumed: int = 0, template_features: np.ndarray | None = None) -> xr.Dataset:
-    shape, dims = plan.shape, plan.dims
-    coords: dict[str, Any] = {}
-    data: dict[str, Any] = {}
-    for ax in plan.grid:
-        attrs = {"long_name": ax.param.doc, "units": ax.param.unit, "spec_key": ax.key, "log_axis": int(ax.log)}
-        if ax.values.ndim == 1:
-            coords[ax.name] = (ax.name, ax.values, attrs)
-        else:  # vector-valued axis: index coordinate + the vectors as a variable
-            coords[ax.name] = (ax.name, np.arange(ax.size), attrs)
-            data[f"{ax.name}_value"] = ((ax.name, *[f"{ax.name}_c{i}" for i in range(ax.values.ndim - 1)]), ax.values)
-    if plan.n_sample:
-        coords["sample"] = ("sample", np.arange(plan.n_sample), {"long_name": "random draw index"})
-        for k, v in plan.sample.items():
-            prm = plan.system.params[k]
-            extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
-            data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
-    results = dict(results)
-    if not plan.scheme.from_verdicts:
-        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
-        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
-        results = {k: v for k, v in results.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
-    if "verdict" in results and "solver_status" in results:
-        # a trajectory stopped at escape_radius ran away: diverged, not a solver failure
-        # (array operations only: in a big sweep these are dask arrays read lazily from the store)
-        results["verdict"] = status_verdicts(results["solver_status"], results["verdict"])
-    for k, v in results.items():
-        # trailing dims (verdict.TRAILING_DIMS): e.g. verdicts at each horizon, features per observable
-        extra = V.TRAILING_DIMS.get(k, ())[: max(v.ndim - 1, 0)]
-        extra += tuple(f"{k}_dim{i}" for i in range(len(extra), v.ndim - 1))
-        data[k] = ((*dims, *extra), v.reshape(shape + v.shape[1:]), {"long_name": V.SUMMARY_DOC.get(k, _DOC.get(k, k))})
-        if "horizon" in extra and "horizon" not in coords:
-            coords["horizon"] = ("horizon", V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1),
-                                 {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
-        if "observable" in extra and "observable" not in coords:
-            coords["observable"] = ("observable", list(plan.system.observables)[: v.shape[-1]])
-    if "verdict" in data:
-        data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
-    if "solver_status" in results:
-        from .basin import dataset_vars
-
-        bdata, bcoords = dataset_vars(plan, results, template_features)
-        data.update(bdata)
-        coords.update(bcoords)
-    th = _theory_vars(plan)
-    main = str(th.pop("_main")[0])
-    for k, (v, attrs) in th.items():
-        data[k] = (dims, v.reshape(shape), attrs)
-    ds = xr.Dataset({k: v for k, v in data.items()}, coords=coords)
-    ds.attrs.update(provenance(plan))
-    ds.attrs.update(theory_main=main, wall_time_s=float(wall), total_steps=int(steps), batch_size=int(batch),
-                    chunks_resumed=int(n_resumed), n_trajectories=int(plan.size))
+    """The Dataset of a plan from the engines' flat per-trajectory results (every trajectory)."""
+    tf = template_features if template_features is not None else D.template_features(plan)
+    rec = D.derive_chunk(plan, results, 0, plan.size, tf)
+    ds = D.build(plan, {k: v.reshape(plan.shape + v.shape[1:]) for k, v in rec.items()}, tf)
+    ds.attrs.update(D.run_attrs(wall=wall, steps=steps, batch=batch, n_resumed=n_resumed))
     return ds
-
-
-def _git_commit() -> str:
-    here = Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
-        if sha.returncode != 0:
-            return "unknown"
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=5)
-        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def provenance(plan: Plan) -> dict[str, Any]:
-    import jax
-
-    return {
-        "system": plan.system.name,
-        "sweep_name": plan.name,
-        "paper": plan.system.paper,
-        "spec_json": json.dumps(jsonable(plan.spec)),
-        "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
-        "integrate_json": json.dumps(plan.icfg.__dict__),
-        "verdict_json": json.dumps(plan.vcfg.__dict__),
-        "fingerprint": plan.fingerprint(),
-        "system_ref": str(plan.spec.get("system", plan.system.name)),
-        "model_file": str(_model_file(plan)),
-        "model_sha256": plan.model_sha256,
-        "outcomes_from_verdicts": int(plan.scheme.from_verdicts),
-        "versions_json": json.dumps(versions()),
-        "git_commit": _git_commit(),
-        "device": str(jax.devices()[0].device_kind) + f" x{jax.device_count()}",
-        "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus".strip(),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-
-
-def _model_file(plan) -> str:
-    from .models import source_file
-
-    f = source_file(plan.system)
-    return str(f) if f is not None else ""
 
 
 def write(ds: xr.Dataset, out: str | Path) -> Path:
@@ -564,14 +415,12 @@ def open_result(path: str | Path) -> xr.Dataset:
     return xr.load_dataset(path, engine="netcdf4")
 
 
-# ---- horizon check -----------------------------------------------------------------------------
+def export_store(store: str | Path, out: str | Path) -> xr.Dataset:
+    """Write the netCDF file of a finished store (``stabjax export STORE.zarr --out x.nc``): a copy of
+    the store's dataset, chunk by chunk, after every chunk was checked against its checksum."""
+    from .store import finished_store, open_store
 
-
-def export_store(store: str | Path, out: str | Path, *, lazy_above: int = 1 << 22) -> xr.Dataset:
-    """Write the netCDF file of a complete store (``stabjax export STORE.zarr --out x.nc``)."""
-    from .store import finished_store
-
-    m, plan = finished_store(store)
-    ds = assemble_store(plan, store, m, lazy=plan.size > lazy_above)
+    finished_store(store)
+    ds = open_store(store)
     write(ds, out)
     return ds

@@ -69,7 +69,7 @@ def test_payload_replans_to_the_same_plan(plan):
     # a worker whose model file differs from the client's refuses the chunk
     D._PLANS.clear()
     with pytest.raises(StabjaxError, match="model source monoaxial.py differs"):
-        D.worker_plan({**p, "model": {"file": "monoaxial.py", "sha256": "0" * 16}})
+        D.worker_plan({**p, "identity": {**p["identity"], "model": {**p["identity"]["model"], "sha256": "0" * 64}}})
     # a plan changed in code (not from its spec) would be recomputed differently: refused
     orig = plan.grid[0].values
     plan.grid[0].values = orig + 0.01
