@@ -10,9 +10,11 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from . import engines
-from .config import ENGINES, SOLVERS, IntegrateConfig, VerdictConfig, setup_jax, verdict_config
+from .config import SOLVERS, IntegrateConfig, Settings, VerdictConfig, setup_jax, verdict_config
 from .errors import ValidationError
 from .system import System
+
+ENGINES = engines.CHOICES  # kept for compatibility (it lived in stabjax.config)
 
 
 def _as_system(system) -> System:
@@ -112,5 +114,5 @@ def _params_json(p: Mapping[str, np.ndarray]) -> str:
     return json.dumps({k: np.asarray(v).tolist() for k, v in p.items()})
 
 
-__all__ = ["IntegrateConfig", "VerdictConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS",
+__all__ = ["IntegrateConfig", "Settings", "VerdictConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS",
            "ENGINES"]

@@ -223,7 +223,7 @@ def test_ci_local_cluster_sweep_is_the_local_sweep(plan, reference, one_worker):
     assert ds.attrs["engine"] == reference.attrs["engine"] and "dask (local cluster, 1 workers" in ds.attrs["executor"]
     # the worker's engine threads travel with the task, in its plan's [integrate] settings, not in its environment
     assert set(one_worker.client.run(lambda: os.environ.get("STABJAX_THREADS")).values()) == {None}
-    threads = one_worker.client.run(lambda: sorted({p.icfg.threads for p in D._PLANS.values()}))
+    threads = one_worker.client.run(lambda: sorted({p.icfg.settings.get("threads") for p in D._PLANS.values()}))
     assert list(threads.values()) == [[1]]
 
 
