@@ -192,6 +192,15 @@ def resolve_plan(plan, static: Iterable[str] | None = None):
     return dataclasses.replace(plan, engine=choice.engine, engine_note=choice.note)
 
 
+def trajectory_fn(system, icfg):
+    """``f(ts, params) -> {"ys", "obs", "status", "n_steps"}``: one trajectory with its full state at
+    ``ts`` (:func:`stabjax.engine.simulate`). The diffrax engine, which saves states, runs it (imported here,
+    on first use)."""
+    from .diffrax_engine import simulate_fn
+
+    return simulate_fn(system, icfg)
+
+
 def solve(name: str, system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Iterable[str] | None = None,
           progress: Progress | None = None) -> Result:
     """Run engine ``name`` on one chunk. A :class:`stabjax.lyapunov.TangentSystem` (the model with its
@@ -206,4 +215,4 @@ def solve(name: str, system, params: Mapping[str, np.ndarray], icfg, vcfg, *, st
 
 __all__ = ["Engine", "Unsupported", "Result", "Setting", "Choice", "ORDER", "CHOICES", "SETTINGS", "THREADS", "get",
            "chain", "check_choice", "check_settings", "declared", "execution_only", "result_settings",
-           "integrate_config", "with_threads", "resolve", "resolve_plan", "solve"]
+           "integrate_config", "with_threads", "trajectory_fn", "resolve", "resolve_plan", "solve"]
