@@ -75,7 +75,8 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
 
     from .spec import jsonable
 
-    return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
+    return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"),
+            "icfg": {**plan.icfg.__dict__, "settings": dict(plan.icfg.settings)},
             "vcfg": asdict(plan.vcfg), "batch": int(batch), "identity": I.identity(plan), "threads": threads,
             "points": None if plan.points is None else np.asarray(plan.points, float).tolist()}  # explicit points
 
