@@ -545,3 +545,48 @@ def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
     np.testing.assert_array_equal(ref["point_label"].values, sw["verdict"].values[:, -1])
     assert np.all(ref["point_label"].values[esc] == V.DIVERGED)
     assert np.all(ref["point_label"].values[k < C1 - DELTA] == V.CONVERGED)
+
+
+def test_identity_covers_the_points_of_a_round(oscillator, tmp_path):
+    """The run's identity (stabjax.identity) covers ``Plan.points``: a round's chunk store holding other points
+    of the same count is refused (and recomputed with restart), the same points resume without integrating.
+    Fails if the identity hashes only the grid axes (two rounds of equal size would share a fingerprint and
+    the second would silently read the first one's verdicts), or if run_points still needs a digest of its
+    own in the overrides."""
+    import dataclasses
+
+    from stabjax import identity as I
+    from stabjax import sweep
+    from stabjax.spec import make_plan
+    from stabjax.store import StoreError, read_manifest
+    from stabjax.sweep import run_points
+
+    plan = make_plan(spec({"k": [0.0, 1.0]}, {}, params={"c": C1}))
+    a = np.array([[0.1], [C1 - 0.01], [0.9]])
+    b = np.array([[0.1], [C1 + 0.01], [0.9]])  # same count, one point on the other side of the boundary
+    pa, pb = dataclasses.replace(plan, points=a), dataclasses.replace(plan, points=b)
+    assert I.parameter_digest(pa) != I.parameter_digest(pb) != I.parameter_digest(plan)
+    assert I.fingerprint(pa) != I.fingerprint(pb)
+    assert I.fingerprint(pa) == I.fingerprint(dataclasses.replace(plan, points=a.copy()))
+    assert I.fingerprint(dataclasses.replace(plan, points=a[::-1].copy())) != I.fingerprint(pa)  # order counts
+
+    store = tmp_path / "round.zarr"
+    res_a, info = run_points(plan, a, store=store, keep_store=True)
+    assert info["n_resumed"] == 0
+    assert "points" not in read_manifest(store)["identity"]["overrides"]  # no workaround digest
+    np.testing.assert_array_equal(np.asarray(res_a["verdict"])[:, -1], closed_form(a[:, 0], C1))
+
+    def refuse(*_a, **_k):
+        raise AssertionError("the same points must resume, not integrate")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep, "solve_chunk", refuse)
+        again, info = run_points(plan, a, store=store, keep_store=True)
+    assert info["n_resumed"] == info["n_chunks"]
+    np.testing.assert_array_equal(again["verdict"], res_a["verdict"])
+    with pytest.raises(StoreError, match="different computation.*parameters"):
+        run_points(plan, b, store=store, keep_store=True)
+    res_b, info = run_points(plan, b, store=store, restart=True, keep_store=True)
+    assert info["n_resumed"] == 0  # recomputed
+    np.testing.assert_array_equal(np.asarray(res_b["verdict"])[:, -1], closed_form(b[:, 0], C1))
+    assert closed_form(b[1:2, 0], C1)[0] != closed_form(a[1:2, 0], C1)[0]
