@@ -600,7 +600,7 @@ def test_identity_covers_the_points_of_a_round(oscillator, tmp_path):
 
 
 def test_two_axis_refinement_dataset_is_cf(oscillator, tmp_path):
-    """A 2-D refinement's dataset (a disk boundary by closed form, no integration) passes the CF check of
+    """A 2-D refinement's dataset over two horizons (disk boundaries by closed form, no integration) passes the CF check of
     tests/test_cf.py in memory and read back from netCDF: segment_axis decodes to the axis names, every label
     variable to the verdict names. Fails if a variable lacks units/long_name or a code lacks a meaning."""
     import xarray as xr
@@ -610,14 +610,14 @@ def test_two_axis_refinement_dataset_is_cf(oscillator, tmp_path):
     from stabjax.spec import make_plan
     from stabjax.sweep import write
 
-    inside = lambda p: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < 0.09
+    disks = [lambda p, r=r: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < r * r for r in (0.35, 0.3)]
     plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}, "c": {"start": 0.1, "stop": 1.0, "num": 4}},
-                          {"tol": 0.05}))
-    ds = assemble(Refiner(plan, refine_config(plan)).run(_by_values(plan, _synthetic(inside))))
+                          {"tol": 0.05, "horizons": "all"}, verdict={"horizons": [5.0]}))
+    ds = assemble(Refiner(plan, refine_config(plan)).run(_by_values(plan, _by_horizon(disks))))
     along = ds["segment_axis"].values
-    assert set(along) == {0, 1}
+    assert set(along) == {0, 1} and list(ds["horizon"].values) == [5.0, T1]
     np.testing.assert_array_equal((ds["segment_axis"].cf == "k").values, along == 0)
-    categorical = (*REFINE_CATEGORICAL, "segment_axis")
+    categorical = (*REFINE_CATEGORICAL, "segment_axis", "point_label_by_horizon")
     check_cf(ds, categorical, theory_flags=False, system="test_oscillator")
     write(ds, tmp_path / "r2.nc")
     with xr.open_dataset(tmp_path / "r2.nc") as back:
