@@ -280,14 +280,15 @@ def _words(names) -> str:
     return " ".join(str(n).strip().replace(" ", "_") for n in names)
 
 
-def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
+def cf_attributes(ds: xr.Dataset, plan, *, activity: str = "sweep", trajectories: int | None = None) -> xr.Dataset:
     """CF-1.10 metadata, in place: global ``Conventions``, ``title``, ``history``, ``source`` and
     ``references`` (the model's paper, where known); ``long_name`` and ``units`` on every numeric
     coordinate and variable (the models are written in nondimensional time and state, so a quantity
     without a declared unit is ``"1"``; text coordinates carry a ``long_name`` only); and
     ``flag_values``/``flag_meanings`` on every categorical variable (verdict, outcome, solver_status,
     decay_reason, theory predicates), so that CF tools (cf_xarray: ``ds.verdict.cf == "converged"``)
-    decode the codes."""
+    decode the codes. ``activity``/``trajectories``: what produced the dataset, for ``title`` and
+    ``history`` (a refinement runs fewer trajectories than its plan's grid holds)."""
     from . import __version__
 
     if "solver_status" in ds:
@@ -309,10 +310,11 @@ def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
     created = ds.attrs.get("created") or time.strftime("%Y-%m-%dT%H:%M:%S%z")
     ds.attrs.update(
         Conventions=CONVENTIONS,
-        title=f"stabjax sweep {plan.name}: {title}",
+        title=f"stabjax {activity} {plan.name}: {title}",
         source=f"stabjax {__version__}: {sysname} integrated with {plan.icfg.solver} (rtol {plan.icfg.rtol:g}, "
                f"atol {plan.icfg.atol:g}) to t1 = {plan.icfg.t1:g}",
-        history=f"{created}: stabjax {__version__} sweep {plan.name} ({plan.size} trajectories)",
+        history=f"{created}: stabjax {__version__} {activity} {plan.name} "
+                f"({plan.size if trajectories is None else trajectories} trajectories)",
     )
     if getattr(plan.system, "paper", ""):
         ds.attrs["references"] = str(plan.system.paper)
