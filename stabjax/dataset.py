@@ -30,7 +30,8 @@ import xarray as xr
 from . import verdict as V
 from .config import versions
 from .identity import provenance as identity_attrs
-from .outcomes import STATUS_ESCAPED
+from .status import ESCAPED as STATUS_ESCAPED
+from .status import verdicts as status_verdicts
 
 THEORY_CHUNK = 262_144  # trajectories per host-side pass over the parameters
 # per-trajectory results that are not classifier summaries
@@ -84,9 +85,7 @@ def derive_chunk(plan, res: Mapping[str, np.ndarray], lo: int, hi: int, tf: np.n
         # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
         out = {k: v for k, v in out.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
     if "verdict" in out and "solver_status" in out:
-        esc = out["solver_status"] == STATUS_ESCAPED
-        v = out["verdict"]
-        out["verdict"] = np.where(esc.reshape(esc.shape + (1,) * (v.ndim - 1)), V.DIVERGED, v).astype(v.dtype)
+        out["verdict"] = status_verdicts(out["solver_status"], out["verdict"])  # escaped: diverged (stabjax.status)
     if "solver_status" in out and per_trajectory_outcomes(plan):
         from . import outcomes as O
         from .basin import CHUNK
@@ -267,7 +266,7 @@ CONVENTIONS = "CF-1.10"
 
 def status_flags() -> tuple[np.ndarray, str]:
     """``solver_status``: diffrax's RESULTS codes (0 successful, 1 max_steps_reached, ...), in their
-    order, and stabjax's own escaped (:data:`stabjax.outcomes.STATUS_ESCAPED`)."""
+    order, and stabjax's own escaped (:data:`stabjax.status.ESCAPED`)."""
     try:
         import diffrax
 

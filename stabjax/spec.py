@@ -80,6 +80,9 @@ class Plan:
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.starts), or None
+    # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
+    # the axes' cartesian product (a refinement round: an explorer's points through the sweep's runner)
+    points: np.ndarray | None = None
 
     engine: str = ""
     engine_note: str = ""
@@ -106,11 +109,13 @@ class Plan:
 
     @property
     def shape(self) -> tuple[int, ...]:
-        return tuple(a.size for a in self.grid) + ((self.n_sample,) if self.n_sample else ())
+        grid = tuple(a.size for a in self.grid) if self.points is None else (len(self.points),)
+        return grid + ((self.n_sample,) if self.n_sample else ())
 
     @property
     def dims(self) -> tuple[str, ...]:
-        return tuple(a.name for a in self.grid) + (("sample",) if self.n_sample else ())
+        grid = tuple(a.name for a in self.grid) if self.points is None else ("point",)
+        return grid + (("sample",) if self.n_sample else ())
 
     @property
     def size(self) -> int:
@@ -131,8 +136,8 @@ class Plan:
         n = len(flat)
         idx = np.unravel_index(flat, self.shape) if self.shape else ()
         out = {k: np.broadcast_to(v, (n, *v.shape)).copy() for k, v in self.fixed.items()}
-        for ax, ii in zip(self.grid, idx):
-            vals = ax.values[ii]
+        for a, ax in enumerate(self.grid):
+            vals = ax.values[idx[a]] if self.points is None else self.points[idx[0], a]
             if ax.index is None:
                 out[ax.param.name] = vals
             else:

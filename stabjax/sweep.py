@@ -7,6 +7,12 @@ same command continues from it, and a changed spec, model or command-line overri
 rather than silently mixed (:mod:`stabjax.identity`). Chunks run in this process or on Dask
 workers (:mod:`stabjax.distributed`). The dataset's variables are defined in :mod:`stabjax.dataset`;
 the netCDF file is a copy of the finished store.
+
+The runner is one loop (``_run_chunks``) with two doors: :func:`run_plan` for a plan's whole grid, and
+:func:`run_points` for explicit grid points (``Plan.points``), through which an explorer such as the
+boundary refinement (:mod:`stabjax.refine`) runs each round: the same engine, chunking, store, resume and
+Dask path as a sweep. The progress bar (:mod:`stabjax.progress`) and the horizon check
+(:mod:`stabjax.horizon`) are modules of their own.
 """
 from __future__ import annotations
 
@@ -26,10 +32,10 @@ from . import dataset as D
 from . import engines, signals
 from . import verdict as V
 from .config import setup_jax
-from .engine import solve_batch
 from .engines.base import N_SUMMARY_FIELDS
 from .errors import OutputError, ValidationError
 from .outputs import write_reason
+from .progress import progress_bar
 from .spec import Plan, check_plan, load_spec, make_plan, static_params
 from .store import Chunking
 
@@ -184,56 +190,10 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=tf) \
         if store_path is not None else _Memory(plan, batch, tf)
-    n_chunks = sink.n_chunks  # blocks of the grid of at most `batch` trajectories (store.Chunking)
-    t_start = time.perf_counter()
     try:
-        pending = sink.pending()
-        n_resumed = n_chunks - len(pending)
-        bar = _progress(progress, n, plan.name, n_chunks)
-        try:
-            if bar is not None and n_resumed:
-                bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
-                           steps=0, chunks=n_resumed)
-            steps_run = 0
-            signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
-            if executor is None:
-                for i in pending:
-                    lo, hi = sink.bounds(i)
-                    shown = [0]
-
-                    def within(done, _total, lo=lo, hi=hi, shown=shown):
-                        k = min(done, hi - lo) - shown[0]
-                        if bar is not None and k > 0:
-                            bar.update(k, steps=steps_run)
-                            shown[0] += k
-
-                    t0 = time.perf_counter()
-                    res, eng = solve_chunk(plan, batch, i, progress=within)
-                    sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
-                                             "seconds": round(time.perf_counter() - t0, 4)})
-                    steps_run += int(res["n_steps"].sum())
-                    if bar is not None:
-                        bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
-                    if on_chunk is not None:
-                        on_chunk(i, n_chunks)
-                    signals.checkpoint()
-            else:
-                for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
-                    lo, hi = sink.bounds(i)
-                    sink.write(i, res, eng, info)
-                    steps_run += int(res["n_steps"].sum())
-                    del res
-                    if bar is not None:
-                        bar.update(hi - lo, steps=steps_run, chunk_done=True)
-                    if on_chunk is not None:
-                        on_chunk(i, n_chunks)
-                    signals.checkpoint()
-        finally:
-            signals.release()
-            if bar is not None:
-                bar.close()
-        wall = time.perf_counter() - t_start
-        attrs = {**D.run_attrs(wall=wall, steps=sink.steps(), batch=batch, n_resumed=n_resumed),
+        run = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
+                          overrides=overrides)
+        attrs = {**D.run_attrs(**run),
                  **D.engine_attrs(sink.manifest, executor.describe() if executor is not None else "local",
                                   plan.engine_note)}
         if isinstance(sink, _Memory):
@@ -263,6 +223,115 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
+
+
+def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = None, batch_size: int | None = None,
+               progress: bool = False, restart: bool = False, keep_store: bool = False,
+               memory_limit: int | None = None, overrides: Mapping[str, Any] | None = None,
+               executor=None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Integrate the plan's samples at explicit grid points ``values`` (P, n_axes) through the same runner as
+    :func:`run_plan` (chunks, engine, Dask workers, chunk store, resume): the per-trajectory records, point-major
+    (each point's samples contiguous), and the run's record (``engines``, ``steps``, ``wall``, ``batch``,
+    ``n_resumed``, ``n_chunks``). An explorer (:mod:`stabjax.refine`) hands each round's points here.
+
+    With ``store`` the chunks go to a chunk store whose identity covers the points (a store of other points is
+    refused, the same points resume); it is removed once read unless ``keep_store``. Without a batch size the
+    chunks are a power of two (>= 64) trajectories, so that a shape-compiled engine compiles a few shapes for
+    all the rounds of an explorer rather than one per round.
+    """
+    import hashlib
+
+    from . import store as S
+
+    setup_jax()
+    values = np.ascontiguousarray(np.asarray(values, float).reshape(-1, len(plan.grid)))
+    plan = dataclasses.replace(engines.resolve_plan(plan, static=static_params(plan)), points=values)
+    if batch_size is None and store is not None and not restart:
+        batch_size = S.stored_batch(Path(store))  # a resume keeps the chunking it started with
+    if batch_size is None:
+        b = choose_batch_size(plan, None, memory_limit)
+        batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if _engine(plan).compiles_per_shape \
+            else b
+    batch = choose_batch_size(plan, batch_size, memory_limit)
+    check_plan(plan)
+    digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
+    overrides = {**{k: v for k, v in (overrides or {}).items() if v is not None},
+                 "points": f"{len(values)} points, sha256 {digest}"}
+    sink = S.ChunkStore(store, plan, batch, overrides=overrides, restart=restart) if store is not None \
+        else _Memory(plan, batch)
+    try:
+        info = _run_chunks(plan, sink, batch, progress=progress, executor=executor, overrides=overrides)
+        if isinstance(sink, _Memory):
+            results = sink.results
+        else:
+            results = {k: np.asarray(v) for k, v in S.load_results(sink.path, sink.manifest, lazy=False).items()}
+        info["engines"] = sorted({c.get("engine", "?") for c in sink.manifest["chunks"].values()})
+        info["n_chunks"] = sink.n_chunks
+        if store is not None and not keep_store:
+            sink.discard()
+    finally:
+        sink.close()
+    if store is not None and not keep_store:
+        with contextlib.suppress(OSError):
+            Path(store).rmdir()
+    return results, info
+
+
+def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
+                on_chunk: Callable[[int, int], None] | None = None, executor=None,
+                overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Compute every pending chunk of ``plan`` into ``sink``, here or on the executor's workers, the chunk in
+    flight written before a SIGTERM/SIGHUP stops the run: the run's wall time, steps, chunk size and number of
+    chunks resumed."""
+    t_start = time.perf_counter()
+    n = plan.size
+    n_chunks = sink.n_chunks  # blocks of the grid of at most `batch` trajectories (store.Chunking)
+    pending = sink.pending()
+    n_resumed = n_chunks - len(pending)
+    bar = progress_bar(progress, n, plan.name, n_chunks)
+    try:
+        if bar is not None and n_resumed:
+            bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
+                       steps=0, chunks=n_resumed)
+        steps_run = 0
+        signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
+        if executor is None:
+            for i in pending:
+                lo, hi = sink.bounds(i)
+                shown = [0]
+
+                def within(done, _total, lo=lo, hi=hi, shown=shown):
+                    k = min(done, hi - lo) - shown[0]
+                    if bar is not None and k > 0:
+                        bar.update(k, steps=steps_run)
+                        shown[0] += k
+
+                t0 = time.perf_counter()
+                res, eng = solve_chunk(plan, batch, i, progress=within)
+                sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
+                                         "seconds": round(time.perf_counter() - t0, 4)})
+                steps_run += int(res["n_steps"].sum())
+                if bar is not None:
+                    bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
+                if on_chunk is not None:
+                    on_chunk(i, n_chunks)
+                signals.checkpoint()
+        else:
+            for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
+                lo, hi = sink.bounds(i)
+                sink.write(i, res, eng, info)
+                steps_run += int(res["n_steps"].sum())
+                del res
+                if bar is not None:
+                    bar.update(hi - lo, steps=steps_run, chunk_done=True)
+                if on_chunk is not None:
+                    on_chunk(i, n_chunks)
+                signals.checkpoint()
+    finally:
+        signals.release()
+        if bar is not None:
+            bar.close()
+    return dict(wall=time.perf_counter() - t_start, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
 
 
 def templates_first(plan: Plan) -> np.ndarray | None:
@@ -344,144 +413,6 @@ def open_result(path: str | Path) -> xr.Dataset:
     if not path.exists():
         raise ValidationError("file", f"not found: {path}")
     return xr.load_dataset(path, engine="netcdf4")
-
-
-# ---- horizon check -----------------------------------------------------------------------------
-
-
-def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int = 0,
-                  batch_size: int | None = None) -> xr.Dataset:
-    """Re-run a random subset of a finished sweep with ``t1 * factor``; return old/new verdicts.
-
-    A thin use of the multi-horizon classifier: the sweep's own dataset already holds verdicts at
-    t1 and the decades below it (dim ``horizon``); this extends the run *beyond* t1 for a subset,
-    with the old horizons kept (``verdict_horizons``: the re-run's verdicts at every horizon up to
-    t1 * factor). The result has dim ``traj`` with the flat indices, ``verdict_short`` (the
-    dataset's, at t1) / ``verdict_long`` (at t1 * factor), and attrs ``n_changed`` and a
-    confusion table.
-    """
-    spec = json.loads(ds.attrs["spec_json"])
-    plan = make_plan(spec)
-    icfg = plan.icfg
-    if factor <= 1:
-        raise ValidationError("factor", f"must be > 1, got {factor}")
-    rng = np.random.default_rng(seed)
-    n = min(n, plan.size)
-    idx = np.sort(rng.choice(plan.size, size=n, replace=False))
-    long_cfg = icfg.replace(t1=icfg.t1 * factor)
-    hs = V.horizon_times(plan.vcfg, icfg.t0, icfg.t1)
-    long_v = V.bind(plan.vcfg, long_cfg.t0, long_cfg.t1, horizons=list(hs[-(V.MAX_HORIZONS - 1):]))
-    plan_long = dataclasses.replace(plan, icfg=long_cfg, vcfg=long_v, engine="")
-    p = plan_long.system.check(plan_long.params_at(idx))
-    res = solve_batch(plan.system, p, long_cfg, long_v)
-    old = np.asarray(V.at_t1(ds["verdict"]).values).ravel()[idx]
-    new_all = np.asarray(res["verdict"])
-    new = new_all[:, -1] if new_all.ndim == 2 else new_all
-    table = np.zeros((len(V.NAMES), len(V.NAMES)), dtype=int)
-    np.add.at(table, (old.astype(int), new.astype(int)), 1)
-    out = xr.Dataset(
-        {"verdict_short": ("traj", old), "verdict_long": ("traj", new),
-         "transition": (("short", "long"), table),
-         **({"verdict_horizons": (("traj", "horizon"), new_all)} if new_all.ndim == 2 else {})},
-        coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES),
-                **({"horizon": ("horizon", np.asarray(long_v.horizons))} if new_all.ndim == 2 else {})},
-    )
-    out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, n_changed=int((old != new).sum()), n_checked=int(n))
-    return out
-
-
-# ---- progress ---------------------------------------------------------------------------------
-
-
-class _Bar:
-    """A live progress bar on a terminal (rich): trajectories done/total, chunks, rates, elapsed, ETA."""
-
-    def __init__(self, total: int, name: str, chunks: int = 0):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-        self.progress = Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("traj"),
-            TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn(), transient=False,
-        )
-        self.t0 = time.perf_counter()
-        self.progress.start()
-        self.name, self.chunks, self.chunks_done, self.run = name, chunks, 0, 0
-        self.task = self.progress.add_task(self._desc(), total=total, rate="")
-
-    def _desc(self) -> str:
-        from rich.markup import escape  # the description is read as markup: a name "[x]" must survive
-
-        name = escape(self.name)
-        return f"{name} ({self.chunks_done}/{self.chunks} chunks)" if self.chunks else name
-
-    def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
-        """Advance by ``k`` trajectories; ``chunks``: resumed chunks (not counted in the rates)."""
-        dt = max(time.perf_counter() - self.t0, 1e-9)
-        self.chunks_done += chunks + int(chunk_done)
-        if not chunks:
-            self.run += k
-        self.progress.update(self.task, advance=k, description=self._desc(),
-                             rate=f"{self.run / dt:,.0f} traj/s {steps / dt:,.0f} traj-steps/s")
-
-    def close(self):
-        self.progress.stop()
-
-
-def _clock(seconds: float) -> str:
-    s = int(round(seconds))
-    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
-
-
-class _Lines:
-    """Progress as plain lines, for output that is not a terminal (a log file, CI).
-
-    A live bar redraws one line with control codes; in a file it is cut off or repeated as
-    garbage. This writes one complete line every ``interval`` seconds (and a last one when the
-    sweep ends): done/total trajectories, percent, chunks, the rate of this run (resumed chunks
-    excluded) and the ETA from that rate, so ``tail -f log`` and a CI log both read well.
-    """
-
-    def __init__(self, total: int, name: str, chunks: int = 0, *, interval: float | None = None, stream=None):
-        import sys
-
-        self.total, self.name, self.chunks = max(int(total), 1), name, chunks
-        self.interval = float(os.environ.get("STABJAX_PROGRESS_INTERVAL", "5")) if interval is None else interval
-        self.stream = stream if stream is not None else sys.stderr
-        self.done = self.run = self.chunks_done = 0
-        self.t0 = self.last = time.perf_counter()
-
-    def line(self) -> str:
-        dt = max(time.perf_counter() - self.t0, 1e-9)
-        rate = self.run / dt
-        left = self.total - self.done
-        eta = _clock(left / rate) if rate > 0 else "?"
-        chunks = f", {self.chunks_done}/{self.chunks} chunks" if self.chunks else ""
-        return (f"{self.name}: {self.done:,}/{self.total:,} traj ({100 * self.done / self.total:.0f}%{chunks}), "
-                f"{rate:,.0f} traj/s, elapsed {_clock(dt)}, ETA {eta}")
-
-    def _emit(self):
-        print(self.line(), file=self.stream, flush=True)
-        self.last = time.perf_counter()
-
-    def update(self, k: int, steps: int = 0, chunks: int = 0, chunk_done: bool = False):
-        self.done = min(self.total, self.done + k)
-        self.chunks_done += chunks + int(chunk_done)
-        if not chunks:
-            self.run += k
-        if time.perf_counter() - self.last >= self.interval:
-            self._emit()
-
-    def close(self):
-        self._emit()
-
-
-def _progress(enabled: bool, total: int, name: str, chunks: int = 0):
-    """A live bar on a terminal, plain periodic lines otherwise (see :class:`_Lines`); None if disabled."""
-    if not enabled:
-        return None
-    from rich.console import Console
-
-    return _Bar(total, name, chunks) if Console().is_terminal else _Lines(total, name, chunks)
 
 
 def export_store(store: str | Path, out: str | Path) -> xr.Dataset:

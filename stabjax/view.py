@@ -135,11 +135,11 @@ class Result:
         """Every parameter of trajectory ``idx`` (flat sweep index, or refinement point index)."""
         plan = self.plan
         if self.kind == "refine":
-            from .refine import point_params
+            import dataclasses
 
             axes = self.ds.attrs["axes"].split()
             values = np.array([[float(self.ds[f"point_{a}"].values[idx]) for a in axes]])
-            p = point_params(plan, values)
+            p = dataclasses.replace(plan, points=values).params_for(0, 1)  # the point's first sample
             return {k: np.asarray(v)[0] for k, v in p.items()}
         p = plan.params_at(np.array([idx]))
         return {k: np.asarray(v)[0] for k, v in p.items()}
