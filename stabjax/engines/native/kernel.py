@@ -437,7 +437,7 @@ int64_t stabjax_run(const job_t *jb) {{
             const double probe = {fin_probe};  /* NaN iff some component of f is not finite */
             {esc_vec}const double c1 = T[l] >= t1 ? 1.0 : 0.0, c2 = NACC[l] + NREJ[l] >= max_steps_d ? 1.0 : 0.0;
             /* step-size collapse: the next step is within ~10 ulp of t, no progress is possible */
-            const double c3 = TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l]) && T[l] < t1 ? 1.0 : 0.0;
+            const double c3 = TN[l] - T[l] <= {flit(MIN_STEP_REL)} * fabs(T[l]) && T[l] < t1 ? 1.0 : 0.0;
             const double c = c1 + c2 + c3 + (probe != probe ? 1.0 : 0.0){esc_term} > 0.0 ? ACT[l] : 0.0;
             cand = c > cand ? c : cand;
         }}
@@ -445,7 +445,7 @@ int64_t stabjax_run(const job_t *jb) {{
             if (ACT[l] == 0.0) continue;
             {esc_scalar}const int reached = {reached};
             const int stuck = {stuck}((NACC[l] + NREJ[l] >= max_steps_d) | !finite_row(KS[0] + l)
-                                      | ((TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
+                                      | ((TN[l] - T[l] <= {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
             if (!({done})) continue;
             const int64_t j = IDX[l];
             while (QN[l] > 0) DRAIN_ONE(l);
