@@ -36,7 +36,11 @@ from .spec import Plan, check_plan, jsonable, load_spec, make_plan, static_param
 
 DEFAULT_MEMORY_FRACTION = 0.25
 # per-trajectory results that are not classifier summaries
-_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
+_DOC = {"stopped_at": "time at which the integration of this trajectory ended (t1 unless it stopped early: "
+                      "escape, stable fixed point, failure; see stop_reason)",
+        "stop_reason": "why the integration ended (stabjax.early): none = ran to t1, escaped, fixed_point = "
+                       "reached a stable equilibrium within the solver tolerance (autonomous models), failed",
+        "lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
                     "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
 
 
@@ -395,6 +399,10 @@ def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = flo
                                  {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
         if "observable" in extra and "observable" not in coords:
             coords["observable"] = ("observable", list(plan.system.observables)[: v.shape[-1]])
+    if "stop_reason" in data:
+        from .early import REASONS
+
+        data["stop_reason"][2].update(flag_values=np.arange(len(REASONS), dtype=np.int8), flag_meanings=" ".join(REASONS))
     if "verdict" in data:
         data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
     if "solver_status" in results:
