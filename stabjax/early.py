@@ -19,17 +19,21 @@ The test, at an accepted state ``x`` (the engines ask at steps that reach a chec
    not stopping. Unrolled for the state size: divisions and products, no branches.
 4. **Distance to the equilibrium**: Newton's step ``delta = J^-1 f(x)`` is the distance to the
    equilibrium to first order (``f(x*) = 0 = f(x) + J (x* - x) + O(|delta|^2)``). The trajectory
-   stops when ``delta`` is within the solver's own tolerance,
-   ``RMS_i(delta_i / (atol + rtol |x_i|)) <= 1`` -- the norm the step-size controller accepts a
-   step with, so the stopped state is as close to the equilibrium as the integration is accurate.
-   This is the "|f| below a threshold from the tolerances": ``|f|`` measured through ``J^-1``,
-   which is what makes it dimensionally right -- a slow equilibrium (small eigenvalues, a system
-   near a bifurcation) needs a much smaller ``|f|`` than a fast one, and a saddle with ``f = 0``
-   fails step 3. Outcome thresholds (rule bounds, template neighbourhoods, discovery's grouping
-   scale) are orders of magnitude above the solver tolerance, so a state that close to the
-   equilibrium cannot land in another outcome: the late-window features of the stopped run equal
-   those of the frozen state (mean = x, std = 0, min = max = x, see :func:`fast_forward`), and
-   the full run's features converge to the same equilibrium within the same tolerance.
+   stops when ``RMS_i(delta_i / (atol + rtol |x_i|)) <= DISTANCE_TOL`` (100): within 100 tolerance
+   units of the equilibrium, in the norm the step-size controller uses. Why not 1: the full run
+   itself gets no closer. Near a stable equilibrium the controller lengthens the steps until they
+   sit on the method's stability boundary, where the error estimate is at the tolerance and the
+   numerical solution hovers at 5-20 tolerance units from the equilibrium for ever (measured with
+   Tsit5 on the pendulum example, rtol = atol = 1e-8: the scaled distance stalls between 5 and 20
+   from t ~ 300 to t1 = 700). 100 units lies above that plateau and still far below any outcome's
+   tolerance: the features of a stopped run differ from the full run's by at most ~100 (atol + rtol
+   |x|) (1e-6 relative at rtol = 1e-8), while rule bounds, template neighbourhoods and discovery's
+   grouping scale are 1e-3 and up. This is the "|f| below a threshold from the tolerances": ``|f|``
+   measured through ``J^-1``, which makes it dimensionally right -- a slow equilibrium (small
+   eigenvalues, near a bifurcation) needs a much smaller ``|f|`` than a fast one -- and a saddle with
+   ``f = 0`` fails step 3. The late-window features of the stopped run are those of the frozen state
+   (mean = x, std = 0, min = max = x, see :func:`fast_forward`); the full run's converge to the same
+   equilibrium within the plateau above, so no outcome changes.
 
 Why autonomous systems only: for ``f(t, x)`` an equilibrium of the frozen field at one time is not
 one at later times (a forced oscillator's "rest" is a moment of its forcing). The model's rhs and
@@ -49,6 +53,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .errors import ValidationError
+
+# stop within this many tolerance units (atol + rtol |x_i|, RMS) of the equilibrium (module docstring)
+DISTANCE_TOL = 100.0
 
 STOP_NONE, STOP_ESCAPED, STOP_FIXED_POINT, STOP_FAILED = 0, 1, 2, 3
 REASONS = ("none", "escaped", "fixed_point", "failed")
@@ -197,7 +204,7 @@ def at_fixed_point(rhs, t, y, args, rtol: float, atol: float):
     scale = atol + rtol * jnp.abs(y)
     dist = jnp.sqrt(jnp.mean((delta / scale) ** 2))
     finite = jnp.all(jnp.isfinite(f)) & jnp.isfinite(dist)
-    return stable & finite & (dist <= 1.0)
+    return stable & finite & (dist <= DISTANCE_TOL)
 
 
 # ---- the fold after a stop ----------------------------------------------------------------------------------
