@@ -255,7 +255,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             c0 = V.init(f64, vcfg)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
-            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi)
+            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi)
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
             jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64, vcfg)), jnp.ones((1,), bool)))
@@ -355,7 +355,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             nrej = lane["nrej"] + (stepped & ~keep).astype(jnp.int32)
             y = [jnp.where(keep, a, b) for a, b in zip(y_new, y)]
             f = [jnp.where(keep, a, b) for a, b in zip(f7, f1)]
-            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej)
+            nt = lane["nt"]
+            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej, nt=nt)
 
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
@@ -371,9 +372,11 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
             at_fp = jnp.zeros_like(done)
             if fixed:  # at an accepted step that reached a checkpoint: a stable equilibrium, within tolerance
-                test = active & stepped & keep & (n_ck > 0) & ~done
+                # asked once per early.TEST_EVERY checkpoints of the lane (its cost: n right-hand sides)
+                test = active & stepped & keep & (n_ck > 0) & ~done & (ck >= nt)
                 at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
                                  lambda: jnp.zeros_like(done))
+                lane["nt"] = jnp.where(test, ck + early.TEST_EVERY, nt).astype(jnp.int32)
                 done = done | at_fp
                 status = jnp.where(at_fp, STATUS_OK, status)
             status = status.astype(jnp.int32)

@@ -243,7 +243,7 @@ int64_t stabjax_run(const job_t *jb) {{
 #define REFILL(l) do {{ \\
         const int64_t j_ = __atomic_fetch_add(jb->next, 1, __ATOMIC_RELAXED); \\
         if (j_ < n) {{ \\
-            IDX[l] = j_; ACT[l] = 1.0; \\
+            IDX[l] = j_; ACT[l] = 1.0; /*FP_REFILL*/ \\
             for (int q = 0; q < NA; q++) A[q * W + (l)] = jb->ain[j_ * NA + q]; \\
             for (int q = 0; q < NS; q++) Y[q * W + (l)] = jb->y0in[j_ * NS + q]; \\
             for (int q = 0; q < NC; q++) C[q * W + (l)] = jb->c0[q]; \\
@@ -485,19 +485,36 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
 }}
 """
     if model.fixed_point is None:
-        src = src.replace("/*FP_DECL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
+        src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
         src = src.replace("/*FP_SCALAR*/", "const int fixedp = 0;").replace("/*FP_OUT*/", "")
     else:  # the fixed-point stop (stabjax.early): tested after a step that reached a checkpoint
-        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN;")
+        from ...early import TEST_EVERY
+
+        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
+                                         "    for (int l = 0; l < W; l++) NT[l] = 0.0;")
+        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0;")
+        # a lane asks when a step reached a checkpoint and TEST_EVERY checkpoints passed since it last asked
         src = src.replace("/*FP_TEST*/", """
         #pragma omp simd
         for (int l = 0; l < W; l++) FP[l] = 0.0;
         if (any0 != 0.0) {
-            #pragma omp simd
-            for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
-            #pragma omp simd
-            for (int l = 0; l < W; l++) FP[l] = R0[l] != 0.0 ? FPT[l] : 0.0;
-        }""")
+            double anyt = 0.0;
+            #pragma omp simd reduction(max:anyt)
+            for (int l = 0; l < W; l++) {
+                const double m = R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0;
+                FPM[l] = m;
+                anyt = m > anyt ? m : anyt;
+            }
+            if (anyt != 0.0) {
+                #pragma omp simd
+                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
+                #pragma omp simd
+                for (int l = 0; l < W; l++) {
+                    FP[l] = FPM[l] != 0.0 ? FPT[l] : 0.0;
+                    NT[l] = FPM[l] != 0.0 ? (double)CK[l] + %d.0 : NT[l];
+                }
+            }
+        }""" % TEST_EVERY)
         src = src.replace("/*FP_CAND*/", " + FP[l]")
         esc_guard = " && !escaped" if escape is not None else ""
         src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
