@@ -19,21 +19,23 @@ The test, at an accepted state ``x`` (the engines ask at steps that reach a chec
    not stopping. Unrolled for the state size: divisions and products, no branches.
 4. **Distance to the equilibrium**: Newton's step ``delta = J^-1 f(x)`` is the distance to the
    equilibrium to first order (``f(x*) = 0 = f(x) + J (x* - x) + O(|delta|^2)``). The trajectory
-   stops when ``RMS_i(delta_i / (atol + rtol |x_i|)) <= DISTANCE_TOL`` (100): within 100 tolerance
+   stops when ``RMS_i(delta_i / (atol + rtol |x_i|)) <= DISTANCE_TOL`` (1000): within 1000 tolerance
    units of the equilibrium, in the norm the step-size controller uses. Why not 1: the full run
-   itself gets no closer. Near a stable equilibrium the controller lengthens the steps until they
-   sit on the method's stability boundary, where the error estimate is at the tolerance and the
-   numerical solution hovers at 5-20 tolerance units from the equilibrium for ever (measured with
-   Tsit5 on the pendulum example, rtol = atol = 1e-8: the scaled distance stalls between 5 and 20
-   from t ~ 300 to t1 = 700). 100 units lies above that plateau and still far below any outcome's
-   tolerance: the features of a stopped run differ from the full run's by at most ~100 (atol + rtol
-   |x|) (1e-6 relative at rtol = 1e-8), while rule bounds, template neighbourhoods and discovery's
-   grouping scale are 1e-3 and up. This is the "|f| below a threshold from the tolerances": ``|f|``
-   measured through ``J^-1``, which makes it dimensionally right -- a slow equilibrium (small
-   eigenvalues, near a bifurcation) needs a much smaller ``|f|`` than a fast one -- and a saddle with
-   ``f = 0`` fails step 3. The late-window features of the stopped run are those of the frozen state
-   (mean = x, std = 0, min = max = x, see :func:`fast_forward`); the full run's converge to the same
-   equilibrium within the plateau above, so no outcome changes.
+   itself gets no closer. Near a stable equilibrium the controller lengthens the steps until they sit
+   on the method's stability boundary, where the error estimate is at the tolerance, and the numerical
+   solution hovers at a fixed scaled distance for ever. Measured with Tsit5, rtol = atol = 1e-8: 5-20
+   units on the pendulum example (t = 300 .. 700), 240-570 units at Lorenz-63's C+ (r = 24.4, t = 800 ..
+   4000: the step is held by the fast eigenvalue -13.6 while the slow focus turns at 9.6 rad/s). 1000
+   lies above both; a system whose plateau lies higher never stops (the safe failure: no gain). And it
+   lies far below any outcome's tolerance: the features of a stopped run differ from the full run's by
+   at most ~1000 (atol + rtol |x|) (1e-5 relative at rtol = 1e-8), while rule bounds and template
+   neighbourhoods are ~1e-3 and up and discovery's grouping scale is never below 1e4 tolerances. This is
+   the "|f| below a threshold from the tolerances": ``|f|`` measured through ``J^-1``, which makes it
+   dimensionally right -- a slow equilibrium (small eigenvalues, near a bifurcation) needs a much
+   smaller ``|f|`` than a fast one -- and a saddle with ``f = 0`` fails step 3. The late-window features
+   of the stopped run are those of the frozen state (mean = x, std = 0, min = max = x, see
+   :func:`fast_forward`); the full run's stay within the plateau above of the same equilibrium, so no
+   outcome changes.
 
 Why autonomous systems only: for ``f(t, x)`` an equilibrium of the frozen field at one time is not
 one at later times (a forced oscillator's "rest" is a moment of its forcing). The model's rhs and
@@ -55,7 +57,7 @@ import numpy as np
 from .errors import ValidationError
 
 # stop within this many tolerance units (atol + rtol |x_i|, RMS) of the equilibrium (module docstring)
-DISTANCE_TOL = 100.0
+DISTANCE_TOL = 1000.0
 
 # the lane engines ask at most once per TEST_EVERY checkpoints of a lane: the test costs about n
 # right-hand sides (n JVPs) and was measured at +9 % wall on the pendulum when asked at every step that
