@@ -17,6 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from . import outcomes as O
+from . import status as S
 
 CHUNK = 262_144  # trajectories per host-side pass (parameters and features of a chunk in memory)
 
@@ -65,7 +66,7 @@ def template_features_at(plan, base: Mapping[str, np.ndarray]) -> np.ndarray | N
         return np.asarray(params[name], float).reshape(n)
 
     x = O.feature_matrix(decl, plan.system, feat, par)  # (T * P, F)
-    ok = np.asarray(res["solver_status"]) == 0
+    ok = S.succeeded(np.asarray(res["solver_status"]))
     x = np.where(ok[:, None], x, np.nan)
     return x.reshape(len(names), g, -1).transpose(1, 0, 2)
 

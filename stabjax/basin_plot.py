@@ -11,17 +11,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import xarray as xr
+from matplotlib.colors import BoundaryNorm, ListedColormap, to_rgb
+from matplotlib.patches import Patch
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
-from matplotlib.colors import BoundaryNorm, ListedColormap, to_rgb  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
-
-from .outcomes import PALETTE  # noqa: E402
-from .plotting import cell_edges  # noqa: E402
+from .outcomes import PALETTE
+from .plotting import cell_edges
 
 
 def outcome_names(ds: xr.Dataset) -> list[str]:

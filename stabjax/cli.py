@@ -117,9 +117,9 @@ PNG_KEY = "stabjax-spec"  # PNG text chunk: digest of the spec a map was drawn f
 
 
 def _spec_digest(spec_dict) -> str:
-    import hashlib
+    from .identity import spec_digest
 
-    return hashlib.sha256(json.dumps(spec_dict, sort_keys=True).encode()).hexdigest()[:16]
+    return spec_digest(spec_dict)
 
 
 def _png_spec(path: Path) -> str | None:
@@ -457,8 +457,8 @@ def sweep(
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.refine)
             from .refine import run_cli
 
-            ds = run_cli(s, out, t1=t1, plot=plot, restart=restart, console=console, err_console=err_console,
-                         executor=executor)
+            ds = run_cli(plan, out, plot=plot, console=console, batch_size=batch_size, progress=progress,
+                         restart=restart, store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1})
             raise typer.Exit(_run_status(ds, out))
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
                       keep_partial=keep_store, executor=executor, overrides={"t1": t1})
@@ -669,15 +669,13 @@ def view_cmd(
 
 
 def _warn_changed_model(ds):
-    """A result records its model file's hash; say so when the file on disk has changed since."""
-    import hashlib
+    """A result records its model file and the local modules it imports, with their hashes
+    (:mod:`stabjax.identity`); say so when one on disk has changed since."""
+    from .identity import changed_sources
 
-    f, sha = ds.attrs.get("model_file", ""), ds.attrs.get("model_sha256", "")
-    if f and sha and sha != "unknown" and Path(f).exists():
-        now = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-        if now != sha:
-            err_console.print(f"warning: the model file {f} has changed since this result was computed "
-                              f"(sha256 {sha[:12]} then, {now[:12]} now)", style="yellow", markup=False)
+    for what in changed_sources(ds.attrs):
+        err_console.print(f"warning: the model file {what} has changed since this result was computed",
+                          style="yellow", markup=False)
 
 
 @app.command("horizon-check")
@@ -694,7 +692,7 @@ def horizon_check_cmd(
     from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
     from . import validate
     from . import verdict as V
-    from .sweep import horizon_check
+    from .horizon import horizon_check
 
     validate.number(factor, "--factor", lo=1.0, lo_open=True)
     validate.integer(n, "--n", lo=1)
@@ -727,7 +725,7 @@ def horizon_check_cmd(
 
 @app.command()
 def reproduce(
-    name: str = typer.Argument(..., help="at2019 | saakyan | two-body | gyrodyne"),
+    name: str = typer.Argument(..., help="at2019 | saakyan | twobody | gyrodyne"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="default results/<name>"),
     quick: bool = typer.Option(False, help="short horizons and small grids (smoke test)"),
     force: bool = typer.Option(False, "--force", help="replace existing files in --out-dir that this command did "
@@ -762,32 +760,44 @@ def bench(
                               "dask: 1 and 2 local workers and the per-chunk overhead"),
     force: bool = ForceOpt,
 ):
-    """Benchmark against named baselines in one process (figures in the README and docs/performance.md)."""
+    """Benchmark against named baselines in one process (figures in the README and docs/performance.md).
+
+    The benchmarks are research code kept beside the tests in a source checkout (``benchmarks/``), not
+    in the installed package: run this from the top of a clone."""
     from . import validate
     from .errors import ValidationError
 
-    if suite == "engines":
-        from .bench import main as bench_main
-
+    if suite not in ("engines", "models", "refine", "dask"):
+        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+    if suite == "engines":  # every input checked before the checkout is looked for
         n = _int_list(sizes, "--sizes")
         validate.number(t1, "--t1", lo=0.0, lo_open=True)
         _check_output(out, "--out", (".json",), inputs=input_files(), force=force, same=_is_bench_record,
                       what="a previous benchmark record")
-        bench_main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
+        _benchmark("bench").main(sizes=n, t1=t1, out=out, quick=quick, with_fused=fused)
     elif suite == "models":
-        from .bench_models import main as models_main
-
-        models_main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
+        _benchmark("bench_models").main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
     elif suite == "refine":
-        from .refine_bench import main as refine_main
-
-        raise typer.Exit(refine_main(["--t1", "200", "--full-rows", "8"] if quick else []))
-    elif suite == "dask":
-        from .distributed import main as dask_main
-
-        dask_main(["workers"])
+        raise typer.Exit(_benchmark("refine_bench").main(["--t1", "200", "--full-rows", "8"] if quick else []))
     else:
-        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+        _benchmark("dask_bench").main(["workers"])
+
+
+def _benchmark(module: str):
+    """``benchmarks.<module>`` of the source checkout in the current directory (the installed wheel holds
+    no benchmark code), or a ValidationError saying how to run it."""
+    import importlib
+
+    from .errors import ValidationError
+
+    root = Path.cwd()
+    if not (root / "benchmarks" / f"{module}.py").is_file():
+        raise ValidationError("bench", f"no benchmarks/{module}.py here: the benchmarks live in a source checkout, "
+                              "not in the installed package; run `stabjax bench` (or `python -m benchmarks."
+                              f"{module}`) from the top of a clone of the repository")
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return importlib.import_module(f"benchmarks.{module}")
 
 
 @app.command("examples")
@@ -856,10 +866,15 @@ def main(argv: list[str] | None = None):
     included); 128 + N interrupted by signal N: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (both handled like
     Ctrl-C, :mod:`stabjax.signals`).
     """
+    import matplotlib
+
     from . import signals
     from .config import setup_jax
     from .errors import StabjaxError
 
+    # the CLI only writes figures to files: a non-interactive backend, chosen here and not on import of the
+    # plotting modules (a user importing stabjax.plotting in Jupyter keeps inline figures)
+    matplotlib.use("Agg")
     previous = signals.install()
     click_exception = _click_exception()
     try:

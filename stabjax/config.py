@@ -1,4 +1,4 @@
-"""Settings as immutable values: the ``[integrate]`` and ``[verdict]`` tables, status codes, JAX setup.
+"""Settings as immutable values: the ``[integrate]`` and ``[verdict]`` tables, JAX setup (solver status codes: :mod:`stabjax.status`).
 
 Nothing here imports an engine (or diffrax): the spec loader (:mod:`stabjax.spec`) validates a
 spec with this module alone. The solver names are plain strings; the diffrax engine
@@ -23,13 +23,9 @@ ENGINES = ("auto", "native", "fused", "diffrax")
 # runs on the native and fused engines, the others on the diffrax engine
 SOLVERS = ("tsit5", "dopri5", "dopri8", "heun", "bosh3", "kvaerno5", "kvaerno3")
 
-# per-trajectory ``solver_status``: diffrax's RESULTS codes (0 success, 1 max_steps_reached, ...)
-# and the project's own codes from 100 on
-STATUS_OK = 0
-STATUS_MAX_STEPS = 1  # also: the state or its derivative turned non-finite (stopped at once)
+# per-trajectory ``solver_status`` codes and what they mean: stabjax.status (one definition)
 # the verdicts' names, code = index (stabjax.verdict holds the rules)
 VERDICT_NAMES = ("converged", "flipped", "diverged", "undecided", "failed")
-STATUS_ESCAPED = 100  # an accepted state left the ball max_i |y_i| <= escape_radius (stopped at once)
 
 
 @dataclass(frozen=True)
@@ -61,7 +57,7 @@ class VerdictConfig:
                     the ``n_horizon_decades`` decades below it. :func:`stabjax.verdict.bind` fixes
                     them (with t0, t1) when a plan is made; the last horizon is always t1
     n_horizon_decades  default horizons: t0 + (t1 - t0) 10^-k, k = n_horizon_decades .. 0
-    features        also return feat_max/min/mean/std/final of each observable (INTERFACES 4)
+    features        also return feat_max/min/mean/std/final of each observable (stabjax.verdict)
     feature_window  features over t >= t0 + (1 - feature_window)(t1 - t0)
     t0, t1, n_obs   bound by :func:`stabjax.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
     """
@@ -103,7 +99,7 @@ class IntegrateConfig:
     (0: one per core available to the process). None of these changes a result.
 
     ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
-    (status :data:`STATUS_ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
+    (status :data:`stabjax.status.ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
 
     ``early_stop``: stop a trajectory once it sits at a stable equilibrium (:mod:`stabjax.early`;
     autonomous models only). None: decided per plan -- on where it cannot change an outcome (named
@@ -336,5 +332,4 @@ def _host_devices(jax) -> None:
         pass
 
 
-__all__ = ["IntegrateConfig", "VerdictConfig", "verdict_config", "escape_radius", "setup_jax", "ENGINES", "SOLVERS",
-           "STATUS_OK", "STATUS_MAX_STEPS", "STATUS_ESCAPED"]
+__all__ = ["IntegrateConfig", "VerdictConfig", "verdict_config", "escape_radius", "setup_jax", "ENGINES", "SOLVERS"]

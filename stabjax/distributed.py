@@ -3,8 +3,9 @@ cluster of worker processes (``--workers N``).
 
 What is sent to a worker is ``solve chunk i of plan P`` as plain data (the spec dict, the
 command-line t1, the effective integrate/verdict settings and the chunk size); the worker plans
-the spec itself (once per process: :data:`_PLANS`, keyed by the plan fingerprint), checks that its
-fingerprint matches the client's, and runs :func:`stabjax.sweep.solve_chunk`, the same function
+the spec itself (once per process: :data:`_PLANS`, keyed by the plan's identity), checks that its
+identity (:mod:`stabjax.identity`: spec, settings, parameter values, model files) matches the
+client's, and runs :func:`stabjax.sweep.solve_chunk`, the same function
 and engine choice as a local run, so results are bitwise those of a local run on the same
 hardware. Each worker compiles once per spec: its compiled kernels stay cached in the process,
 the native engine's C builds are cached on disk (``$STABJAX_CACHE_DIR``), and XLA's compilations
@@ -16,11 +17,11 @@ store: it collects results as chunks complete (:func:`distributed.as_completed`)
 
 Local workers are started by spawning (``distributed.worker.multiprocessing-method: spawn``),
 never by forking this process, which has loaded JAX. Threads: every worker runs one chunk at a
-time (one Dask thread); the native engine inside it uses ``threads`` OS threads, passed through
-the environment variable ``STABJAX_THREADS`` (read by the native engine's ``default_threads``).
+time (one Dask thread); the engine inside it uses ``threads`` OS threads, passed with every task as
+``[integrate] threads`` of the worker's plan (a setting that changes no result).
 ``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
-Arbitrary points of a plan (the rounds of :mod:`stabjax.refine`) go to the workers through
-:meth:`DaskExecutor.points_solver`, a ``solve_points(params) -> results`` callable. On a host with
+A plan over explicit points (``Plan.points``: a round of :mod:`stabjax.refine`) travels with its points
+and runs through :meth:`DaskExecutor.map_chunks` like any plan. On a host with
 several GPUs a local cluster runs one worker per device, each seeing only its own
 (``CUDA_VISIBLE_DEVICES``).
 """
@@ -36,7 +37,7 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 
 from .errors import StabjaxError, ValidationError
-from .store import model_fingerprint
+from . import identity as I
 
 _PLANS: dict[str, Any] = {}  # per worker process: plan key -> Plan (so each spec is planned and compiled once)
 
@@ -67,62 +68,53 @@ def _setup_process():
         jax.config.update("jax_compilation_cache_dir", str(d))
 
 
-def plan_digest(plan) -> str:
-    """Hash of every parameter value a plan resolves to (grid axes, samples, fixed values: each small,
-    the cartesian product is not formed). A worker's re-planned plan must match it, so a Plan built
-    in code rather than from its spec is refused on the workers instead of silently recomputed."""
-    import hashlib
-
-    h = hashlib.sha256()
-    for name, arr in ([(f"grid:{a.key}", a.values) for a in plan.grid] + sorted((f"sample:{k}", v) for k, v in plan.sample.items())
-                      + sorted((f"fixed:{k}", v) for k, v in plan.fixed.items())):
-        a = np.ascontiguousarray(np.asarray(arr, dtype=float))
-        h.update(name.encode() + str(a.shape).encode() + a.tobytes())
-    return h.hexdigest()[:16]
-
-
 def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, threads: int | None = None) -> dict:
-    """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data)."""
+    """Everything a worker needs to re-plan ``plan`` exactly (plain, picklable data), with the
+    plan's identity (:mod:`stabjax.identity`) for the worker to compare its own plan with."""
     from dataclasses import asdict
 
     from .spec import jsonable
 
     return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
-            "vcfg": asdict(plan.vcfg), "batch": int(batch), "fingerprint": plan.fingerprint(), "digest": plan_digest(plan),
-            "model": model_fingerprint(plan.system), "threads": threads}
+            "vcfg": asdict(plan.vcfg), "batch": int(batch), "identity": I.identity(plan), "threads": threads,
+            "points": None if plan.points is None else np.asarray(plan.points, float).tolist()}  # explicit points
 
 
 def _plan_key(payload: Mapping[str, Any]) -> str:
-    import json
-
-    return payload["fingerprint"] + payload["digest"] + json.dumps([payload["icfg"], payload["vcfg"]], sort_keys=True, default=str)
+    return I.digest([payload["identity"], payload["icfg"], payload["vcfg"], payload.get("threads"),
+                     payload.get("points")])
 
 
 def worker_plan(payload: Mapping[str, Any]):
+    """The payload's plan, planned from its spec in this process (once) and checked against the
+    client's identity: a different model file or imported module, stabjax version, or a plan not
+    built from its spec is refused, naming what differs."""
     key = _plan_key(payload)
     plan = _PLANS.get(key)
     if plan is None:
         _setup_process()
         from dataclasses import replace
 
-        from .engine import IntegrateConfig
-        from .spec import Plan, make_plan
+        from .spec import make_plan
 
         plan = make_plan(payload["spec"], t1=payload["t1"])
         # the native engine's threads per worker: an [integrate] setting that changes no result
         threads = {"threads": int(payload["threads"])} if payload.get("threads") else {}
-        plan = Plan(**{**plan.__dict__, "icfg": IntegrateConfig(**{**payload["icfg"], **threads}),
-                       "vcfg": replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
-                                                     for k, v in payload["vcfg"].items()})})
-        if plan.fingerprint() != payload["fingerprint"] or plan_digest(plan) != payload["digest"]:
-            raise StabjaxError(f"worker {socket.gethostname()}: the spec plans to {plan.fingerprint()}/{plan_digest(plan)}, "
-                               f"the client's plan is {payload['fingerprint']}/{payload['digest']} (different stabjax "
-                               "versions or model files, or a plan not built from its spec)")
-        mine = model_fingerprint(plan.system)
-        if mine != payload["model"]:
-            raise StabjaxError(f"worker {socket.gethostname()}: model source {mine['file']} differs from the client's "
-                               f"(sha256 {mine['sha256']} vs {payload['model']['sha256']}); install the same model files "
-                               "on every worker")
+        plan = replace(plan, icfg=replace(plan.icfg, **{**payload["icfg"], **threads}),
+                       vcfg=replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
+                                                  for k, v in payload["vcfg"].items()}))
+        if payload.get("points") is not None:  # a plan over explicit grid points (a refinement round)
+            plan = replace(plan, points=np.asarray(payload["points"], float))
+        theirs, mine = payload["identity"], I.identity(plan)
+        refusals, _ = I.compare(theirs, mine)
+        host = socket.gethostname()
+        if theirs.get("model") != mine.get("model"):
+            raise StabjaxError(f"worker {host}: model source {mine['model'].get('file')} differs from the client's "
+                               f"({'; '.join(c for c in refusals if c.startswith('model'))}); install the same model "
+                               "files on every worker")
+        if refusals:
+            raise StabjaxError(f"worker {host}: the spec plans to a different run than the client's "
+                               f"({'; '.join(refusals)}): different stabjax versions, or a plan not built from its spec")
         _PLANS[key] = plan
     return plan
 
@@ -136,16 +128,6 @@ def run_chunk(payload: Mapping[str, Any], i: int):
     res, engine = solve_chunk(plan, payload["batch"], i)
     info = {"worker": f"{socket.gethostname()}:{os.getpid()}", "seconds": round(time.perf_counter() - t0, 4)}
     return i, res, engine, info
-
-
-def run_points(payload: Mapping[str, Any], params: Mapping[str, np.ndarray]):
-    """The task for arbitrary points of the payload's plan (e.g. a refinement round): (results, engine)."""
-    from . import engines
-    from .sweep import static_params
-
-    plan = engines.resolve_plan(worker_plan(payload), static=static_params(worker_plan(payload)))
-    res = engines.solve(plan.engine, plan.integrated, params, plan.icfg, plan.vcfg, static=static_params(plan))
-    return {k: np.asarray(v) for k, v in res.items()}, plan.engine
 
 
 def _gpu_devices() -> list[str]:
@@ -227,8 +209,7 @@ class DaskExecutor:
         if n * threads > c and not self.oversubscribe:
             raise ValidationError("--threads", f"{n} workers x {threads} threads = {n * threads} exceeds the {c} cores "
                                   "of this machine; use fewer, or pass --oversubscribe")
-        self.threads = threads
-        env["STABJAX_THREADS"] = str(threads)
+        self.threads = threads  # sent with each task in the plan's [integrate] settings (payload_for)
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, silence_logs=logging.ERROR, env=env)
 
@@ -268,35 +249,6 @@ class DaskExecutor:
         self.client.wait_for_workers(n, timeout=timeout or self.timeout)
 
     # -- work
-    def points_solver(self, plan, *, chunk: int | None = None):
-        """A ``solve_points(params) -> results`` callable that evaluates arbitrary points of ``plan``
-        (every parameter, leading dim n, already checked) on the workers: split into pieces of
-        ``chunk`` (default: n / workers, at least 64), each padded to the same size (one compile per
-        shape), results in the order given. For rounds of :mod:`stabjax.refine`."""
-        payload = payload_for(plan, 0, None, None if self.cluster is not None else self.threads)
-
-        def solve_points(params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-            n = len(next(iter(params.values())))
-            size = int(chunk or max(64, -(-n // max(1, self.n_workers()))))
-            pieces = []
-            for lo in range(0, n, size):
-                hi = min(n, lo + size)
-                p = {k: np.asarray(v[lo:hi]) for k, v in params.items()}
-                if hi - lo < size:
-                    p = {k: np.concatenate([v, np.repeat(v[-1:], size - (hi - lo), axis=0)]) for k, v in p.items()}
-                pieces.append((lo, hi, p))
-            futs = [self.client.submit(run_points, payload, p, retries=self.retries, pure=False) for _, _, p in pieces]
-            try:
-                parts = self.client.gather(futs)
-            finally:
-                for f in futs:
-                    f.release()
-            self.last_engines = sorted({e for _, e in parts})
-            return {k: np.concatenate([r[k][: hi - lo] for (lo, hi, _), (r, _) in zip(pieces, parts)])
-                    for k in parts[0][0]}
-
-        return solve_points
-
     def map_chunks(self, plan, batch: int, chunks: Iterable[int], overrides: Mapping[str, Any] | None = None
                    ) -> Iterator[tuple[int, dict[str, np.ndarray], str, dict]]:
         """Submit every chunk; yield (i, results, engine, info) as each completes (any order)."""
@@ -305,7 +257,7 @@ class DaskExecutor:
         chunks = list(chunks)
         if not chunks:
             return
-        payload = payload_for(plan, batch, overrides, None if self.cluster is not None else self.threads)
+        payload = payload_for(plan, batch, overrides, self.threads)
         futs = [self.client.submit(run_chunk, payload, i, retries=self.retries, pure=False) for i in chunks]
         try:
             for fut in as_completed(futs, loop=self.client.loop):
@@ -322,116 +274,3 @@ class DaskExecutor:
             for f in futs:
                 if not f.done():
                     f.cancel()
-
-
-# ---- benchmarks ---------------------------------------------------------------------------------
-
-BENCH_SPEC = {
-    "system": "monoaxial", "name": "bench_dask",
-    "params": {"mu": 1.5, "sigma": 1.3333333333333333},
-    "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 64}},
-    "sample": {"n": 256, "seed": 0, "s0": {"dist": "cap", "center": "r", "half_angle": 0.5}},
-    "integrate": {"t1": 1000.0, "n_checkpoints": 64},
-}
-
-
-def benchmark(workers: Iterable[int] = (1, 2), *, spec: Mapping[str, Any] | None = None, batch_size: int = 2048,
-              repeats: int = 2, tiny_chunks: int = 20) -> dict[str, Any]:
-    """Wall time (best of ``repeats``, warm) of the same sweep in this process and on 1, 2, ... local
-    Dask workers (each cluster runs the sweep once first: worker imports and compilation), whether
-    the datasets are identical, and the per-chunk overhead: the round trip of a one-trajectory chunk
-    through the scheduler and back against the same chunk solved in this process (medians)."""
-    from .spec import make_plan
-    from .sweep import run_plan, solve_chunk
-
-    spec = dict(spec or BENCH_SPEC)
-    plan = make_plan(spec)
-    out: dict[str, Any] = {"n_trajectories": plan.size, "batch_size": batch_size, "cores": cores(), "wall_s": {},
-                           "load_avg_before": os.getloadavg()[0]}
-
-    def best(run):
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            ds = run()
-            times.append(time.perf_counter() - t0)
-        return min(times), ds
-
-    run_plan(plan, batch_size=batch_size)  # compile here first
-    out["wall_s"]["local"], ref = best(lambda: run_plan(plan, batch_size=batch_size))
-    tiny = make_plan({**spec, "grid": {"alpha": [0.5]}, "sample": {}})
-    for n in workers:
-        with DaskExecutor(workers=n) as ex:
-            ex.wait_for_workers(n)
-            out.setdefault("threads_per_worker", {})[n] = ex.threads
-            run_plan(plan, batch_size=batch_size, executor=ex)  # warm-up: worker imports + compile
-            out["wall_s"][f"dask_{n}"], ds = best(lambda: run_plan(plan, batch_size=batch_size, executor=ex))
-            out[f"identical_dask_{n}"] = all(np.array_equal(ds[k].values, ref[k].values, equal_nan=True)
-                                             for k in ref.data_vars)
-            if n == min(workers):
-                list(ex.map_chunks(tiny, 1, [0]))
-                rt = []
-                for _ in range(tiny_chunks):
-                    t0 = time.perf_counter()
-                    list(ex.map_chunks(tiny, 1, [0]))
-                    rt.append(time.perf_counter() - t0)
-                solve_chunk(tiny, 1, 0)
-                loc = []
-                for _ in range(tiny_chunks):
-                    t0 = time.perf_counter()
-                    solve_chunk(tiny, 1, 0)
-                    loc.append(time.perf_counter() - t0)
-                out["tiny_chunk_roundtrip_s"] = float(np.median(rt))
-                out["tiny_chunk_local_s"] = float(np.median(loc))
-    out["load_avg_after"] = os.getloadavg()[0]
-    return out
-
-
-def benchmark_big(n_traj: int = 10_000_000, *, out: str | Path = "/tmp/stabjax_big.nc", workers: int | None = None,
-                  batch_size: int | None = None, t1: float = 10.0) -> dict[str, Any]:
-    """A sweep of ``n_traj`` trajectories (monoaxial, short horizon, 8 checkpoints) run to the
-    netCDF file, with the client's peak resident memory (``ru_maxrss``)."""
-    import resource
-
-    from .spec import make_plan
-    from .sweep import run_plan
-
-    n_alpha = 1000
-    spec = {"system": "monoaxial", "name": "big", "params": {"mu": 1.5, "sigma": 1.3333333333333333},
-            "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": n_alpha}},
-            "sample": {"n": n_traj // n_alpha, "seed": 0, "s0": {"dist": "cap", "center": "r", "half_angle": 0.5}},
-            "integrate": {"t1": t1, "n_checkpoints": 8}}
-    plan = make_plan(spec)
-    t0 = time.perf_counter()
-    if workers:
-        with DaskExecutor(workers=workers) as ex:
-            ds = run_plan(plan, out, batch_size=batch_size, executor=ex, restart=True)
-    else:
-        ds = run_plan(plan, out, batch_size=batch_size, restart=True)
-    wall = time.perf_counter() - t0
-    return {"n_trajectories": plan.size, "wall_s": wall, "total_steps": int(ds.attrs["total_steps"]),
-            "engine": ds.attrs["engine"], "batch_size": int(ds.attrs["batch_size"]),
-            "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
-            "file_gib": Path(out).stat().st_size / 2**30}
-
-
-def _main(argv: list[str] | None = None):
-    import argparse
-    import json
-
-    ap = argparse.ArgumentParser(description="stabjax Dask benchmarks")
-    ap.add_argument("what", choices=["workers", "big"])
-    ap.add_argument("--n", type=int, default=10_000_000)
-    ap.add_argument("--workers", type=int, default=None)
-    ap.add_argument("--batch-size", type=int, default=None)
-    ap.add_argument("--out", default="/tmp/stabjax_big.nc")
-    a = ap.parse_args(argv)
-    if a.what == "workers":
-        r = benchmark()
-    else:
-        r = benchmark_big(a.n, out=a.out, workers=a.workers, batch_size=a.batch_size)
-    print(json.dumps(r, indent=1))
-
-
-if __name__ == "__main__":
-    _main()

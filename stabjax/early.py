@@ -249,7 +249,7 @@ def fast_forward(c, n_in, obs):
 
 def stop_reasons(status, fixed):
     """``stop_reason`` codes from the solver status and the fixed-point flag (NumPy)."""
-    from .config import STATUS_ESCAPED, STATUS_OK
+    from .status import ESCAPED as STATUS_ESCAPED, OK as STATUS_OK
 
     status = np.asarray(status)
     out = np.where(status == STATUS_OK, STOP_NONE, np.where(status == STATUS_ESCAPED, STOP_ESCAPED, STOP_FAILED))

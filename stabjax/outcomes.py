@@ -38,12 +38,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from . import status as S
 from .errors import ValidationError
+from .status import ESCAPED as STATUS_ESCAPED  # noqa: F401  (the name this module exported)
 
 FEATURES = ("max", "min", "mean", "std", "final")
 LYAPUNOV = "lyapunov"  # bare name in rules and features: the largest Lyapunov exponent (stabjax.lyapunov)
 UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
-STATUS_ESCAPED = 100  # solver_status of a trajectory stopped at escape_radius (all engines)
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 MAX_RULE_CHARS = 500
 
@@ -451,7 +452,7 @@ def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params
     feature vectors of the templates integrated at each trajectory's grid point.
     """
     if sch.from_verdicts:
-        v = np.asarray(results["verdict"])
+        v = S.verdicts(np.asarray(results["solver_status"]), np.asarray(results["verdict"]))
         return (v[..., -1] if v.ndim > 1 else v).astype(np.int8)
     decl = sch.decl
     status = np.asarray(results["solver_status"])
@@ -478,11 +479,7 @@ def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params
         code = np.where((code < 0) & ok, len(decl.rules) + j, code)
     unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
     code = np.where(code < 0, unclassified, code)
-    ok = status == 0
-    if decl.escape in names:
-        code = np.where(status == STATUS_ESCAPED, names.index(decl.escape), code)
-        ok = ok | (status == STATUS_ESCAPED)
-    code = np.where(ok, code, failed)
+    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed)
     return code.astype(np.int8)
 
 

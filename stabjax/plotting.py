@@ -10,18 +10,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import xarray as xr
+from matplotlib.colors import BoundaryNorm, ListedColormap
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
-from matplotlib.colors import BoundaryNorm, ListedColormap  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
-
-from . import verdict as V  # noqa: E402
-from .plotlabels import categories, category_axis, cell_note, fixed_note, symbol  # noqa: E402,F401
+from . import verdict as V
+from .plotlabels import categories, category_axis, cell_note, fixed_note, symbol  # noqa: F401
 
 
 def axis_label(ds: xr.Dataset, dim: str) -> str:

@@ -25,8 +25,8 @@ of the point's samples (ties: the lower code). With several verdict horizons (re
 
 What it can miss: like any grid method, the coarse grid must resolve the regions: an island, or a
 boundary that enters and leaves a coarse cell between the same corners, is invisible if no
-evaluated point lands in it. The benchmark (:mod:`stabjax.refine_bench`) compares the refinement against the
-full lattice and counts any boundary edge of the full grid the refinement did not find.
+evaluated point lands in it. The benchmark (``benchmarks/refine_bench.py``, in a source checkout) compares
+the refinement against the full lattice and counts any boundary edge of the full grid it did not find.
 
 Theory. For each bracketed segment the signed distance from its midpoint to the zero contour of
 the system's main theorem margin (``theory(p).predicates[main].margin``) is measured along each
@@ -34,23 +34,21 @@ axis, in that axis's units: positive where the midpoint lies outside the region 
 guarantees (margin < 0; the theorem is conservative there, the empirical stable region reaches
 beyond it), negative where the theorem claims stability at an empirical boundary.
 
-Resume: each finished round is saved to ``<out>.partial/round_NNNN.npz`` (atomic replace) with the
-plan's fingerprint (which covers the ``[refine]`` section); a re-run recomputes nothing that was
-saved and gives the same result. Points are evaluated through a ``solve_points(params) -> results``
-callable (default: the plan's engine), so another executor (Dask workers) can run a round.
+Running: the refiner is an *explorer* (:class:`Refiner`: ``propose`` the next round's points, ``observe``
+their results); it integrates nothing itself. :func:`refine_plan` hands each round's points to the sweep's
+runner (:func:`stabjax.sweep.run_points`), so a refinement gets what a sweep gets: the plan's engine, chunks
+of ``--batch-size``, Dask workers, progress, and a chunk store per round (``<out>.zarr/round_NNNN``,
+``--store``/``--keep-store``) from which a killed run resumes without recomputing a finished chunk.
 
-Size: this module is one algorithm (~850 lines) whose parts -- the [refine] table, the lattice and its
-rounds, the round store, the theory distance, the output dataset and plot -- share the refiner's
-lattice state and private helpers; split across files they would only trade length for names passed
-between modules. The benchmark against the full lattice is its own module.
+Layout: the [refine] table, its lattice and the point labels are :mod:`stabjax.refine_config`; here are
+the explorer, the theory distance, the output dataset and its plot.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
-import os
-import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -59,323 +57,28 @@ import xarray as xr
 
 from . import verdict as V
 from .errors import StabjaxError, ValidationError
-from .validate import number as _number
 from .spec import Plan, load_spec, make_plan
 
-REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "max_points")
-DEFAULT_REL_TOL = 1 / 64
-MAX_LATTICE = 1 << 28  # lattice sites held as labels in memory (int16): 0.5 GiB at most
-ANY = "*"
-
-SolvePoints = Callable[[Mapping[str, np.ndarray]], Mapping[str, np.ndarray]]
+# the [refine] table, its lattice and the labels: stabjax.refine_config (re-exported here)
+from .refine_config import (ANY, DEFAULT_REL_TOL, MAX_LATTICE, REFINE_KEYS, RefineConfig, _labels,  # noqa: F401
+                            classes, fine_values, horizon_times, label_names, refine_config)
 
 
-# ---- configuration ------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RefineConfig:
-    """The validated ``[refine]`` table, resolved against the plan's grid."""
-
-    tol: tuple[float, ...]  # per grid axis, parameter units
-    levels: tuple[int, ...]  # halvings of each coarse interval
-    label: str  # results key giving the label: "verdict" or "outcome"
-    names: tuple[str, ...]  # label code -> name
-    pair: tuple[str, str] | None
-    stable: str | None  # the label whose region is compared with the theorem's
-    horizon: float  # the verdict horizon refined
-    max_points: int
-
-
-def label_names(plan: Plan, label: str) -> tuple[str, ...]:
-    """Names of the label codes: verdict names, or the system's declared outcomes."""
-    if label == "verdict":
-        return tuple(V.NAMES)
-    if plan.outcomes is None:
-        raise ValidationError("refine.label", f"{plan.system.name} declares no named outcomes; use label = \"verdict\"")
-    return tuple(plan.outcomes.names)
-
-
-def horizon_times(plan: Plan) -> np.ndarray:
-    """The verdict horizons of the plan (absolute times, ascending, last = t1)."""
-    return np.asarray(V.horizon_times(plan.vcfg, plan.icfg.t0, plan.icfg.t1), dtype=float)
-
-
-def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineConfig:
-    """Validate ``[refine]`` (default: ``plan.spec["refine"]``) against the plan's grid."""
-    raw = plan.spec.get("refine", {}) if raw is None else raw
-    if not isinstance(raw, Mapping):
-        raise ValidationError("refine", "must be a table")
-    unknown = sorted(set(raw) - set(REFINE_KEYS))
-    if unknown:
-        raise ValidationError(f"refine.{unknown[0]}", f"unknown field; known: {', '.join(REFINE_KEYS)}")
-    if not 1 <= len(plan.grid) <= 2:
-        raise ValidationError("grid", f"refinement needs one or two grid axes (the coarse grid), got {len(plan.grid)}")
-    for ax in plan.grid:
-        if ax.values.ndim != 1:
-            raise ValidationError(f"grid.{ax.key}", "refinement needs scalar axes (sweep one entry like \"J[0]\")")
-        if ax.size < 2:
-            raise ValidationError(f"grid.{ax.key}", "refinement needs at least 2 values per axis")
-        d = np.diff(ax.values)
-        if not (np.all(d > 0) or np.all(d < 0)):
-            raise ValidationError(f"grid.{ax.key}", "refinement needs strictly monotone axis values")
-
-    rel = None
-    if "rel_tol" in raw:
-        rel = _number(raw["rel_tol"], "refine.rel_tol")
-        if not 0 < rel <= 1:
-            raise ValidationError("refine.rel_tol", f"must be in (0, 1] (a fraction of each axis range), got {rel}")
-    tol_raw = raw.get("tol")
-    per_axis: dict[str, float] = {}
-    if tol_raw is not None:
-        if isinstance(tol_raw, Mapping):
-            names = {ax.key: ax for ax in plan.grid} | {ax.name: ax for ax in plan.grid}
-            for k, v in tol_raw.items():
-                if k not in names:
-                    raise ValidationError(f"refine.tol.{k}", f"not a grid axis; axes: {', '.join(a.key for a in plan.grid)}")
-                per_axis[names[k].name] = _number(v, f"refine.tol.{k}")
-        else:
-            v = _number(tol_raw, "refine.tol")
-            per_axis = {ax.name: v for ax in plan.grid}
-        for k, v in per_axis.items():
-            if not v > 0:
-                raise ValidationError(f"refine.tol.{k}" if isinstance(tol_raw, Mapping) else "refine.tol",
-                                      f"must be > 0, got {v}")
-    if rel is None and tol_raw is None:
-        rel = DEFAULT_REL_TOL
-    tols, levels = [], []
-    for ax in plan.grid:
-        if ax.name in per_axis:
-            t = per_axis[ax.name]
-        elif rel is not None:
-            t = rel * abs(float(ax.values[-1] - ax.values[0]))
-        else:
-            raise ValidationError("refine.tol", f"no tolerance for axis {ax.key!r}: give it here or set rel_tol")
-        tols.append(float(t))
-        levels.append(_levels(ax.values, ax.log, t))
-
-    label = raw.get("label")
-    if label is None:
-        label = "outcome" if plan.outcomes is not None else "verdict"
-    if label not in ("verdict", "outcome"):
-        raise ValidationError("refine.label", f"must be \"verdict\" or \"outcome\", got {label!r}")
-    names = label_names(plan, label)
-
-    pair = raw.get("pair")
-    if pair is not None:
-        if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
-            raise ValidationError("refine.pair", f"must be two outcome names, e.g. [\"converged\", \"flipped\"], got {pair!r}")
-        if pair[0] not in names:
-            raise ValidationError("refine.pair", f"unknown outcome {pair[0]!r}; known: {', '.join(names)}")
-        if pair[1] != ANY and pair[1] not in names:
-            raise ValidationError("refine.pair", f"unknown outcome {pair[1]!r}; known: {', '.join(names)} (or \"*\")")
-        if pair[0] == pair[1]:
-            raise ValidationError("refine.pair", "needs two different outcomes")
-        pair = (pair[0], pair[1])
-    stable = raw.get("stable")
-    if stable is not None:
-        if not isinstance(stable, str) or stable not in names:
-            raise ValidationError("refine.stable", f"must name an outcome ({', '.join(names)}), got {stable!r}")
-    else:
-        stable = pair[0] if pair else ("converged" if "converged" in names else None)
-
-    t1 = plan.icfg.t1
-    horizon = t1
-    if "horizon" in raw:
-        horizon = _number(raw["horizon"], "refine.horizon")
-        if not plan.icfg.t0 < horizon <= t1:
-            raise ValidationError("refine.horizon", f"must be in (t0, t1] = ({plan.icfg.t0:g}, {t1:g}], got {horizon:g}")
-        hs = horizon_times(plan)
-        if horizon != t1 and (hs is None or not np.any(np.isclose(hs, horizon, rtol=1e-12, atol=0))):
-            raise ValidationError("refine.horizon", f"{horizon:g} is not one of the verdict horizons "
-                                  f"({', '.join(f'{h:g}' for h in (hs if hs is not None else [t1]))})")
-    max_points = raw.get("max_points", 1_000_000)
-    if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
-        raise ValidationError("refine.max_points", f"must be an integer >= 1, got {max_points!r}")
-    size = int(np.prod([(ax.size - 1) * 2**L + 1 for ax, L in zip(plan.grid, levels)]))
-    if size > MAX_LATTICE:
-        raise ValidationError("refine.tol", f"the finest lattice would hold {size:,} points (limit {MAX_LATTICE:,}); "
-                              "use a coarser tolerance")
-    return RefineConfig(tol=tuple(tols), levels=tuple(levels), label=label, names=names, pair=pair, stable=stable,
-                        horizon=float(horizon), max_points=int(max_points))
-
-
-def fine_values(coarse: np.ndarray, log: bool, level: int) -> np.ndarray:
-    """The lattice of one axis: each coarse interval cut into 2**level equal parts (in log for log axes)."""
-    c = np.log(coarse) if log else np.asarray(coarse, float)
-    k = 2**level
-    frac = np.arange(k) / k
-    v = (c[:-1, None] + frac[None, :] * np.diff(c)[:, None]).ravel()
-    v = np.append(v, c[-1])
-    v = np.exp(v) if log else v
-    v[::k] = coarse  # the coarse grid's own values, bit for bit (round 0 = the plain sweep's grid)
-    return v
-
-
-def _max_width(coarse: np.ndarray, log: bool, level: int) -> float:
-    """Widest lattice interval at ``level`` (log axes: the part next to each coarse interval's larger end)."""
-    c = np.asarray(coarse, float)
-    if not log:
-        return float(np.max(np.abs(np.diff(c))) / 2**level)
-    a, b = np.minimum(c[:-1], c[1:]), np.maximum(c[:-1], c[1:])
-    return float(np.max(b - b * (a / b) ** (1.0 / 2**level)))
-
-
-def _levels(coarse: np.ndarray, log: bool, tol: float) -> int:
-    for level in range(0, 31):
-        if _max_width(coarse, log, level) <= tol * (1 + 1e-9):
-            return level
-    raise ValidationError("refine.tol", f"{tol:g} needs more than 30 halvings of the coarse grid")
-
-
-# ---- round store ------------------------------------------------------------------------------
-
-
-class RoundStore:
-    """Finished rounds next to the output file: ``<out>.partial/round_NNNN.npz`` + manifest."""
-
-    def __init__(self, out: Path, fingerprint: str, restart: bool = False):
-        self.dir = Path(str(out) + ".partial")
-        self.manifest = {"fingerprint": fingerprint, "kind": "refine"}
-        mf = self.dir / "manifest.json"
-        if self.dir.exists() and restart:
-            shutil.rmtree(self.dir)
-        elif mf.exists():
-            old = json.loads(mf.read_text())
-            if old != self.manifest:
-                raise StabjaxError(f"{self.dir} holds a partial run of a different spec (fingerprint "
-                                   f"{old.get('fingerprint')} vs {fingerprint}); pass --restart to discard it, "
-                                   "or use another --out")
-        self.dir.mkdir(parents=True, exist_ok=True)
-        tmp = self.dir / ".manifest.tmp"
-        tmp.write_text(json.dumps(self.manifest))
-        os.replace(tmp, mf)
-
-    def path(self, r: int) -> Path:
-        return self.dir / f"round_{r:04d}.npz"
-
-    def load(self, r: int) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
-        if not self.path(r).exists():
-            return None
-        with np.load(self.path(r)) as z:
-            return z["coords"], {k[2:]: z[k] for k in z.files if k.startswith("r_")}
-
-    def save(self, r: int, coords: np.ndarray, res: Mapping[str, np.ndarray]):
-        tmp = self.dir / f".tmp_{r:04d}.npz"
-        np.savez(tmp, coords=coords, **{f"r_{k}": v for k, v in res.items()})
-        os.replace(tmp, self.path(r))  # atomic: a kill never leaves a half-written round
-
-    def remove(self):
-        shutil.rmtree(self.dir, ignore_errors=True)
-
-
-# ---- evaluation ---------------------------------------------------------------------------------
-
-
-def point_params(plan: Plan, values: np.ndarray) -> dict[str, np.ndarray]:
-    """Every parameter for grid-axis ``values`` (P, n_axes), like :meth:`Plan.params_at`:
-    point-major, with the plan's samples (common random numbers) inside each point."""
-    values = np.asarray(values, float).reshape(-1, len(plan.grid))
-    ns = max(plan.n_sample, 1)
-    n = len(values) * ns
-    out = {k: np.broadcast_to(v, (n, *v.shape)).copy() for k, v in plan.fixed.items()}
-    for a, ax in enumerate(plan.grid):
-        vals = np.repeat(values[:, a], ns)
-        if ax.index is None:
-            out[ax.param.name] = vals
-        else:
-            out[ax.param.name][(slice(None), *ax.index)] = vals
-    if plan.n_sample:
-        for k, v in plan.sample.items():
-            out[k] = np.tile(v, (len(values),) + (1,) * (v.ndim - 1))
-    return out
-
-
-def _check(plan: Plan, p: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``system.check`` with errors pointing at the grid axis or sample at fault (as check_plan)."""
-    try:
-        return plan.system.check(p)
-    except ValidationError as exc:
-        where = [f"grid.{a.key}" for a in plan.grid if a.param.name == exc.field]
-        where += [f"sample.{k}" for k in plan.sample if k == exc.field]
-        if where:
-            raise ValidationError(where[0], exc.message) from None
-        raise
-
-
-def default_solver(plan: Plan) -> SolvePoints:
-    """``solve_points`` on the plan's engine (resolved once), one call per round."""
-    from . import engines
-    from .sweep import static_params
-
-    static = static_params(plan)
-    plan = engines.resolve_plan(plan, static=static)
-    pad = plan.engine != "native"  # shape-compiled engines: few distinct shapes
-
-    def solve_points(params):
-        n = len(next(iter(params.values())))
-        m = max(64, 1 << (n - 1).bit_length()) if pad else n
-        if m > n:
-            params = {k: np.concatenate([v, np.repeat(v[-1:], m - n, axis=0)]) for k, v in params.items()}
-        res = engines.solve(plan.engine, plan.integrated, params, plan.icfg, plan.vcfg, static=static)
-        return {k: np.asarray(v)[:n] for k, v in res.items()}
-
-    solve_points.engine = plan.engine
-    return solve_points
-
-
-def _labels(plan: Plan, cfg: RefineConfig, res: Mapping[str, np.ndarray], n_points: int):
-    """Per-point label (dominant over samples) and the fraction of samples carrying it."""
-    if cfg.label not in res:
-        raise StabjaxError(f"the engine returned no {cfg.label!r} (refine.label)")
-    lab = np.asarray(res[cfg.label])
-    if lab.ndim == 2:  # (N, n_horizons): horizons ascending, last = t1
-        hs = horizon_times(plan)
-        if hs is not None and len(hs) == lab.shape[1]:
-            col = int(np.argmin(np.abs(hs - cfg.horizon)))
-        elif cfg.horizon == plan.icfg.t1:
-            col = lab.shape[1] - 1
-        else:
-            raise StabjaxError(f"results hold {lab.shape[1]} horizons but the plan does not say which times")
-        lab = lab[:, col]
-    lab = lab.astype(np.int64).reshape(n_points, -1)
-    k = len(cfg.names)
-    counts = np.stack([(lab == c).sum(axis=1) for c in range(k)], axis=1)
-    dom = counts.argmax(axis=1)  # ties: the lower code
-    return dom.astype(np.int16), counts.max(axis=1) / lab.shape[1]
-
-
-def classes(cfg: RefineConfig) -> np.ndarray:
-    """Label code -> class for boundary tests (-1: not part of any boundary)."""
-    k = len(cfg.names)
-    if cfg.pair is None:
-        return np.arange(k)
-    cls = np.full(k, -1)
-    a = cfg.names.index(cfg.pair[0])
-    if cfg.pair[1] == ANY:
-        cls[:] = 1
-    else:
-        cls[cfg.names.index(cfg.pair[1])] = 1
-    cls[a] = 0
-    return cls
-
-
-# ---- the refiner --------------------------------------------------------------------------------
+# ---- the refiner: an explorer ---------------------------------------------------------------------
 
 
 class Refiner:
-    """Quadtree (2-D) / bisection (1-D) refinement over the integer lattice of a plan's grid.
+    """Quadtree (2-D) / bisection (1-D) refinement over the integer lattice of a plan's grid, as an explorer:
+    :meth:`propose` gives the next round's lattice points (None: done), :meth:`observe` takes their results.
+    It integrates nothing itself; :func:`refine_plan` hands each round to the sweep's runner.
 
     Lattice coordinates: axis ``a`` runs over ``0 .. (n_a - 1) * 2**L_a``; coarse grid points are the
     multiples of ``2**L_a``. ``lab`` holds the label of every evaluated site (-1: not evaluated).
     A cell is ``(lo, ext)``: its lower corner and its extent (powers of two) per axis.
     """
 
-    def __init__(self, plan: Plan, cfg: RefineConfig, solve_points: SolvePoints | None = None,
-                 store: RoundStore | None = None):
+    def __init__(self, plan: Plan, cfg: RefineConfig):
         self.plan, self.cfg = plan, cfg
-        self.solve_points = solve_points or default_solver(plan)
-        self.store = store
         self.D = len(plan.grid)
         self.step = tuple(2**L for L in cfg.levels)
         self.fine = [fine_values(ax.values, ax.log, L) for ax, L in zip(plan.grid, cfg.levels)]
@@ -386,44 +89,66 @@ class Refiner:
         self.results: list[dict[str, np.ndarray]] = []
         self.point_labels: list[np.ndarray] = []
         self.point_share: list[np.ndarray] = []
-        self.n_resumed = 0
-        self.engines: set[str] = set()
-        self.wall = 0.0
+        self.leaves: list | None = None  # None: the coarse grid is not evaluated yet
+        self.done = False
 
-    # -- evaluation of one round ----------------------------------------------------------------
-    def _evaluate(self, coords: np.ndarray):
-        r = len(self.coords)
-        n_done = sum(len(c) for c in self.coords)
-        if n_done + len(coords) > self.cfg.max_points:
-            raise StabjaxError(f"refinement needs more than refine.max_points = {self.cfg.max_points} points "
-                               f"(round {r}: {n_done} done, {len(coords)} more); raise it (finished rounds are kept and "
-                               "re-used) or coarsen the tolerance")
-        saved = self.store.load(r) if self.store is not None else None
-        if saved is not None:
-            old, res = saved
-            if old.shape != coords.shape or not np.array_equal(old, coords):
-                raise StabjaxError(f"{self.store.path(r)} does not hold the points this run asks for; "
-                                   "pass --restart to discard the partial run")
-            self.n_resumed += 1
-        else:
-            values = np.stack([self.fine[a][coords[:, a]] for a in range(self.D)], axis=1)
-            p = _check(self.plan, point_params(self.plan, values))
-            res = {k: np.asarray(v) for k, v in self.solve_points(p).items()}
-            if self.cfg.label == "outcome" and "outcome" not in res:
-                from .basin import point_outcomes
+    def values(self, coords: np.ndarray) -> np.ndarray:
+        """Grid-axis values (P, D) of lattice points."""
+        return np.stack([self.fine[a][coords[:, a]] for a in range(self.D)], axis=1)
 
-                res["outcome"] = point_outcomes(self.plan, p, res, len(coords))
-            engine = getattr(self.solve_points, "engine", "")
-            if engine:
-                self.engines.add(engine)
-            if self.store is not None:
-                self.store.save(r, coords, res)
+    def propose(self) -> np.ndarray | None:
+        """Lattice coordinates (P, D) of the next round's points; None when every boundary is bracketed."""
+        if self.leaves is None:
+            grids = np.meshgrid(*[np.arange(0, n, s) for n, s in zip(self.shape, self.step)], indexing="ij")
+            return np.stack([g.ravel() for g in grids], axis=1).astype(np.int64)
+        # A cell is split as soon as the labels known on its boundary differ. Known labels only accumulate, so
+        # the final tree is the least fixed point of that rule whatever the order of the splits; children that
+        # already straddle by known labels (points a finer neighbour put on their edges) are split in the same
+        # pass, which saves rounds (latency) and no points.
+        need: set[tuple[int, ...]] = set()
+        new_leaves = []
+        work = list(reversed(self.leaves))
+        while work:
+            lo, ext = work.pop()
+            if max(ext) > 1 and self._straddles(lo, ext):
+                kids = self._children(lo, ext)
+                for clo, cext in kids:
+                    need.update(c for c in self._corners(clo, cext) if self.lab[c] < 0)
+                work.extend(reversed(kids))
+            else:
+                new_leaves.append((lo, ext))
+        self.leaves = sorted(new_leaves)
+        if not need:
+            self.done = True
+            return None
+        return np.array(sorted(need), dtype=np.int64).reshape(-1, self.D)
+
+    def observe(self, coords: np.ndarray, res: Mapping[str, np.ndarray]):
+        """The results of the proposed points (point-major: each point's samples contiguous)."""
         lab, share = _labels(self.plan, self.cfg, res, len(coords))
         self.lab[tuple(coords.T)] = lab
         self.coords.append(coords)
-        self.results.append(res)
+        self.results.append(dict(res))
         self.point_labels.append(lab)
         self.point_share.append(share)
+        if self.leaves is None:  # the coarse grid's cells
+            if self.D == 1:
+                self.leaves = [((i,), (self.step[0],)) for i in range(0, self.shape[0] - 1, self.step[0])]
+            else:
+                self.leaves = [((i, j), self.step) for i in range(0, self.shape[0] - 1, self.step[0])
+                               for j in range(0, self.shape[1] - 1, self.step[1])]
+
+    def run(self, evaluate: Callable[[int, np.ndarray], Mapping[str, np.ndarray]]) -> "Refiner":
+        """Explore until every boundary is bracketed: ``evaluate(round, values)`` gives the results of the
+        points ``values`` (P, D), point-major. Refuses a round that would pass ``max_points``."""
+        while (coords := self.propose()) is not None:
+            r, n = len(self.coords), self.n_points
+            if n + len(coords) > self.cfg.max_points:
+                raise StabjaxError(f"refinement needs more than refine.max_points = {self.cfg.max_points} points "
+                                   f"(round {r}: {n} done, {len(coords)} more); raise it (finished rounds are kept "
+                                   "and re-used) or coarsen the tolerance")
+            self.observe(coords, evaluate(r, self.values(coords)))
+        return self
 
     # -- cell geometry --------------------------------------------------------------------------
     def cell_edges(self, lo, ext):
@@ -444,14 +169,8 @@ class Refiner:
         return False
 
     def _children(self, lo, ext):
-        split = [e > 1 for e in ext]
-        halves = []
-        for a in range(self.D):
-            if split[a]:
-                h = ext[a] // 2
-                halves.append([(lo[a], h), (lo[a] + h, h)])
-            else:
-                halves.append([(lo[a], ext[a])])
+        halves = [[(lo[a], ext[a] // 2), (lo[a] + ext[a] // 2, ext[a] // 2)] if ext[a] > 1 else [(lo[a], ext[a])]
+                  for a in range(self.D)]
         if self.D == 1:
             return [((x[0],), (x[1],)) for x in halves[0]]
         return [((x[0], y[0]), (x[1], y[1])) for x in halves[0] for y in halves[1]]
@@ -461,47 +180,12 @@ class Refiner:
             return [(lo[0],), (lo[0] + ext[0],)]
         return [(lo[0] + a * ext[0], lo[1] + b * ext[1]) for a in (0, 1) for b in (0, 1)]
 
-    # -- the loop ---------------------------------------------------------------------------------
-    def run(self) -> "Refiner":
-        t0 = time.perf_counter()
-        grids = np.meshgrid(*[np.arange(0, n, s) for n, s in zip(self.shape, self.step)], indexing="ij")
-        self._evaluate(np.stack([g.ravel() for g in grids], axis=1).astype(np.int64))
-        if self.D == 1:
-            leaves = [((i,), (self.step[0],)) for i in range(0, self.shape[0] - 1, self.step[0])]
-        else:
-            leaves = [((i, j), self.step) for i in range(0, self.shape[0] - 1, self.step[0])
-                      for j in range(0, self.shape[1] - 1, self.step[1])]
-        # A cell is split as soon as the labels known on its boundary differ. Known labels only accumulate, so
-        # the final tree is the least fixed point of that rule whatever the order of the splits; children that
-        # already straddle by known labels (points a finer neighbour put on their edges) are split in the same
-        # pass, which saves rounds (latency) and no points.
-        while True:
-            need: set[tuple[int, ...]] = set()
-            new_leaves = []
-            work = list(reversed(leaves))
-            while work:
-                lo, ext = work.pop()
-                if max(ext) > 1 and self._straddles(lo, ext):
-                    kids = self._children(lo, ext)
-                    for clo, cext in kids:
-                        need.update(c for c in self._corners(clo, cext) if self.lab[c] < 0)
-                    work.extend(reversed(kids))
-                else:
-                    new_leaves.append((lo, ext))
-            leaves = sorted(new_leaves)
-            if not need:
-                break
-            self._evaluate(np.array(sorted(need), dtype=np.int64).reshape(-1, self.D))
-        self.leaves = leaves
-        self.wall = time.perf_counter() - t0
-        return self
-
     # -- results ----------------------------------------------------------------------------------
     def segments(self) -> list[tuple[int, tuple[int, ...], tuple[int, ...]]]:
         """Boundary segments: (axis, lattice point p, lattice point q) with q after p on that axis,
         consecutive evaluated points on a leaf's edge whose labels fall in different classes."""
         out = set()
-        for lo, ext in self.leaves:
+        for lo, ext in self.leaves or []:
             for a, origin, e in self.cell_edges(lo, ext):
                 known = np.nonzero(e >= 0)[0]
                 for u, w in zip(known[:-1], known[1:]):
@@ -529,7 +213,7 @@ class Refiner:
 def _margin(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, str]:
     """The main theorem's margin at grid-axis ``values`` (M, D) (first sample), and its name."""
     values = np.asarray(values, float).reshape(-1, len(plan.grid))
-    p = point_params(Plan(**{**plan.__dict__, "n_sample": 0, "sample": {}}), values)
+    p = dataclasses.replace(plan, points=values, n_sample=0, sample={}).params_for(0, len(values))
     if plan.n_sample:  # the theorems are about parameters; use the first draw for any sampled one
         for k, v in plan.sample.items():
             p[k] = np.broadcast_to(v[0], (len(values), *v.shape[1:])).copy()
@@ -596,7 +280,8 @@ def theory_distance(plan: Plan, mids: np.ndarray, axis: int, n_scan: int = 513, 
 # ---- dataset --------------------------------------------------------------------------------------
 
 
-def assemble(ref: Refiner) -> xr.Dataset:
+def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = frozenset(),
+             rounds_resumed: int = 0) -> xr.Dataset:
     plan, cfg = ref.plan, ref.cfg
     from .sweep import provenance
 
@@ -679,8 +364,8 @@ def assemble(ref: Refiner) -> xr.Dataset:
         pair=" ".join(cfg.pair) if cfg.pair else "", horizon=cfg.horizon, rounds=len(ref.coords),
         n_points=ref.n_points, n_trajectories=ref.n_points * ns, total_steps=ref.total_steps,
         lattice_shape=list(ref.shape), full_grid_points=full, full_grid_trajectories=full * ns,
-        n_segments=S, n_unbracketed=int(S - width_ok.sum()), rounds_resumed=ref.n_resumed,
-        wall_time_s=float(ref.wall), engine=",".join(sorted(ref.engines)) or "resumed",
+        n_segments=S, n_unbracketed=int(S - width_ok.sum()), rounds_resumed=int(rounds_resumed),
+        wall_time_s=float(wall), engine=",".join(sorted(engines)) or "resumed",
         theory_distance_json=json.dumps(dist_summary),
     )
     return ds
@@ -689,34 +374,54 @@ def assemble(ref: Refiner) -> xr.Dataset:
 # ---- entry points -------------------------------------------------------------------------------
 
 
-def _fingerprint(plan: Plan) -> str:
-    """The plan's fingerprint plus the resolved solver and classifier settings (a --t1 override is not in the spec)."""
-    import hashlib
+def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path | None = None,
+                batch_size: int | None = None, progress: bool = False, restart: bool = False,
+                keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None,
+                plot: bool = False) -> xr.Dataset:
+    """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given.
 
-    spec = dict(plan.spec)
-    if isinstance(spec.get("refine"), Mapping):  # max_points only stops a run: raising it resumes the same one
-        spec["refine"] = {k: v for k, v in spec["refine"].items() if k != "max_points"}
-    same = Plan(**{**plan.__dict__, "spec": spec})
-    blob = json.dumps({"plan": same.fingerprint(), "integrate": plan.icfg.__dict__,
-                       "verdict": {k: repr(v) for k, v in plan.vcfg.__dict__.items()}}, sort_keys=True, default=repr)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    Each round's points go through the sweep's runner (:func:`stabjax.sweep.run_points`): the plan's engine,
+    chunks of ``batch_size``, the executor's Dask workers, and a chunk store per round,
+    ``<store>/round_NNNN`` (default store ``<out>.zarr``), so a killed refinement re-run with the same command
+    recomputes no finished chunk; ``restart`` discards them; the store is removed after ``out`` is written
+    unless ``keep_store``. The store's identity is the plan's with the round's points (``[refine]
+    max_points`` left out: raising it resumes the same run).
+    """
+    import shutil
 
+    from .basin import point_outcomes
+    from .sweep import default_store, run_points, write
 
-def refine_plan(plan: Plan, out: str | Path | None = None, *, solve_points: SolvePoints | None = None,
-                restart: bool = False, keep_partial: bool = False, plot: bool = False) -> xr.Dataset:
-    """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given."""
     cfg = refine_config(plan)
-    store = RoundStore(Path(out), _fingerprint(plan), restart) if out is not None else None
-    ref = Refiner(plan, cfg, solve_points, store).run()
-    ds = assemble(ref)
-    if out is not None:
-        from .sweep import write
+    base = Path(store) if store is not None else (default_store(out) if out is not None else None)
+    if restart and base is not None and base.exists():
+        shutil.rmtree(base)
+    spec = dict(plan.spec)
+    spec["refine"] = {k: v for k, v in spec.get("refine", {}).items() if k != "max_points"}
+    rplan = dataclasses.replace(plan, spec=spec)
+    engines: set[str] = set()
+    resumed = [0]
 
+    def evaluate(r: int, values: np.ndarray) -> dict[str, np.ndarray]:
+        res, info = run_points(rplan, values, store=None if base is None else base / f"round_{r:04d}",
+                               batch_size=batch_size, progress=progress, keep_store=True, executor=executor,
+                               overrides=overrides)
+        if cfg.label == "outcome" and "outcome" not in res:
+            params = dataclasses.replace(plan, points=values).params_for(0, len(values) * max(plan.n_sample, 1))
+            res["outcome"] = point_outcomes(plan, params, res, len(values))
+        engines.update(info["engines"])
+        resumed[0] += info["n_resumed"] == info["n_chunks"]
+        return res
+
+    t0 = time.perf_counter()
+    ref = Refiner(plan, cfg).run(evaluate)
+    ds = assemble(ref, wall=time.perf_counter() - t0, engines=engines, rounds_resumed=resumed[0])
+    if out is not None:
         write(ds, out)
         if plot:
             plot_refine(ds, Path(out).with_suffix(".png"))
-        if not keep_partial:
-            store.remove()
+        if not keep_store:
+            shutil.rmtree(base, ignore_errors=True)
     return ds
 
 
@@ -805,24 +510,12 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
     return save(fig, out, own)
 
 
-def run_cli(spec: Mapping[str, Any], out: Path, *, t1: float | None = None, plot: bool = True, restart: bool = False,
-            console=None, err_console=None, executor=None) -> xr.Dataset:
+def run_cli(plan: Plan, out: Path, *, plot: bool = True, console=None, **run) -> xr.Dataset:
     """`stabjax sweep SPEC` for a spec with a [refine] section: refine, write ``out`` (+ .png), print a summary.
-
-    ``executor`` (a started :class:`stabjax.distributed.DaskExecutor`): each round's points run on its workers.
-    """
-    plan = make_plan(spec, t1=t1)
+    ``run``: the sweep runner's options, as for any sweep (``batch_size``, ``progress``, ``restart``, ``store``,
+    ``keep_store``, ``executor``: a started :class:`stabjax.distributed.DaskExecutor`, ``overrides``)."""
     refine_config(plan)  # every field checked before anything is integrated or written
-    solve_points = executor.points_solver(plan) if executor is not None else None
-    try:
-        ds = refine_plan(plan, out, restart=restart, plot=plot, solve_points=solve_points)
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (stabjax.signals): exit 128 + signal
-        if err_console is not None:
-            err_console.print(f"[yellow]interrupted: finished rounds are kept in {out}.partial; "
-                              "run the same command to resume[/yellow]")
-        import typer
-
-        raise typer.Exit(getattr(exc, "status", 130))
+    ds = refine_plan(plan, out, plot=plot, **run)
     pr = console.print if console is not None else print
     pr(f"wrote {out}  ({ds.attrs['wall_time_s']:.1f} s)")
     pr(format_summary(ds), highlight=False) if console is not None else pr(format_summary(ds))

@@ -31,7 +31,7 @@ SYSTEMS: dict[str, str] = {
 REPRODUCE: dict[str, str] = {
     "at2019": "stabjax.reproduce.at2019:run",
     "saakyan": "stabjax.reproduce.saakyan:run",
-    "two-body": "stabjax.reproduce.twobody:run",
+    "twobody": "stabjax.reproduce.twobody:run",
     "gyrodyne": "stabjax.reproduce.gyrodyne:run",
 }
 

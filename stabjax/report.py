@@ -17,7 +17,6 @@ model, with per-point basin fractions) and refinement results (boundary segments
 from __future__ import annotations
 
 import base64
-import hashlib
 import html
 import json
 from pathlib import Path
@@ -179,12 +178,10 @@ def warnings(ds: xr.Dataset) -> list[str]:
                 out.append(f"Horizon sensitivity: {changed:,} of {last.size:,} verdicts differ between T = {T[-2]:.4g} "
                            f"and t1 = {T[-1]:.4g}; a longer horizon may change more of them "
                            "(stabjax horizon-check RESULT re-runs a subset longer).")
-    f, sha = ds.attrs.get("model_file", ""), ds.attrs.get("model_sha256", "")
-    if f and sha and sha != "unknown" and Path(f).is_file():
-        now = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-        if now != sha:
-            out.append(f"The model file {f} has changed since this result was computed (sha256 {sha[:12]} then, "
-                       f"{now[:12]} now).")
+    from .identity import changed_sources  # the model file and every local module it imports
+
+    for what in changed_sources(ds.attrs):
+        out.append(f"The model file {what} has changed since this result was computed.")
     return out
 
 

@@ -15,7 +15,6 @@ Sample distributions (per parameter, ``n`` draws, ``seed``):
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import re
@@ -31,7 +30,7 @@ from . import validate as V
 from . import verdict as VD
 from .errors import ValidationError
 from .params import Param, parse_value
-from .models import model_fingerprint, resolve as resolve_system
+from .models import resolve as resolve_system
 from .outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
 from .system import System
 
@@ -79,9 +78,11 @@ class Plan:
     icfg: IntegrateConfig = field(default_factory=IntegrateConfig)
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
-    model_sha256: str = ""  # hash of the file defining the system's class
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.starts), or None
+    # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
+    # the axes' cartesian product (a refinement round: an explorer's points through the sweep's runner)
+    points: np.ndarray | None = None
 
     engine: str = ""
     engine_note: str = ""
@@ -108,24 +109,23 @@ class Plan:
 
     @property
     def shape(self) -> tuple[int, ...]:
-        return tuple(a.size for a in self.grid) + ((self.n_sample,) if self.n_sample else ())
+        grid = tuple(a.size for a in self.grid) if self.points is None else (len(self.points),)
+        return grid + ((self.n_sample,) if self.n_sample else ())
 
     @property
     def dims(self) -> tuple[str, ...]:
-        return tuple(a.name for a in self.grid) + (("sample",) if self.n_sample else ())
+        grid = tuple(a.name for a in self.grid) if self.points is None else ("point",)
+        return grid + (("sample",) if self.n_sample else ())
 
     @property
     def size(self) -> int:
         return int(np.prod(self.shape)) if self.shape else 1
 
     def fingerprint(self) -> str:
-        """Identity of the computation (spec + system + version): resume refuses on mismatch."""
-        from . import __version__
+        """Identity of the computation: :func:`stabjax.identity.fingerprint` (the one place it is computed)."""
+        from .identity import fingerprint
 
-        # the model file's hash: a resumed sweep or re-plot notices an edited model; t1: a --t1 override
-        blob = json.dumps({"spec": jsonable(self.spec), "system": self.system.name, "version": __version__,
-                           "model": self.model_sha256, "t1": self.icfg.t1}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+        return fingerprint(self)
 
     def params_for(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Every parameter for the flat trajectory indices [start, stop) (C order over ``shape``)."""
@@ -136,8 +136,8 @@ class Plan:
         n = len(flat)
         idx = np.unravel_index(flat, self.shape) if self.shape else ()
         out = {k: np.broadcast_to(v, (n, *v.shape)).copy() for k, v in self.fixed.items()}
-        for ax, ii in zip(self.grid, idx):
-            vals = ax.values[ii]
+        for a, ax in enumerate(self.grid):
+            vals = ax.values[idx[a]] if self.points is None else self.points[idx[0], a]
             if ax.index is None:
                 out[ax.param.name] = vals
             else:
@@ -539,8 +539,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         else system
     icfg = _early(icfg, integrated, decl is not None)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
-                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes,
-                model_sha256=model_fingerprint(system), lyapunov=lyap,
+                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
                 start_labels=None if from_file is None else from_file[1])
     return plan
 

@@ -69,7 +69,7 @@ class System:
     # checkpoint's observables at once, so such a system runs on the diffrax engine only.
     classify: Callable[..., Mapping[str, Any]] | None = None
     # Stop a trajectory as soon as an accepted state has max_i |y_i| above this (its status is then
-    # :data:`stabjax.config.STATUS_ESCAPED`); ``[integrate] escape_radius`` overrides it per spec.
+    # :data:`stabjax.status.ESCAPED`); ``[integrate] escape_radius`` overrides it per spec.
     escape_radius: float | None = None
 
     # -- host side ------------------------------------------------------------------------

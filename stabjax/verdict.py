@@ -135,7 +135,7 @@ SUMMARY_DOC = {
 }
 
 _FEATURES = ("feat_max", "feat_min", "feat_mean", "feat_std", "feat_final")
-# trailing dims of the per-trajectory results (INTERFACES 2-3); keys not listed are (N,)
+# trailing dims of the per-trajectory results; keys not listed are (N,)
 TRAILING_DIMS: dict[str, tuple[str, ...]] = {
     **{k: ("horizon",) for k in SUMMARY_DOC if not k.startswith("feat_")},
     **{k: ("observable",) for k in _FEATURES},

@@ -64,21 +64,20 @@ def read_result(path: str | Path) -> xr.Dataset:
         if not any(k in ds for k in ("verdict", "outcome", "point_label")):
             raise ValidationError("result", f"{path} is not a stabjax result (no verdict, outcome or refinement points)")
         return ds
-    from .store import plan_from_manifest, read_manifest
-    from .sweep import assemble_store
+    from . import dataset as D
+    from .store import open_store, pending_mask, plan_from_manifest, read_manifest
 
     m = read_manifest(path)
     if m is None:
         raise ValidationError("result", f"{path} is a directory but not a sweep's chunk store (no manifest)")
     plan = plan_from_manifest(m)
-    done = np.zeros(plan.size, bool)
-    batch = int(m["batch_size"])
-    for i in m.get("chunks", {}):
-        done[int(i) * batch: (int(i) + 1) * batch] = True
-    if not m.get("arrays") or not done.any():
+    pending = pending_mask(m)
+    if not m.get("arrays") or pending.all():
         raise ValidationError("result", f"{path}: no chunk has finished yet; try again in a moment")
-    ds = assemble_store(plan, path, m, lazy=False)  # the sweep's own assembly (unfinished chunks: fill values)
-    ds["pending"] = (plan.dims, ~done.reshape(plan.shape), {"long_name": "not computed yet (running sweep)"})
+    ds = open_store(path).load()  # the store is the sweep's dataset (unfinished chunks: fill values)
+    if not m.get("finished"):  # a running sweep: the engines so far (a finished store has its run's attributes)
+        ds.attrs.update(D.engine_attrs(m, "store"))
+    ds["pending"] = (plan.dims, pending, {"long_name": "not computed yet (running sweep)"})
     ds.attrs["store_chunks"] = f"{len(m.get('chunks', {}))}/{m.get('n_chunks', '?')}"
     return ds
 
@@ -136,11 +135,11 @@ class Result:
         """Every parameter of trajectory ``idx`` (flat sweep index, or refinement point index)."""
         plan = self.plan
         if self.kind == "refine":
-            from .refine import point_params
+            import dataclasses
 
             axes = self.ds.attrs["axes"].split()
             values = np.array([[float(self.ds[f"point_{a}"].values[idx]) for a in axes]])
-            p = point_params(plan, values)
+            p = dataclasses.replace(plan, points=values).params_for(0, 1)  # the point's first sample
             return {k: np.asarray(v)[0] for k, v in p.items()}
         p = plan.params_at(np.array([idx]))
         return {k: np.asarray(v)[0] for k, v in p.items()}

@@ -1,8 +1,11 @@
 """Smoke test of the benchmark (stabjax bench --quick): it runs every contender, checks agreement,
 and writes results/bench.json + .md. Not a timing test."""
 import json
+from pathlib import Path
 
-from stabjax import bench
+import pytest
+
+from benchmarks import bench
 from stabjax.engines import native
 
 
@@ -55,3 +58,33 @@ def test_gpu_defaults_and_accelerator_report(monkeypatch):
     acc = bench.accelerator()
     assert acc["device_kind"] == Dev.device_kind
     assert "NVIDIA H100 80GB HBM3" in bench._accelerator_lines({"accelerator": acc})[0]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("module", ["bench", "bench_models", "refine_bench", "dask_bench"])
+def test_every_bench_suite_loads_from_the_checkout(module, monkeypatch):
+    """`stabjax bench --suite ...` imports its module from benchmarks/ of the checkout it runs in; each has the
+    ``main`` the CLI calls (the dask suite once called ``distributed.main``, which did not exist: ImportError)."""
+    import inspect
+
+    from stabjax.cli import _benchmark
+
+    monkeypatch.chdir(ROOT)
+    m = _benchmark(module)
+    assert Path(m.__file__).resolve() == ROOT / "benchmarks" / f"{module}.py"
+    assert callable(m.main) and len(inspect.signature(m.main).parameters) >= 1
+
+
+def test_bench_outside_a_checkout_says_where_the_benchmarks_are(tmp_path, monkeypatch, capsys):
+    """The installed package holds no benchmark code: outside a clone `stabjax bench` refuses with status 2
+    and says how to run it, instead of an ImportError."""
+    from stabjax.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "--suite", "dask"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "benchmarks/dask_bench.py" in err and "clone" in err

@@ -46,8 +46,19 @@ def test_sweep_4x4_end_to_end(tmp_path, capsys):
     for var in ("verdict", "error_t1", "error_max_settled", "t_first_flip", "decay_exponent", "n_steps",
                 "solver_status", "theory_guaranteed", "margin_guaranteed", "theory_theorem1", "derived_alpha_crit"):
         assert var in ds, var
-    assert set(np.unique(ds["verdict"].values)) <= {0, 1, 2, 3, 4}
     assert (ds["solver_status"] == 0).all()
+    # the verdicts are those of the same spec on the diffrax engine (diffrax's own Tsit5 and controller, not the
+    # CLI's native engine): a classification that the engine's integration does not decide
+    import tomllib
+
+    from stabjax.sweep import run_spec
+
+    spec_d = tomllib.loads(SMALL)
+    spec_d["integrate"]["engine"] = "diffrax"
+    ref = run_spec(spec_d)
+    assert ref.attrs["engine"] == "diffrax" and ds.attrs["engine"] != "diffrax"
+    np.testing.assert_array_equal(ds["verdict"].values, ref["verdict"].values)
+    assert len(np.unique(ds["verdict"].isel(horizon=-1).values)) >= 2  # the grid is not one verdict throughout
     # the theory on the grid equals the closed form sigma > 1.5 - alpha/4
     a, s = np.meshgrid(ds.alpha.values, ds.sigma.values, indexing="ij")
     np.testing.assert_array_equal(ds["theory_theorem1"].values.astype(bool), s > 1.5 - a / 4)
@@ -58,6 +69,15 @@ def test_sweep_4x4_end_to_end(tmp_path, capsys):
     assert "theory: guaranteed" in text and "RED FLAGS" in text
     png = tmp_path / "again.png"
     assert run_cli("plot", str(out), "--out", str(png)) == 0 and png.exists()
+    # horizon-check's success path: the command reports what stabjax.horizon.horizon_check computes
+    from stabjax.horizon import horizon_check
+
+    capsys.readouterr()
+    assert run_cli("horizon-check", str(out), "--factor", "2", "--n", "3", "--seed", "1", "--json") == 0
+    rep = json.loads(capsys.readouterr().out)
+    hc = horizon_check(open_result(out), factor=2, n=3, seed=1)
+    assert rep["n_checked"] == 3 and rep["t1_short"] == 400.0 and rep["t1_long"] == 800.0
+    assert rep["transition"] == hc["transition"].values.tolist() and rep["n_changed"] == hc.attrs["n_changed"]
 
 
 def test_resume_after_interrupt(tmp_path):
@@ -147,7 +167,12 @@ def test_simulate_writes_trajectory(tmp_path, capsys):
     ds = xr.load_dataset(out)
     np.testing.assert_array_equal(ds.t.values, [1, 5, 10, 50, 100, 1000])
     assert ds.w.dims == ("t", "axis") and ds.s.dims == ("t", "axis") and ds.angle.dims == ("t",)
-    np.testing.assert_allclose(ds.angle.values[[0, 4]], [0.172, 1.6e-2], rtol=0.04)  # docs/models/monoaxial.md
+    # the SciPy DOP853 reference at rtol 1e-12 (tests/references.py); the run is at the default rtol 1e-8 on an
+    # O(1) state that contracts after t ~ 50: within ten times rtol (tests/test_monoaxial.py measures 1e-8)
+    from references import monoaxial_paper
+
+    _, ref_angle, _ = monoaxial_paper(7 / 9, [1.0, 5.0, 10.0, 50.0, 100.0, 1000.0])
+    np.testing.assert_allclose(ds.angle.values, ref_angle, rtol=0, atol=1e-7)
     np.testing.assert_allclose(final["s"], ds.s.values[-1])
     assert run_cli("simulate", "monoaxial", "--set", "mu=0.9") == 2
     assert run_cli("simulate", "monoaxial", "--set", "w0=1,2") == 2

@@ -73,7 +73,7 @@ def test_top_level_examples_is_the_package_directory():
 
 
 def test_progress_without_a_terminal_is_plain_lines_with_rate_and_eta():
-    from stabjax.sweep import _Lines
+    from stabjax.progress import Lines as _Lines
 
     buf = io.StringIO()
     bar = _Lines(1000, "demo", chunks=4, interval=0.0, stream=buf)
@@ -90,7 +90,7 @@ def test_progress_without_a_terminal_is_plain_lines_with_rate_and_eta():
 
 
 def test_progress_lines_are_spaced_by_the_interval():
-    from stabjax.sweep import _Lines
+    from stabjax.progress import Lines as _Lines
 
     buf = io.StringIO()
     bar = _Lines(100, "demo", interval=3600.0, stream=buf)
@@ -102,7 +102,7 @@ def test_progress_lines_are_spaced_by_the_interval():
 
 
 def test_progress_picks_plain_lines_when_output_is_not_a_terminal():
-    from stabjax.sweep import _Lines, _progress
+    from stabjax.progress import Lines as _Lines, progress_bar as _progress
 
     assert _progress(False, 10, "x") is None
     bar = _progress(True, 10, "x")  # pytest captures the output: not a terminal

@@ -69,7 +69,7 @@ def test_payload_replans_to_the_same_plan(plan):
     # a worker whose model file differs from the client's refuses the chunk
     D._PLANS.clear()
     with pytest.raises(StabjaxError, match="model source monoaxial.py differs"):
-        D.worker_plan({**p, "model": {"file": "monoaxial.py", "sha256": "0" * 16}})
+        D.worker_plan({**p, "identity": {**p["identity"], "model": {**p["identity"]["model"], "sha256": "0" * 64}}})
     # a plan changed in code (not from its spec) would be recomputed differently: refused
     orig = plan.grid[0].values
     plan.grid[0].values = orig + 0.01
@@ -92,17 +92,19 @@ def test_local_cluster_same_dataset_and_worker_killed(plan, reference, tmp_path,
         assert_same(ds, reference)  # bitwise: the same engine, the same chunks
         assert ds.attrs["engine"] == reference.attrs["engine"] and "dask" in ds.attrs["executor"]
 
-        # arbitrary points (a refinement round) through the workers: the local engine's values
-        from stabjax.engine import solve_batch
-        from stabjax.sweep import static_params
+        # explicit grid points (a refinement round) through the workers: the local engine's values
+        from stabjax.sweep import run_points
 
-        pts = plan.params_at(np.array([15, 0, 7, 3, 9]))
-        got = ex.points_solver(plan, chunk=2)(pts)
-        want = solve_batch(plan.system, pts, plan.icfg, plan.vcfg, static=static_params(plan))
+        flat = np.array([15, 0, 7, 3, 9])
+        a, b = np.unravel_index(flat, plan.shape)
+        values = np.stack([plan.grid[0].values[a], plan.grid[1].values[b]], axis=1)
+        got, info = run_points(plan, values, batch_size=2, executor=ex)
+        want, _ = run_points(plan, values, batch_size=2)
+        assert info["n_chunks"] == 3
         for k in want:
             np.testing.assert_array_equal(got[k], want[k], err_msg=k)
-        flat = reference["verdict"].values.reshape(-1, got["verdict"].shape[-1])  # (trajectories, horizons)
-        np.testing.assert_array_equal(got["verdict"], flat[[15, 0, 7, 3, 9]])
+        verdicts = reference["verdict"].values.reshape(-1, got["verdict"].shape[-1])  # (trajectories, horizons)
+        np.testing.assert_array_equal(got["verdict"], verdicts[flat])
 
         done_before = set()
 
@@ -195,3 +197,70 @@ def test_one_worker_per_gpu_sees_only_its_device(monkeypatch):
         ex.wait_for_workers(2)
         seen = ex.client.run(lambda: os.environ.get("CUDA_VISIBLE_DEVICES"))
     assert sorted(seen.values()) == ["3", "5"]
+
+
+# ---- in CI (not slow): one spawned local worker shared by the tests below --------------------------------------
+
+REFINE = {"system": "monoaxial", "name": "dask_refine", "params": {"mu": 1.5, "sigma": "4/3"},
+          "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 3}}, "integrate": {"t1": 300.0, "n_checkpoints": 64},
+          "refine": {"tol": {"alpha": 0.05}, "pair": ["converged", "*"]}}
+
+
+@pytest.fixture(scope="module")
+def one_worker():
+    """A local cluster of one spawned worker with one engine thread (started once for these tests)."""
+    with D.DaskExecutor(workers=1, threads=1) as ex:
+        ex.wait_for_workers(1)
+        yield ex
+
+
+def test_ci_local_cluster_sweep_is_the_local_sweep(plan, reference, one_worker):
+    """A sweep through a Dask worker gives the in-process sweep's dataset bitwise (same engine, same chunks), and
+    the worker runs its engine with the executor's thread count. Fails if the payload re-plans differently on the
+    worker, chunks come back misplaced, or the threads reach the worker some other way."""
+    ds = run_plan(plan, None, batch_size=4, executor=one_worker)
+    assert_same(ds, reference)
+    assert ds.attrs["engine"] == reference.attrs["engine"] and "dask (local cluster, 1 workers" in ds.attrs["executor"]
+    # the worker's engine threads travel with the task, in its plan's [integrate] settings, not in its environment
+    assert set(one_worker.client.run(lambda: os.environ.get("STABJAX_THREADS")).values()) == {None}
+    threads = one_worker.client.run(lambda: sorted({p.icfg.threads for p in D._PLANS.values()}))
+    assert list(threads.values()) == [[1]]
+
+
+def test_ci_refinement_runs_its_rounds_on_the_workers(one_worker, tmp_path):
+    """A refinement's rounds go through the same runner and Dask path as a sweep: the result equals the
+    in-process refinement's, and every round's chunks were computed by the worker (the round stores say so)."""
+    from stabjax.refine import refine_spec
+
+    local = refine_spec(REFINE)
+    out = tmp_path / "r.nc"
+    ds = refine_spec(REFINE, out, executor=one_worker, batch_size=4, keep_store=True)
+    assert ds.attrs["rounds"] >= 3 and ds.attrs["n_points"] > 3  # the boundary needed refining
+    for k in local.data_vars:
+        np.testing.assert_array_equal(ds[k].values, local[k].values, err_msg=k)
+    pids = set(one_worker.client.run(os.getpid).values())
+    for r in range(ds.attrs["rounds"]):
+        chunks = S.read_manifest(tmp_path / "r.nc.zarr" / f"round_{r:04d}")["chunks"].values()
+        assert chunks and all(int(c["worker"].rsplit(":", 1)[1]) in pids for c in chunks)
+
+
+def test_ci_dask_client_killed_then_rerun(tmp_path, reference):
+    """`stabjax sweep --workers 1` SIGKILLed after 2 of 8 chunks, then the same command: it resumes the stored
+    chunks (a dead client's lock is broken) and gives the uninterrupted dataset bitwise."""
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(TINY)
+    out = tmp_path / "k.nc"
+    store = tmp_path / "k.nc.zarr"
+    cmd = [sys.executable, "-m", "stabjax", "sweep", str(spec), "--out", str(out), "--batch-size", "2",
+           "--workers", "1", "--threads", "1", "--no-progress", "--no-plot"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
+    p = subprocess.Popen(cmd, env={**env, "_STABJAX_TEST_CHUNK_SLEEP": "0.5"}, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, cwd=tmp_path)
+    kill_after_chunks(p, store, 2, 120)
+    done = len(S.read_manifest(store)["chunks"])
+    assert 2 <= done < 8 and not out.exists()
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ds = open_result(out)
+    assert ds.attrs["chunks_resumed"] == done
+    assert_same(ds, reference)

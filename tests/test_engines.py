@@ -15,7 +15,8 @@ import pytest
 
 from stabjax import engines
 from stabjax import verdict as V
-from stabjax.config import STATUS_ESCAPED, STATUS_MAX_STEPS, IntegrateConfig
+from stabjax.config import IntegrateConfig
+from stabjax.status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS
 from stabjax.engines import diffrax_engine, fused, native
 from stabjax.params import Param, ParamSet
 from stabjax.spec import make_plan

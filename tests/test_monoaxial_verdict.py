@@ -25,7 +25,7 @@ def test_single_early_flip_converges_and_recurrent_flips_do_not():
     assert ds.n_flips.values[0, -1] == 1 and 50 < ds.t_first_flip.values[0, -1] < 100
     assert list(v[1, 1:]) == [V.FLIPPED, V.FLIPPED]
     assert ds.n_flips.values[1, -1] >= 4
-    # the flips of alpha = 1/3 recur at growing times with shrinking peaks (MODELS.md A.5)
+    # the flips of alpha = 1/3 recur at growing times with shrinking peaks (docs/models/monoaxial.md, Findings)
     assert ds.peak_ratio.values[1, -1] < 1 and ds.recurrence_ratio.values[1, -1] > 1
 
 

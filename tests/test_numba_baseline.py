@@ -1,6 +1,6 @@
-"""The optional compiled CPU baseline of the benchmark (stabjax/numba_baseline.py): final states
+"""The optional compiled CPU baseline of the benchmark (benchmarks/numba_baseline.py): final states
 against SciPy DOP853 at tight tolerance, step counts against diffrax's Dopri5 (same method and
-controller), and the interface stabjax.bench.run_numba relies on."""
+controller), and the interface benchmarks.bench.run_numba relies on."""
 import importlib
 
 import numpy as np
@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from stabjax import bench  # noqa: E402
+from benchmarks import bench  # noqa: E402
 
 ALPHAS = np.array([1.0 / 3.0, 7.0 / 9.0, 1.0])
 T1 = 50.0
@@ -16,7 +16,7 @@ T1 = 50.0
 
 @pytest.fixture(scope="module")
 def nb():
-    return importlib.import_module("stabjax.numba_baseline")
+    return importlib.import_module("benchmarks.numba_baseline")
 
 
 @pytest.fixture(scope="module")

@@ -82,3 +82,46 @@ def test_installed_wheel_reproduces_from_another_directory(tmp_path):
                          cwd=run_dir, env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-2000:]
     assert (run_dir / "figs" / "alpha_sweep.png").stat().st_size > 0
+
+
+def test_installed_package_holds_no_benchmark_code(tmp_path):
+    """setuptools' own build step (what a wheel ships, from pyproject's package config) copies the modules
+    of the package and none of the benchmark code (benchmarks/, beside the tests). Fails if a benchmark module
+    moves back into stabjax/, if the package finder starts picking up benchmarks/, or if a shipped module
+    imports the benchmarks (it would break in an installed wheel)."""
+    import shutil
+
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    for name in ("stabjax", "benchmarks", "tests"):  # tests and benchmarks present, as in a clone
+        shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    built = tmp_path / "lib"
+    subprocess.run([sys.executable, "-c", "import setuptools; setuptools.setup()", "-q", "build_py",
+                    "--build-lib", str(built)], cwd=src, check=True, capture_output=True)
+    shipped = sorted(p.relative_to(built).as_posix() for p in built.rglob("*.py"))
+    assert "stabjax/sweep.py" in shipped and "stabjax/cli.py" in shipped and len(shipped) >= 40
+    assert [p for p in shipped if not p.startswith("stabjax/")] == []
+    names = {Path(p).stem for p in shipped}
+    assert not names & {"bench", "bench_models", "refine_bench", "numba_baseline", "dask_bench"}, names
+    imports = re.compile(r"^\s*(from|import)\s+(benchmarks|numba)\b", re.M)
+    assert [p for p in shipped if imports.search((built / p).read_text())] == []
+
+
+def test_every_cited_markdown_file_exists():
+    """Docs and docstrings cite only Markdown files that exist (an interfaces and a models note were
+    cited long after they were gone): looked up from the top, beside the citing file, under docs/ and
+    docs/models/, or among the shipped results; a file cited as ``git show COMMIT:path`` lives in history."""
+    cite = re.compile(r"(?<![\w/.:-])((?:[\w.-]+/)*[\w.-]+\.md)\b")
+    results = {p.name for p in (ROOT / "results").rglob("*.md")}
+    # (tests are not read: they name the files they make, e.g. a notes.md in a temporary folder)
+    files = [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *PACKAGE.rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
+    missing = []
+    for f in files:
+        for m in cite.finditer(f.read_text()):
+            ref = m[1]
+            where = [ROOT / ref, f.parent / ref, ROOT / "docs" / ref, ROOT / "docs" / "models" / ref]
+            if not any(p.exists() for p in where) and Path(ref).name not in results:
+                missing.append(f"{f.relative_to(ROOT)}: {ref}")
+    assert not missing, missing

@@ -86,12 +86,13 @@ def closed_form(k, c):
 
 def test_closed_form_labels(oscillator):
     """The verdicts on both sides agree with the closed form (the premise of the tests below)."""
-    from stabjax.refine import default_solver, point_params
     from stabjax.spec import make_plan
+    from stabjax.sweep import run_points
 
     plan = make_plan(spec({"k": [0.0, 1.0]}, {}, params={"c": C1}))
     k = np.array([0.0, C1 - 0.01, C1 - 2 * DELTA, C1 + 2 * DELTA, C1 + 0.01, 1.0])
-    res = default_solver(plan)(point_params(plan, k[:, None]))
+    res, info = run_points(plan, k[:, None])
+    assert info["n_chunks"] == 1 and info["n_resumed"] == 0
     np.testing.assert_array_equal(np.asarray(res["verdict"])[:, -1], closed_form(k, C1))  # at t1
 
 
@@ -119,7 +120,7 @@ def test_quadtree_2d_brackets_boundary_and_resumes(oscillator, tmp_path):
     grid = {"k": {"start": 0.0, "stop": 1.0, "num": 5}, "c": {"start": 0.2, "stop": 0.8, "num": 4}}
     s = spec(grid, {"rel_tol": "1/64"})
     out = tmp_path / "osc.nc"
-    ds = refine_spec(s, out, keep_partial=True)
+    ds = refine_spec(s, out, keep_store=True)
     tk, tc = 1 / 64, 0.6 / 64
     assert ds.attrs["n_segments"] > 0 and ds.attrs["n_unbracketed"] == 0
     wk, wc = ds["width_k"].values, ds["width_c"].values
@@ -153,53 +154,63 @@ def test_quadtree_2d_brackets_boundary_and_resumes(oscillator, tmp_path):
     assert np.all(np.isnan(dc[~inside]))
     assert np.all(np.abs(dk[st] - 0.1) <= tk / 2 + DELTA)
 
-    # resume: a re-run with every round saved integrates nothing and gives the identical dataset
-    def refuse(_params):
+    # resume: a re-run with every round's chunks stored integrates nothing and gives the identical dataset
+    from stabjax import sweep
+
+    def refuse(*_a, **_k):
         raise AssertionError("a resumed run must not integrate")
 
-    again = refine_spec(s, out, solve_points=refuse)
+    assert sorted(p.name for p in (tmp_path / "osc.nc.zarr").iterdir()) == \
+        [f"round_{r:04d}" for r in range(ds.attrs["rounds"])]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep, "solve_chunk", refuse)
+        again = refine_spec(s, out)
     assert again.attrs["rounds_resumed"] == again.attrs["rounds"] == ds.attrs["rounds"]
     for k in ds.data_vars:
         np.testing.assert_array_equal(again[k].values, ds[k].values, err_msg=k)
     written = open_result(out)
     np.testing.assert_array_equal(written["k_mid"].values, ds["k_mid"].values)
-    assert not (tmp_path / "osc.nc.partial").exists()
+    assert not (tmp_path / "osc.nc.zarr").exists()  # removed once the result is written
     png = tmp_path / "osc.png"
     plot_refine(written, png)
     assert png.stat().st_size > 0
 
 
 def test_partial_resume_after_kill(oscillator, tmp_path):
-    """A run killed after some rounds resumes them from disk and ends with the uninterrupted result."""
-    from stabjax.refine import default_solver, refine_spec
-    from stabjax.spec import make_plan
+    """A run killed after some rounds resumes them from the chunk store (the sweep's) and ends with the
+    uninterrupted result; a store of another spec is refused rather than mixed in."""
+    from stabjax import store as S
+    from stabjax import sweep
+    from stabjax.errors import StabjaxError
+    from stabjax.refine import refine_spec
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 128}, params={"c": C1})
     full = refine_spec(s)
-    solve = default_solver(make_plan(s))
+    solve = sweep.solve_chunk
     calls = []
 
-    def dies_after_two(p):
+    def dies_after_two(*a, **k):  # every round here is one chunk: the third round's chunk is interrupted
         if len(calls) == 2:
             raise KeyboardInterrupt
         calls.append(1)
-        return solve(p)
+        return solve(*a, **k)
 
     out = tmp_path / "osc1.nc"
-    with pytest.raises(KeyboardInterrupt):
-        refine_spec(s, out, solve_points=dies_after_two)
-    assert len(list((tmp_path / "osc1.nc.partial").glob("round_*.npz"))) == 2
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep, "solve_chunk", dies_after_two)
+        with pytest.raises(KeyboardInterrupt):
+            refine_spec(s, out)
+    rounds = sorted((tmp_path / "osc1.nc.zarr").iterdir())
+    assert [r.name for r in rounds] == ["round_0000", "round_0001", "round_0002"]
+    assert [len(S.read_manifest(r)["chunks"]) for r in rounds] == [1, 1, 0]
     resumed = refine_spec(s, out)
     assert resumed.attrs["rounds_resumed"] == 2
-    for k in ("k_lo", "k_hi", "label_lo", "label_hi", "point_k", "point_label"):
+    for k in ("k_lo", "k_hi", "label_lo", "label_hi", "point_k", "point_label", "point_steps"):
         np.testing.assert_array_equal(resumed[k].values, full[k].values)
     # a changed spec is refused rather than mixed in
-    (tmp_path / "osc2.nc.partial").mkdir()
-    (tmp_path / "osc2.nc.partial" / "manifest.json").write_text(json.dumps({"fingerprint": "x", "kind": "refine"}))
-    from stabjax.errors import StabjaxError
-
-    with pytest.raises(StabjaxError, match="different spec"):
-        refine_spec(s, tmp_path / "osc2.nc")
+    refine_spec(s, tmp_path / "osc2.nc", keep_store=True)
+    with pytest.raises(StabjaxError, match="different computation"):
+        refine_spec({**s, "params": {"c": 0.6}}, tmp_path / "osc2.nc")
 
 
 def test_samples_dominant_label_and_pair(oscillator):
@@ -228,20 +239,23 @@ def test_dominant_label_and_horizon_column():
 
     from stabjax.refine import RefineConfig, _labels
 
+    def ok(v):  # every trajectory reached t1 (solver_status 0)
+        return {"verdict": v, "solver_status": np.zeros(len(v), np.int32)}
+
     cfg = RefineConfig(tol=(0.1,), levels=(1,), label="verdict", names=V.NAMES, pair=None, stable="converged",
                        horizon=100.0, max_points=10)
     plan = SimpleNamespace(vcfg=V.bind(VerdictConfig(), 0.0, 100.0, horizons=[10.0, 1.0]),
                            icfg=SimpleNamespace(t1=100.0, t0=0.0))
-    lab, share = _labels(plan, cfg, {"verdict": np.array([1, 1, 0, 3, 0, 3])}, 2)  # 2 points x 3 samples
+    lab, share = _labels(plan, cfg, ok(np.array([1, 1, 0, 3, 0, 3])), 2)  # 2 points x 3 samples
     np.testing.assert_array_equal(lab, [1, 3])
     np.testing.assert_allclose(share, [2 / 3, 2 / 3])
-    lab, share = _labels(plan, cfg, {"verdict": np.array([3, 0, 2, 2])}, 2)  # a tie goes to the lower code
+    lab, share = _labels(plan, cfg, ok(np.array([3, 0, 2, 2])), 2)  # a tie goes to the lower code
     np.testing.assert_array_equal(lab, [0, 2])
     np.testing.assert_allclose(share, [1 / 2, 1])
     hv = np.array([[1, 2, 0], [1, 2, 3]])  # horizons 1, 10, 100 (t1)
-    np.testing.assert_array_equal(_labels(plan, cfg, {"verdict": hv}, 2)[0], [0, 3])
+    np.testing.assert_array_equal(_labels(plan, cfg, ok(hv), 2)[0], [0, 3])
     cfg10 = RefineConfig(**{**cfg.__dict__, "horizon": 10.0})
-    np.testing.assert_array_equal(_labels(plan, cfg10, {"verdict": hv}, 2)[0], [2, 2])
+    np.testing.assert_array_equal(_labels(plan, cfg10, ok(hv), 2)[0], [2, 2])
 
 
 @pytest.mark.parametrize("refine, field", [
@@ -309,6 +323,22 @@ n_checkpoints = 200
     assert float(ds["k_lo"][0]) - DELTA <= C1 <= float(ds["k_hi"][0]) + DELTA
     assert out.with_suffix(".png").exists()
     assert "boundary segments" in capsys.readouterr().out
+    assert not (tmp_path / "good.nc.zarr").exists()  # the round stores are removed once the result is written
+
+    # the sweep runner's options apply to a refinement too: chunks of --batch-size in --store, kept with --keep-store
+    out2, store = tmp_path / "good2.nc", tmp_path / "rounds.zarr"
+    main(["sweep", str(good), "--out", str(out2), "--no-plot", "--progress", "--batch-size", "2", "--store", str(store),
+          "--keep-store"])
+    ds2 = open_result(out2)
+    for k in ("k_lo", "k_hi", "point_k", "point_label", "point_steps"):
+        np.testing.assert_array_equal(ds2[k].values, ds[k].values, err_msg=k)
+    rounds = sorted(store.iterdir())
+    assert [r.name for r in rounds] == [f"round_{i:04d}" for i in range(ds.attrs["rounds"])]
+    from stabjax import store as S
+
+    for r, pts in zip(rounds, np.bincount(ds2["point_round"].values)):
+        m = S.read_manifest(r)
+        assert m["batch_size"] == min(2, pts) and len(m["chunks"]) == -(-int(pts) // 2)
 
     bad = tmp_path / "bad.toml"
     bad.write_text(body + "[refine]\ntol = {k = nan}\n")
@@ -316,14 +346,24 @@ n_checkpoints = 200
         main(["sweep", str(bad), "--out", str(tmp_path / "bad.nc")])
     assert exc.value.code == 2
     assert "refine.tol.k" in capsys.readouterr().err
-    assert not (tmp_path / "bad.nc").exists() and not (tmp_path / "bad.nc.partial").exists()
+    assert not (tmp_path / "bad.nc").exists() and not (tmp_path / "bad.nc.zarr").exists()
+
+
+def _by_values(plan, solve_points):
+    """A refiner's ``evaluate(round, values)`` from a closed form of the points' parameters (no integration)."""
+    import dataclasses
+
+    def evaluate(_r, values):
+        pp = dataclasses.replace(plan, points=values)
+        return solve_points(pp.params_for(0, pp.size))
+    return evaluate
 
 
 def _synthetic(inside):
     """A solve_points that labels points by a closed-form region (no integration): converged inside."""
     def solve_points(p):
         v = np.where(inside(p), V.CONVERGED, V.FLIPPED).astype(np.int8)
-        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+        return {"verdict": v, "solver_status": np.zeros(len(v), np.int32), "n_steps": np.ones(len(v), np.int64)}
     return solve_points
 
 
@@ -337,7 +377,7 @@ def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
     plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 9}, "c": {"start": 0.1, "stop": 1.0, "num": 7, "log": True}},
                           {"tol": {"k": 0.01, "c": 0.005}}))
     cfg = refine_config(plan)
-    ref = Refiner(plan, cfg, _synthetic(inside)).run()
+    ref = Refiner(plan, cfg).run(_by_values(plan, _synthetic(inside)))
     kf, cf = ref.fine
     np.testing.assert_array_equal(cf[:: 2 ** cfg.levels[1]], plan.grid[1].values)
     assert np.max(np.diff(cf)) <= 0.005 and np.max(np.diff(kf)) <= 0.01
@@ -356,7 +396,7 @@ def test_quadtree_finds_every_edge_of_a_curved_boundary(oscillator):
 def test_benchmark_against_full_lattice(oscillator, tmp_path):
     """The benchmark's bookkeeping on the oscillator: the full lattice (1-D, 65 points) holds exactly one
     boundary edge, found by the refinement, with the same labels at the shared points; --full-from re-uses it."""
-    from stabjax.refine_bench import benchmark, format_benchmark
+    from benchmarks.refine_bench import benchmark, format_benchmark
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 64, "pair": ["converged", "*"]},
              params={"c": C1})
@@ -397,7 +437,7 @@ def test_named_outcomes_label_and_pair(monkeypatch):
     cfg = refine_config(plan)
     assert cfg.label == "outcome" and cfg.stable == "decays"
     assert cfg.names == ("decays", "rings", "grows", "unclassified", "failed")
-    ds = assemble(Refiner(plan, cfg, solve_points).run())
+    ds = assemble(Refiner(plan, cfg).run(_by_values(plan, solve_points)))
     assert ds.attrs["n_segments"] == 1  # rings | grows is not part of the pair
     assert float(ds["k_lo"][0]) < 0.3 <= float(ds["k_hi"][0]) and float(ds["width_k"][0]) <= 0.01
     assert ds["label_lo"].attrs["flag_meanings"] == "decays rings grows unclassified failed"
@@ -406,27 +446,22 @@ def test_named_outcomes_label_and_pair(monkeypatch):
 
 
 def test_resume_refuses_another_horizon(oscillator, tmp_path):
-    """Saved rounds belong to one t1: a --t1 override (not part of the spec) is a different computation."""
+    """Stored rounds belong to one t1: a --t1 override (not part of the spec) is a different computation."""
+    from stabjax import store as S
     from stabjax.errors import StabjaxError
     from stabjax.refine import refine_spec
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 8}, params={"c": C1})
-    calls = []
-
-    def dies(_p):
-        calls.append(1)
-        raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        refine_spec(s, tmp_path / "o.nc", solve_points=dies)
-    with pytest.raises(StabjaxError, match="different spec"):
-        refine_spec(s, tmp_path / "o.nc", t1=2 * T1, solve_points=dies)
-    assert len(calls) == 1
+    with pytest.raises(StabjaxError, match="max_points"):  # stops after the coarse round: 3 points stored
+        refine_spec({**s, "refine": {**s["refine"], "max_points": 3}}, tmp_path / "o.nc")
+    with pytest.raises(StabjaxError, match="different computation"):
+        refine_spec(s, tmp_path / "o.nc", t1=2 * T1)
     # max_points only stops a run: raising it resumes the same run
     s2 = {**s, "refine": {**s["refine"], "max_points": 4}}
     with pytest.raises(StabjaxError, match="max_points"):
         refine_spec(s2, tmp_path / "p.nc")
-    assert len(list((tmp_path / "p.nc.partial").glob("round_*.npz"))) == 2  # 3 coarse points + 1 bisection
+    rounds = sorted((tmp_path / "p.nc.zarr").iterdir())  # 3 coarse points + 1 bisection
+    assert [len(S.read_manifest(r)["chunks"]) for r in rounds] == [1, 1]
     done = refine_spec({**s2, "refine": {**s["refine"], "max_points": 100}}, tmp_path / "p.nc")
     assert done.attrs["rounds_resumed"] == 2 and done.attrs["n_points"] == 3 + 2  # 0.5 halved twice <= 1/8
 
@@ -440,10 +475,10 @@ def test_multi_horizon_verdicts_refine_t1_by_default(oscillator):
         at_t1 = np.where(p["k"] < 0.37, V.CONVERGED, V.FLIPPED)
         early = np.where(p["k"] < 0.81, V.CONVERGED, V.UNDECIDED)  # a different boundary at an earlier horizon
         v = np.stack([early, early, at_t1], axis=1).astype(np.int8)
-        return {"verdict": v, "n_steps": np.ones(len(v), np.int64)}
+        return {"verdict": v, "solver_status": np.zeros(len(v), np.int32), "n_steps": np.ones(len(v), np.int64)}
 
     plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01}))
-    ds = assemble(Refiner(plan, refine_config(plan), solve_points).run())
+    ds = assemble(Refiner(plan, refine_config(plan)).run(_by_values(plan, solve_points)))
     assert ds.attrs["n_segments"] == 1 and float(ds["k_lo"][0]) < 0.37 <= float(ds["k_hi"][0])
 
 
@@ -476,3 +511,37 @@ def test_refine_named_outcome_of_a_user_model_file(tmp_path):
     assert ds.attrs["n_segments"] == 1
     assert float(ds["k_lo"][0]) <= k_star <= float(ds["k_hi"][0])
     assert float(ds["width_k"][0]) <= 1e-3
+
+
+class EscapingOscillator(DampedOscillator):
+    """The oscillator stopped at max(|x|, |x'|) > 2, with the size threshold of *diverged* raised to 10: for
+    k > c + 0.03 the oscillation grows (e^2 ~ exp((k - c) t)) out of the ball before t1 = 50 (solver_status
+    ESCAPED) and no checkpoint reaches the size 10, so the classifier alone says failed."""
+
+    name = "test_escaping_oscillator"
+    escape_radius = 2.0
+    verdict = VerdictConfig(settle_tol=0.999, excursion_tol=1.2, flip_tol=1.5, converged_tol=0.999,
+                            diverge_size=10.0, growth_tol=0.5)
+
+
+def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
+    """One rule for an escape (stabjax.status): a point whose trajectory escapes is *diverged* in the
+    refinement's labels exactly as in a sweep's verdicts at the same parameters. Fails if refine reads the
+    classifier's raw verdict (failed) while the sweep maps the escape to diverged, or vice versa."""
+    from stabjax import status
+    from stabjax.refine import refine_spec
+    from stabjax.sweep import run_spec
+
+    monkeypatch.setitem(registry.SYSTEMS, "test_escaping_oscillator", f"{__name__}:EscapingOscillator")
+    monkeypatch.setitem(registry._cache, "test_escaping_oscillator", EscapingOscillator())
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": {"k": 0.02}}, params={"c": C1},
+             system="test_escaping_oscillator")
+    ref = refine_spec(s)
+    k = ref["point_k"].values
+    sw = run_spec({**{key: v for key, v in s.items() if key != "refine"}, "grid": {"k": k.tolist()}})
+    esc = sw["solver_status"].values == status.ESCAPED
+    # the premise: the far side escapes (e^2 ~ exp((k - c) t) passes 4 by t1 = 50 for k - c > ln 4 / 50)
+    assert np.all(esc[k > C1 + 0.05]) and not np.any(esc[k < C1]) and esc.sum() >= 2
+    np.testing.assert_array_equal(ref["point_label"].values, sw["verdict"].values[:, -1])
+    assert np.all(ref["point_label"].values[esc] == V.DIVERGED)
+    assert np.all(ref["point_label"].values[k < C1 - DELTA] == V.CONVERGED)

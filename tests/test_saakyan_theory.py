@@ -180,10 +180,28 @@ def test_system_theory_end_to_end_batched():
     assert th4.derived["h44_printed"] == pytest.approx(0.04)
 
 
-def test_sublevel_bound_is_consistent():
-    """c* = V at the nearest-in-V spin; V(0) at a spin itself is never below c*."""
+def test_sublevel_bound_equals_the_lowest_spin_of_the_papers_equation():
+    """c* (the minimum of V over the off-target steady spins that Newton finds from 48 starts on the sphere)
+    equals the minimum of V = 1/2 sum_i (lam K - lam^2 I_i) delta_i^2, written out here, over the steady spins
+    of the paper's route: every root of (1.16) on [-1 - b3, 1 - b3] (sign changes on a fine grid, Brent's
+    method), its delta from (1.14), kept where S = H + delta lies on the sphere and zeroes the tangent field
+    lam K H x delta - lam^2 S x (I delta) (poles of f also change sign). Fails if Newton misses the lowest spin, or c* is V at another spin."""
+    from scipy.optimize import brentq
+
     lam, K = 0.5, 4.0
-    l, d = T.l_spurious(I432, HG, lam, K)
+    b3 = HG[2]
+    x = np.linspace(-1 - b3, 1 - b3, 20001)
+    f = T.f116(x, I432, HG, lam, K)
+    cross = np.nonzero(np.isfinite(f[:-1]) & np.isfinite(f[1:]) & (np.sign(f[:-1]) * np.sign(f[1:]) < 0))[0]
+    levels = []
+    for i in cross:
+        r = brentq(lambda d3: T.f116(d3, I432, HG, lam, K), x[i], x[i + 1], xtol=1e-15, rtol=1e-15)
+        d = T.delta_from_116(r, I432, HG, lam, K)
+        S = HG + d
+        F = lam * K * np.cross(HG, d) - lam**2 * np.cross(S, I432 * d)  # the steady-spin equation (nu = 0)
+        if abs(np.linalg.norm(S) - 1) < 1e-9 and np.linalg.norm(F) < 1e-9 and np.linalg.norm(d) > 1e-6:
+            levels.append(0.5 * np.sum((lam * K - lam**2 * I432) * d**2))
+    assert len(levels) >= 1
     cs = T.c_star(I432, HG, lam, K)
-    v_at = T.spin_level(I432, lam, K, 0.0, I432, d)
-    assert cs <= v_at + 1e-12 and cs > 0
+    assert cs > 0
+    np.testing.assert_allclose(cs, min(levels), rtol=1e-8)

@@ -214,7 +214,7 @@ def test_bad_model_file(case, tmp_path, capsys):
     assert "model.py" in msg, msg
     assert "Traceback" not in msg
     assert out.read_bytes() == b"an earlier result"
-    assert not (tmp_path / "res.nc.partial").exists() and not (tmp_path / "res.png").exists()
+    assert not (tmp_path / "res.nc.zarr").exists() and not (tmp_path / "res.png").exists()
 
 
 def test_model_reference_forms():

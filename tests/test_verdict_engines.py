@@ -52,7 +52,7 @@ def test_fused_equals_diffrax_at_every_horizon(ref):
 
 
 def test_observable_features_in_every_engine():
-    """INTERFACES 4: feat_* per observable over the feature window, the same in every engine."""
+    """feat_* per observable over the feature window, the same in every engine."""
     cfg = VCFG.replace(features=True)
     p = {k: v[:4] for k, v in params().items()}
     ref = _solve_diffrax(SYS, p, ICFG, cfg)

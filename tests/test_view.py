@@ -186,11 +186,12 @@ def test_a_running_sweeps_store_shows_finished_chunks_and_marks_the_rest(tmp_pat
     store = Path(str(out) + ".zarr")
     ds = read_result(store)
     pending = ds["pending"].values.ravel()
-    assert pending.sum() == 15 and not pending[:5].any()  # chunk 0 done, chunks 1-3 not
+    # chunks are blocks of the 5 x 4 grid (store.Chunking): a size of 5 gives rows of 4; chunk 0 done, 1-4 not
+    assert pending.sum() == 16 and not pending[:4].any()
     doc, r = page(store)
     assert r.running
     src = doc.select_one({"name": "map"}).renderers[0].data_source
-    assert sum(n == "pending" for n in src.data["name"]) == 15
+    assert sum(n == "pending" for n in src.data["name"]) == 16
     assert "running sweep" in doc.select_one({"name": "status"}).text
     # the rest of the sweep lands: the page's periodic refresh redraws the map from the store
     run_spec(VERDICT_MAP, out, batch_size=5, keep_partial=True)

@@ -8,7 +8,8 @@
   solver and every system.
 
 Shared pieces: :mod:`.tsit5` (tableau, dense output, controller constants), :mod:`.lanes` (the
-lane-wise jaxpr evaluator), :mod:`.vmath` (vectorisable log, sin, cos), :mod:`.static`
+lane-wise jaxpr evaluator, with the list of JAX constructs the fast engines run), :mod:`.unrolled`
+(small dense linear algebra as scalar operations, for the lane evaluator), :mod:`.vmath` (vectorisable log, sin, cos), :mod:`.static`
 (batch-constant parameters). No engine imports another.
 
 The engine of a sweep is resolved once per plan (:func:`resolve_plan`): ``[integrate] engine =

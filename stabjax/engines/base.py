@@ -6,7 +6,7 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 
 # per-trajectory results: ``verdict``, the classifier summaries, ``n_steps``, ``n_rejected``,
-# ``solver_status`` (INTERFACES.md 2), each with leading dim N
+# ``solver_status`` (codes: :mod:`stabjax.status`), each with leading dim N
 Result = dict[str, np.ndarray]
 Progress = Callable[[int, int], None]
 
@@ -23,6 +23,9 @@ class Engine:
     """An integration engine: integrates a batch of trajectories and classifies each.
 
     ``name``                  as in ``[integrate] engine``
+    ``compiles_per_shape``    True if each new batch shape costs a compilation (XLA engines): a caller
+                              running batches of varying size (an explorer's rounds) pads them to a
+                              few sizes; False if any batch runs on the same compiled code (native)
     ``supports(system, icfg)``  cheap check: None if it may run, else the reason it cannot
     ``prepare(...)``          translate and compile for this batch's shapes and constants (cached);
                               raises :class:`Unsupported` with the reason when it cannot
@@ -32,6 +35,7 @@ class Engine:
     """
 
     name: str = ""
+    compiles_per_shape: bool = True
 
     def supports(self, system, icfg) -> str | None:
         raise NotImplementedError

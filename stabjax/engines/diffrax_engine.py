@@ -11,7 +11,7 @@ derivative turned non-finite, or a finite-time blow-up -- has its step size coll
 below ~10 ulp of the horizon (``PIDController(dtmin=...)``) stops it with status 1 after a few
 rejected steps (each shrinks the step by 5; ~20 from a NaN at t0), where diffrax would otherwise
 reject steps until ``max_steps``. With an escape radius, a ``diffrax.Event`` stops a state outside
-the ball at once with :data:`stabjax.config.STATUS_ESCAPED`. (An event testing the derivative for
+the ball at once with :data:`stabjax.status.ESCAPED`. (An event testing the derivative for
 NaN would stop a NaN trajectory after one step instead of ~20, but costs an evaluation of the
 right-hand side per step and misses the blow-up: measured +55% time on the monoaxial model, against
 +40% for ``dtmin``, which catches both.)
@@ -28,7 +28,8 @@ import numpy as np
 
 from .. import early
 from .. import verdict as V
-from ..config import STATUS_ESCAPED, STATUS_MAX_STEPS, IntegrateConfig, escape_radius
+from ..config import IntegrateConfig, escape_radius
+from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS
 from .base import Engine
 from .tsit5 import MIN_STEP_REL
 
@@ -120,7 +121,7 @@ def _batch_fn(system, icfg: IntegrateConfig, vcfg):
         out = dict(classify(ts, obs, status == 0, vcfg, icfg.t0))
         out["n_steps"] = sol.stats["num_accepted_steps"]
         out["n_rejected"] = sol.stats["num_rejected_steps"]
-        out["solver_status"] = status  # 0 success, else the failure reason (stabjax.config STATUS_*)
+        out["solver_status"] = status  # 0 success, else the failure reason (stabjax.status)
         out["stopped_at"] = t_end
         out["fixed_point"] = at_fp
         return out

@@ -14,7 +14,7 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   of ``err / (atol + rtol max(|y0|, |y1|))``), the same I-controller as ``diffrax.PIDController``
   defaults (safety 0.9, factor in [0.2, 10], accepted steps never shrink, rejected ones shrink
   by at least 0.9), the same initial step (Hairer's rule), the same clipping of the last step to
-  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/test_fast.py``).
+  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/test_fused.py``).
 * **Checkpoints without storage.** A step handles at most ``CHECKPOINT_SLOTS`` checkpoints and
   ends on the next one if it would cross more (the controller's own proposal is kept for the
   step after); the state at a checkpoint comes from Tsit5's dense output (the interpolant
@@ -26,7 +26,10 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   stacks, 3x3 products become bookkeeping, XLA sees only elementwise ops on contiguous
   vectors. Parameters equal across the sweep are folded in as constants. float64 log, sin,
   cos and pow use branch-free vectorisable code (:mod:`stabjax.engines.vmath`; XLA:CPU calls
-  scalar libm for them). Systems with a primitive that has no rule (or with their own
+  scalar libm for them). Loops with a trip count known when tracing are unrolled and small
+  dense linear algebra (solve, inv, det, eigh, Cholesky) is written out as scalar operations
+  (:mod:`stabjax.engines.unrolled`): the list of what a model may use is in
+  :mod:`stabjax.engines.lanes`. Systems with a primitive that has no rule (or with their own
   ``classify``, or another solver) raise :class:`Unsupported`: the sweep runs on the diffrax engine.
 * **Both CPU cores.** Trajectories are dealt round-robin to the local devices, each device runs
   its own loop (``shard_map``); :func:`stabjax.config.setup_jax` asks JAX for one host device per core. On a GPU
@@ -35,7 +38,7 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
 A trajectory that cannot progress (its right-hand side is not finite at an accepted state, or
 its step size collapsed below ~10 ulp of t: diffrax would reject steps until ``max_steps``) is stopped at once with the status code
 diffrax would end with (``max_steps_reached`` = 1); with an escape radius, one whose accepted
-state leaves the ball is stopped at once with :data:`stabjax.config.STATUS_ESCAPED`. For FAILED
+state leaves the ball is stopped at once with :data:`stabjax.status.ESCAPED`. For FAILED
 trajectories only ``verdict``, ``solver_status`` and the step counts are meaningful.
 """
 from __future__ import annotations
@@ -50,7 +53,8 @@ from jax import lax
 
 from .. import early
 from .. import verdict as V
-from ..config import STATUS_ESCAPED, STATUS_MAX_STEPS, STATUS_OK, escape_radius
+from ..config import escape_radius
+from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from .base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from .lanes import (LaneFn, Lanes, NoRule, RowSpec, flat_rows, is_const, materialize, materializing, obj, obj0,
                     obj1, rows_to_objs)

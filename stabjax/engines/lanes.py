@@ -10,8 +10,39 @@ and XLA only ever sees elementwise operations on contiguous (L,) vectors, which 
 SIMD loops. ``pow`` with a lane-varying exponent goes through exp/log (XLA's vectorised
 kernels) instead of scalar libm calls. Any primitive without a rule raises :class:`NoRule`.
 
+What a model may use (each rule is written once here, so the fused and the native engine take
+the same constructs; tests/test_constructs.py runs a one-line model of each):
+
+* elementwise math, comparisons, ``where``/``select``, ``clip``, reductions, ``dot_general``
+  (``@``, ``einsum``, ``cross``, ``norm``), slicing, reshapes, ``concatenate``/``stack``, ``pad``
+  (``jnp.diag``), ``cumsum``/``cumprod``/``cummax``/``cummin``, ``argmax``/``argmin``;
+* indexing: ``gather``/``dynamic_slice`` and ``scatter`` (``x.at[i].set/add/mul/min/max``), also
+  with an index computed from the state (a select among the positions the index may take: the
+  axes are small); ``sort`` (``jnp.sort``, ``argsort``, ``median``) by a sorting network;
+* ``lax.cond`` (both branches evaluated, then selected per lane), ``lax.scan`` and
+  ``lax.while_loop``/``fori_loop`` whose trip count is known when tracing (unrolled, up to
+  :data:`MAX_UNROLL` iterations; a condition that depends on the state has no rule: lanes would
+  need different trip counts);
+* ``stop_gradient`` (the identity on values), ``custom_jvp``/``custom_vjp`` functions (their
+  primal), ``custom_linear_solve`` (its forward solve);
+* small dense linear algebra: ``lu``, ``triangular_solve``, ``cholesky`` and ``eigh`` are
+  replaced by the unrolled scalar algorithms of :mod:`stabjax.engines.unrolled` (so
+  ``jnp.linalg.solve``, ``inv``, ``det``, ``eigh``, ``eigvalsh``, ``jax.scipy.linalg.cho_solve``,
+  ``lu_factor``/``lu_solve`` work; ``lu_pivots_to_permutation`` too) up to 12 x 12 (eigh: 8 x 8). They are hand-written because
+  there is no matrix to give LAPACK: every element is its own lane vector or C variable, and a
+  per-lane library call would leave the SIMD loop.
+
+Not supported (the engine chain then falls back to diffrax with the reason in ``engine_note``):
+loops whose trip count depends on the state, larger matrices, other decompositions (``svd``, ``qr``, general ``eig``), float32 or complex values
+in the native engine.
+
 The fused engine evaluates with :class:`Lanes` directly; the native engine subclasses it to
 emit one line of C per scalar operation instead.
+
+Length: about 770 lines, over the project's ~550-line guide, because this is one evaluator: the
+rule table of :meth:`Lanes.apply` and the methods its rules share (gather, scatter, loops); split
+across modules, the answer to "which primitives do the fast engines run" would be in several places.
+The linear-algebra algorithms, which are separate JAX functions, live in :mod:`.unrolled`.
 """
 from __future__ import annotations
 
@@ -22,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from . import unrolled
 from .vmath import SINCOS_LIMIT, fast_cos_small, fast_log, fast_sin_small
 
 def materialize(x):
@@ -53,6 +85,12 @@ def materializing(one):
         yield
     finally:
         _ONE.pop()
+
+
+MAX_UNROLL = 1000  # iterations of one scan/while loop unrolled (the traced code grows with them)
+
+# primitives that are the identity on values: stop_gradient only matters to differentiation
+_IDENTITY_PRIMS = frozenset({"stop_gradient", "optimization_barrier"})
 
 
 class NoRule(Exception):
@@ -214,7 +252,26 @@ class Lanes:
             if hasattr(sub, "consts"):
                 return self.eval_closed(sub, ins[: len(sub.jaxpr.invars)])
             return self.eval_jaxpr(sub, (), ins[: len(sub.invars)])
+        if name in _IDENTITY_PRIMS:
+            return list(ins[: len(out_avals)])
+        if name == "custom_linear_solve":  # the forward solve; the other jaxprs serve transposes/JVPs
+            cl = p["const_lengths"]
+            start = cl.matvec + cl.vecmat
+            solve = p["jaxprs"].solve
+            return self.eval_closed(solve, ins[start: start + cl.solve] + ins[sum(cl):])
+        if unrolled.replaceable(name):
+            try:
+                sub = unrolled.expansion(name, p, [v.aval for v in eqn.invars])
+            except ValueError as exc:
+                raise NoRule(f"{name}: {exc}") from None
+            return self.eval_closed(sub, ins)
+        if name == "scan":
+            return self.scan(eqn, ins)
+        if name == "while":
+            return self.while_loop(eqn, ins)
         a = ins[0] if ins else None
+        if name == "gather":
+            return [self.gather(a, ins[1], p, out_avals[0], eqn.invars[0].aval.dtype)]
         if name == "slice":
             strides = p["strides"] or (1,) * a.ndim
             return [a[tuple(slice(s, l, st) for s, l, st in zip(p["start_indices"], p["limit_indices"], strides))]]
@@ -263,15 +320,32 @@ class Lanes:
                     acc = self.binop(_REDUCE[name], acc, e, dtype)
                 out[i] = acc
             return [out]
+        if name in _SCATTER:
+            return [self.scatter(a, ins[1], ins[2], p, _SCATTER[name], eqn.invars[0].aval.dtype)]
+        if name == "sort":
+            return self.sort(ins, p, [v.aval.dtype for v in eqn.invars])
+        if name in _CUMULATIVE:
+            return [self.cumulative(a, p, _CUMULATIVE[name], eqn.invars[0].aval.dtype)]
+        if name in ("argmax", "argmin"):
+            return [self.arg_best(a, p, name == "argmax", eqn)]
+        if name == "pad":
+            return [self.pad(a, ins[1][()], p["padding_config"])]
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], p, eqn)]
         if name == "dynamic_slice":
-            idx = ins[1:]
-            if not all(is_const(i[()]) for i in idx):
-                raise NoRule("dynamic_slice with lane-varying index")
-            starts = [int(i[()]) for i in idx]
-            starts = [min(max(s, 0), d - n) for s, d, n in zip(starts, a.shape, p["slice_sizes"])]
-            return [a[tuple(slice(s, s + n) for s, n in zip(starts, p["slice_sizes"]))]]
+            sizes = tuple(p["slice_sizes"])
+            idx = [i[()] for i in ins[1:]]
+            if all(is_const(i) for i in idx):
+                starts = [min(max(int(s), 0), d - n) for s, d, n in zip(idx, a.shape, sizes)]
+                return [a[tuple(slice(s, s + n) for s, n in zip(starts, sizes))]]
+            # a lane-varying start (x[i] with i computed from the state): a select among the positions
+            starts = [min(max(int(s), 0), d - n) if is_const(s) else 0 for s, d, n in zip(idx, a.shape, sizes)]
+            varying = {d: s for d, s in enumerate(idx) if not is_const(s)}
+            dtype = eqn.invars[0].aval.dtype
+            out = obj(sizes)
+            for i in np.ndindex(sizes):
+                out[i] = self._gather_elem(a, starts, list(i), varying, sizes, False, None, dtype)
+            return [out]
         if name == "cond":
             branches = p["branches"]
             index = ins[0][()]
@@ -288,7 +362,247 @@ class Lanes:
                     o[i] = lax.select_n(idx, *[self.lift(b[j][i], aval.dtype) for b in outs])
                 res.append(o)
             return res
+        if all(is_const(e) for x in ins for e in x.flat):  # any other primitive on constants: folded
+            with jax.ensure_compile_time_eval():
+                outs = eqn.primitive.bind(*[np.asarray(x.tolist(), dtype=v.aval.dtype).reshape(x.shape)
+                                            for x, v in zip(ins, eqn.invars)], **p)
+            return [const_array(np.asarray(o)) for o in (outs if eqn.primitive.multiple_results else [outs])]
         raise NoRule(name)
+
+    def arg_best(self, a, p, is_max, eqn):
+        """argmax/argmin along one axis: a running best and its index, by selects (the first on
+        ties; a NaN counts as the best, as in JAX)."""
+        (axis,) = p["axes"]
+        dt, it = eqn.invars[0].aval.dtype, np.dtype(p["index_dtype"])
+        moved = np.moveaxis(a, axis, -1)
+        out = obj(moved.shape[:-1])
+        cmp = lax.gt_p if is_max else lax.lt_p
+        fl = np.dtype(dt).kind == "f"
+        for i in np.ndindex(out.shape):
+            best, idx = moved[i + (0,)], it.type(0)
+            for k in range(1, moved.shape[-1]):
+                v = moved[i + (k,)]
+                better = self.bind_elem(cmp, {}, [v, best], [dt, dt])
+                if fl:  # a NaN beats any number; the first NaN stays
+                    v_nan = self.bind_elem(lax.ne_p, {}, [v, v], [dt, dt])
+                    b_num = self.bind_elem(lax.eq_p, {}, [best, best], [dt, dt])
+                    better = self.binop("or", better, self.binop("and", v_nan, b_num, np.bool_), np.bool_)
+                best = self.bind_elem(lax.select_n_p, {}, [better, best, v], [np.bool_, dt, dt])
+                idx = self.bind_elem(lax.select_n_p, {}, [better, idx, it.type(k)], [np.bool_, it, it])
+            out[i] = idx
+        return out
+
+    def cumulative(self, a, p, op, dtype):
+        """cumsum/cumprod/cummax/cummin along one axis, a running sum (product, ...)."""
+        axis = p["axis"]
+        moved = np.moveaxis(a, axis, -1).copy()
+        n = moved.shape[-1]
+        ks = range(n - 2, -1, -1) if p.get("reverse") else range(1, n)
+        for i in np.ndindex(moved.shape[:-1]):
+            for k in ks:
+                prev = k + 1 if p.get("reverse") else k - 1
+                moved[i + (k,)] = self.binop(op, moved[i + (prev,)], moved[i + (k,)], dtype)
+        return np.moveaxis(moved, -1, axis)
+
+    def scatter(self, operand, indices, updates, p, op, dtype):
+        """XLA scatter (``x.at[i].set(v)``, ``.add``, ``.mul``, ``.min``, ``.max``). An index known when
+        tracing writes one element; one computed from the state writes, at every position it may
+        take, a select between the old and the new value."""
+        dn = p["dimension_numbers"]
+        if dn.operand_batching_dims:
+            raise NoRule("scatter with batching dimensions")
+        fill = "FILL" in str(p["mode"])
+        out = operand.copy()
+        window_dims = [d for d in range(operand.ndim) if d not in dn.inserted_window_dims]
+        win_size = [1] * operand.ndim
+        for w, ud in zip(window_dims, dn.update_window_dims):
+            win_size[w] = updates.shape[ud]
+        scatter_pos = [d for d in range(updates.ndim) if d not in dn.update_window_dims]
+        i32 = np.dtype(np.int32)
+        for ui in np.ndindex(updates.shape):
+            g = tuple(ui[d] for d in scatter_pos)
+            start = [0] * operand.ndim
+            dropped = False
+            varying = {}
+            for k, d in enumerate(dn.scatter_dims_to_operand_dims):
+                s, hi = indices[g + (k,)], operand.shape[d] - win_size[d]
+                if not is_const(s):
+                    s = self.bind_elem(lax.convert_element_type_p, {"new_dtype": i32, "weak_type": False,
+                                                                    "sharding": None}, [s], [_aval_dtype(s)])
+                    if not fill:  # clip: the index is clamped into range
+                        s = self.binop("min", self.binop("max", s, np.int32(0), i32), np.int32(hi), i32)
+                    varying[d] = s
+                    continue
+                s = int(s)
+                if fill and not 0 <= s <= hi:
+                    dropped = True
+                start[d] = min(max(s, 0), hi)
+            if dropped:
+                continue
+            offs = [0] * operand.ndim
+            for w, ud in zip(window_dims, dn.update_window_dims):
+                offs[w] = ui[ud]
+            upd = updates[ui]
+            dims = list(varying)
+            for cand in np.ndindex(*[operand.shape[d] - win_size[d] + 1 for d in dims]):
+                st = list(start)
+                hit = None
+                for d, c in zip(dims, cand):
+                    st[d] = c
+                    eq = self.bind_elem(lax.eq_p, {}, [varying[d], np.int32(c)], [i32, i32])
+                    hit = eq if hit is None else self.binop("and", hit, eq, np.bool_)
+                idx = tuple(a + b for a, b in zip(st, offs))
+                new = upd if op is None else self.binop(op, out[idx], upd, dtype)
+                out[idx] = new if hit is None else self.bind_elem(lax.select_n_p, {}, [hit, out[idx], new],
+                                                                  [np.bool_, dtype, dtype])
+        return out
+
+    def sort(self, ins, p, dtypes):
+        """lax.sort along one axis (``jnp.sort``, ``argsort``, ``median``): an odd-even transposition
+        network, n rounds of compare-and-swap of neighbours, each swap a select (stable: equal
+        keys never swap). Keys compare as JAX orders them, NaN last (-0.0 and 0.0 compare equal)."""
+        dim, nk = p["dimension"], p["num_keys"]
+        moved = [np.moveaxis(x, dim, -1).copy() for x in ins]
+        n = moved[0].shape[-1]
+        for line in np.ndindex(moved[0].shape[:-1]):
+            cols = [[m[line + (j,)] for j in range(n)] for m in moved]
+            for rnd in range(n):
+                for j in range(rnd % 2, n - 1, 2):
+                    swap = self._sort_less([c[j + 1] for c in cols[:nk]], [c[j] for c in cols[:nk]], dtypes[:nk])
+                    for c, dt in zip(cols, dtypes):
+                        a, b = c[j], c[j + 1]
+                        c[j] = self.bind_elem(lax.select_n_p, {}, [swap, a, b], [np.bool_, dt, dt])
+                        c[j + 1] = self.bind_elem(lax.select_n_p, {}, [swap, b, a], [np.bool_, dt, dt])
+            for m, c in zip(moved, cols):
+                for j in range(n):
+                    m[line + (j,)] = c[j]
+        return [np.moveaxis(m, -1, dim) for m in moved]
+
+    def _sort_less(self, xs, ys, dtypes):
+        """x < y lexicographically over the keys, NaN after every number."""
+        less, equal = None, None
+        for x, y, dt in zip(xs, ys, dtypes):
+            lt = self.bind_elem(lax.lt_p, {}, [x, y], [dt, dt])
+            eq = self.bind_elem(lax.eq_p, {}, [x, y], [dt, dt])
+            if np.dtype(dt).kind == "f":
+                x_nan = self.bind_elem(lax.ne_p, {}, [x, x], [dt, dt])
+                y_nan = self.bind_elem(lax.ne_p, {}, [y, y], [dt, dt])
+                x_num = self.bind_elem(lax.not_p, {}, [x_nan], [np.bool_])
+                lt = self.binop("or", lt, self.binop("and", y_nan, x_num, np.bool_), np.bool_)
+                eq = self.binop("or", eq, self.binop("and", x_nan, y_nan, np.bool_), np.bool_)
+            term = lt if equal is None else self.binop("and", equal, lt, np.bool_)
+            less = term if less is None else self.binop("or", less, term, np.bool_)
+            equal = eq if equal is None else self.binop("and", equal, eq, np.bool_)
+        return less
+
+    def pad(self, a, value, config):
+        """lax.pad with non-negative edge padding and interior padding (``jnp.diag`` uses it)."""
+        if any(lo < 0 or hi < 0 for lo, hi, _ in config):
+            raise NoRule("pad with negative padding")
+        shape = tuple(lo + hi + n + max(n - 1, 0) * it for (lo, hi, it), n in zip(config, a.shape))
+        out = obj(shape)
+        for i in np.ndindex(shape):
+            out[i] = value
+        for i in np.ndindex(a.shape):
+            out[tuple(lo + k * (it + 1) for (lo, _, it), k in zip(config, i))] = a[i]
+        return out
+
+    # -- loops with a trip count known when tracing: unrolled -----------------------------------
+    def scan(self, eqn, ins):
+        """``lax.scan`` (``fori_loop`` with constant bounds): the body evaluated ``length`` times."""
+        p = eqn.params
+        n_c, n_carry, length = p["num_consts"], p["num_carry"], int(p["length"])
+        if length > MAX_UNROLL:
+            raise NoRule(f"scan of length {length} (unrolled up to {MAX_UNROLL})")
+        consts, carry, xs = ins[:n_c], list(ins[n_c:n_c + n_carry]), ins[n_c + n_carry:]
+        ys = [None] * length
+        for k in (range(length - 1, -1, -1) if p["reverse"] else range(length)):
+            outs = self.eval_closed(p["jaxpr"], consts + carry + [x[k, ...] for x in xs])
+            carry, ys[k] = list(outs[:n_carry]), outs[n_carry:]
+        stacked = []
+        for j, v in enumerate(eqn.outvars[n_carry:]):
+            o = obj(v.aval.shape)
+            for k in range(length):
+                for i in np.ndindex(o.shape[1:]):
+                    o[(k,) + i] = ys[k][j][i]
+            stacked.append(o)
+        return carry + stacked
+
+    def while_loop(self, eqn, ins):
+        """``lax.while_loop`` whose condition is a constant at every iteration (``fori_loop`` with
+        bounds known when tracing): unrolled. A lane-varying condition has no rule."""
+        p = eqn.params
+        cc, bc = p["cond_nconsts"], p["body_nconsts"]
+        cconsts, bconsts, carry = ins[:cc], ins[cc:cc + bc], list(ins[cc + bc:])
+        for _ in range(MAX_UNROLL + 1):
+            go = self.eval_closed(p["cond_jaxpr"], cconsts + carry)[0][()]
+            if not is_const(go):
+                raise NoRule("while loop with a lane-varying condition")
+            if not bool(go):
+                return carry
+            carry = list(self.eval_closed(p["body_jaxpr"], bconsts + carry))
+        raise NoRule(f"while loop of more than {MAX_UNROLL} iterations")
+
+    # -- indexing --------------------------------------------------------------------------------
+    def gather(self, operand, indices, p, out_aval, dtype):
+        """XLA gather; a lane-varying start index selects among the (few) positions it may take."""
+        dn = p["dimension_numbers"]
+        if dn.operand_batching_dims:
+            raise NoRule("gather with batching dimensions")
+        sizes = tuple(p["slice_sizes"])
+        mode = str(p["mode"])
+        fill = "FILL" in mode
+        offset_dims = tuple(dn.offset_dims)
+        window = [d for d in range(operand.ndim) if d not in dn.collapsed_slice_dims]
+        out_shape = tuple(out_aval.shape)
+        batch_pos = [d for d in range(len(out_shape)) if d not in offset_dims]
+        out = obj(out_shape)
+        for oi in np.ndindex(out_shape):
+            g = tuple(oi[d] for d in batch_pos)
+            starts = [0] * operand.ndim
+            varying = {}
+            for k, d in enumerate(dn.start_index_map):
+                s = indices[g + (k,)]
+                hi = operand.shape[d] - sizes[d]
+                if is_const(s):
+                    s = int(s)
+                    if fill and not 0 <= s <= hi:
+                        starts = None
+                        break
+                    starts[d] = min(max(s, 0), hi)
+                else:
+                    varying[d] = s
+            if starts is None:
+                out[oi] = _fill_value(p.get("fill_value"), dtype)
+                continue
+            offs = [0] * operand.ndim
+            for w, od in zip(window, offset_dims):
+                offs[w] = oi[od]
+            out[oi] = self._gather_elem(operand, starts, offs, varying, sizes, fill, p.get("fill_value"), dtype)
+        return out
+
+    def _gather_elem(self, operand, starts, offs, varying, sizes, fill, fill_value, dtype):
+        if not varying:
+            return operand[tuple(s + o for s, o in zip(starts, offs))]
+        d, s = next(iter(varying.items()))
+        rest = {k: v for k, v in varying.items() if k != d}
+        hi = operand.shape[d] - sizes[d]
+        cases = []
+        for c in range(hi + 1):
+            st = list(starts)
+            st[d] = c
+            cases.append(self._gather_elem(operand, st, offs, rest, sizes, fill, fill_value, dtype))
+        sdt = _aval_dtype(s)
+        i32 = self.bind_elem(lax.convert_element_type_p, {"new_dtype": np.dtype(np.int32), "weak_type": False,
+                                                          "sharding": None}, [s], [sdt])
+        k = self.binop("min", self.binop("max", i32, np.int32(0), np.int32), np.int32(hi), np.int32)
+        r = cases[0] if hi == 0 else self.bind_elem(lax.select_n_p, {}, [k] + cases, [np.int32] + [dtype] * len(cases))
+        if fill:  # an out-of-range start gives the fill value
+            lo_ok = self.bind_elem(lax.ge_p, {}, [i32, np.int32(0)], [np.int32, np.int32])
+            hi_ok = self.bind_elem(lax.le_p, {}, [i32, np.int32(hi)], [np.int32, np.int32])
+            ok = self.binop("and", lo_ok, hi_ok, np.bool_)
+            r = self.bind_elem(lax.select_n_p, {}, [ok, _fill_value(fill_value, dtype), r], [np.bool_, dtype, dtype])
+        return r
 
     def dot_general(self, x, y, p, eqn):
         (lc, rc), (lb, rb) = p["dimension_numbers"]
@@ -317,6 +631,30 @@ class Lanes:
                     out[b + i + j] = acc if acc is not None else np.zeros((), dtype)[()]
         return out
 
+
+def _fill_value(fill_value, dtype):
+    """JAX's fill for an out-of-range gather: NaN for floats, the minimum of signed integers, the
+    maximum of unsigned ones, True for booleans (or the given ``fill_value``)."""
+    dt = np.dtype(dtype)
+    if fill_value is not None:
+        return np.asarray(fill_value, dt)[()]
+    if dt.kind == "f":
+        return np.asarray(np.nan, dt)[()]
+    if dt.kind == "i":
+        return np.iinfo(dt).min
+    if dt.kind == "u":
+        return np.iinfo(dt).max
+    return np.bool_(True)
+
+
+def _aval_dtype(e):
+    """dtype of a lane element: a NumPy constant, a JAX array or a native-engine symbol."""
+    return np.dtype(e.dtype)
+
+
+_SCATTER = {"scatter": None, "scatter-add": "add", "scatter_add": "add", "scatter-mul": "mul", "scatter_mul": "mul",
+            "scatter-min": "min", "scatter_min": "min", "scatter-max": "max", "scatter_max": "max"}
+_CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
 
 _PRIMS = {"add": lax.add_p, "mul": lax.mul_p, "max": lax.max_p, "min": lax.min_p, "and": lax.and_p, "or": lax.or_p}
 try:

@@ -21,16 +21,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..engine import simulate  # noqa: E402
-from .. import verdict as V  # noqa: E402
-from ..plotting import horizon_boundaries, plot_sweep  # noqa: E402
-from ..sweep import run_spec, write  # noqa: E402
+from ..engine import simulate
+from .. import verdict as V
+from ..plotting import horizon_boundaries, plot_sweep
+from ..sweep import run_spec, write
 
 
 def _cosines(ax, ds, title):

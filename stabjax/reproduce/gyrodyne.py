@@ -23,15 +23,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..engine import IntegrateConfig, batch_params, solve_batch  # noqa: E402
-from ..registry import get_system  # noqa: E402
-from ..systems import gyrodyne_theory as T  # noqa: E402
+from ..engine import IntegrateConfig, batch_params, solve_batch
+from ..registry import get_system
+from ..systems import gyrodyne_theory as T
 
 
 def theory_table(S) -> str:

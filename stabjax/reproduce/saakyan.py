@@ -20,17 +20,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..engine import simulate  # noqa: E402
-from ..plotting import converged_fraction, plot_sweep  # noqa: E402
-from ..sweep import run_spec  # noqa: E402
-from ..systems import saakyan_theory as T  # noqa: E402
-from . import load_shipped, shipped_specs  # noqa: E402
+from ..engine import simulate
+from ..plotting import converged_fraction, plot_sweep
+from ..sweep import run_spec
+from ..systems import saakyan_theory as T
+from . import load_shipped, shipped_specs
 
 
 _H = tuple(np.round(np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]), 12))

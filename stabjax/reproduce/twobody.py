@@ -1,4 +1,4 @@
-"""`stabjax reproduce two-body`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
+"""`stabjax reproduce twobody`: Bezglasnyi & Mysina (2011), carrier + rotor (docs/models/twobody.md).
 
 The paper has no numerical example. We use the test case of docs/models/twobody.md ("Test case"), a small
 spacecraft-like carrier I1 = diag(10, 8, 6) kg m^2 and an *unbalanced* rotor with products of
@@ -22,18 +22,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .. import verdict as V  # noqa: E402
-from ..engine import IntegrateConfig, batch_params, simulate, solve_batch  # noqa: E402
-from ..plotting import cell_note, converged_fraction, plot_sweep  # noqa: E402
-from ..registry import get_system  # noqa: E402
-from ..sweep import run_spec  # noqa: E402
-from ..systems import twobody_theory as tt  # noqa: E402
+from .. import verdict as V
+from ..engine import IntegrateConfig, batch_params, simulate, solve_batch
+from ..plotting import cell_note, converged_fraction, plot_sweep
+from ..registry import get_system
+from ..sweep import run_spec
+from ..systems import twobody_theory as tt
 
 ICFG = dict(rtol=1e-8, atol=1e-10, n_checkpoints=400)
 

@@ -32,7 +32,8 @@ import numpy as np
 
 from ... import early
 from ... import verdict as V
-from ...config import STATUS_OK, STATUS_MAX_STEPS, escape_radius
+from ...config import escape_radius
+from ...status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from ..base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from ..static import StaticParams, split_static
 from ..tsit5 import SOLVER, t1_clip_floor
@@ -131,7 +132,7 @@ def warm(system, icfg, vcfg, params, *, static=None) -> float:
 
 
 def default_threads() -> int:
-    """``$STABJAX_THREADS`` if set (Dask workers get their share of the cores this way), else one
+    """``$STABJAX_THREADS`` if set (a user's limit for a run in this process), else one
     thread per core available to this process. ``[integrate] threads`` overrides both."""
     from ...config import env_int
 
@@ -253,6 +254,7 @@ class NativeEngine(Engine):
     """The native C engine (CPU with a working C compiler)."""
 
     name = "native"
+    compiles_per_shape = False  # the C loop takes any number of trajectories
 
     def supports(self, system, icfg) -> str | None:
         reason = lane_engine_declines(self.name, SOLVER, system, icfg)

@@ -6,6 +6,12 @@ every array element a C variable (:class:`CEmit`): slices, stacks and 3x3 produc
 bookkeeping, each scalar operation one line of C. Parameters equal across the sweep are folded in
 as constants (``pow(x, 0.5)`` becomes ``sqrt``); ``prepare`` and ``initial_state`` run on the host
 (vmapped JAX), so any primitive is allowed there.
+
+The constructs a right-hand side may use are those of the lane evaluator (the list in
+:mod:`stabjax.engines.lanes`): loops with a trip count known when tracing are unrolled and
+small dense linear algebra (``jnp.linalg.solve``, ``inv``, ``det``, ``eigh``, Cholesky) is
+written out as scalar operations (:mod:`stabjax.engines.unrolled`), so it becomes straight-line C
+in the SIMD loop like the rest of the model; a lane-dependent pivot or index is a select.
 """
 from __future__ import annotations
 
@@ -381,7 +387,7 @@ class NativeModel:
             template = []
             for o in outs:
                 template.append([o[i] if is_const(o[i]) else None for i in np.ndindex(o.shape)])
-        except NoRule:  # e.g. a matrix inverse: every element is passed in
+        except NoRule:  # e.g. a decomposition without a rule (svd): every element is passed in
             template = [[None] * int(np.prod(s)) for s, _ in self.args_shapes]
         self.template = template
         self.dyn_slots = [(j, i) for j, t in enumerate(template) for i, e in enumerate(t) if e is None]

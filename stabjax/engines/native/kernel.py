@@ -22,14 +22,14 @@ one piece. Why each part is written the way it is: the comments in the C, and do
   observables wait in per-lane FIFOs for vectorised classifier passes.
 * **Stops.** A lane stops at t1, at ``max_steps``, at once when its derivative is not finite or
   its step size collapses (status 1, what diffrax would end with; :data:`..tsit5.MIN_STEP_REL`), and, with an escape radius, at once when an accepted
-  state leaves the ball (status :data:`stabjax.config.STATUS_ESCAPED`).
+  state leaves the ball (status :data:`stabjax.status.ESCAPED`).
 """
 from __future__ import annotations
 
 import ctypes
 from typing import Callable
 
-from ...config import STATUS_ESCAPED, STATUS_MAX_STEPS, STATUS_OK
+from ...status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from ..tsit5 import A, C, E, FACTORMAX, FACTORMIN, MIN_STEP_REL, SAFETY
 from .emit import NativeModel, flit
 

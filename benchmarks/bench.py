@@ -1,7 +1,7 @@
 """Benchmark: the stabjax sweep engines against named baselines, in one process.
 
     stabjax bench [--sizes 256,4096,65536] [--t1 1e4] [--out results/bench.json] [--quick]
-    python -m stabjax.bench ...
+    python -m benchmarks.bench ...
 
 Model: the monoaxial paper example (docs/models) with an alpha axis (alpha evenly spaced in
 [0.3, 1.0]; every other parameter the paper's), rtol 1e-8, atol 1e-10, float64, horizon t1.
@@ -108,7 +108,7 @@ def versions() -> dict:
     import jaxlib
     import scipy
 
-    from . import __version__
+    from stabjax import __version__
 
     v = {"stabjax": __version__, "jax": jax.__version__, "jaxlib": jaxlib.__version__, "diffrax": diffrax.__version__,
          "equinox": equinox.__version__, "numpy": np.__version__, "scipy": scipy.__version__}
@@ -144,7 +144,7 @@ def spec(n: int, t1: float) -> dict:
 
 
 def paper_constants() -> dict:
-    from .registry import get_system
+    from stabjax.registry import get_system
 
     s = get_system(SYSTEM)
     p = s.check(s.params.resolve(None))
@@ -182,10 +182,10 @@ def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
     """
     import tempfile
 
-    from . import engines
-    from .engines import fused, native
-    from .spec import make_plan
-    from .sweep import choose_batch_size, run_plan, static_params
+    from stabjax import engines
+    from stabjax.engines import fused, native
+    from stabjax.spec import make_plan
+    from stabjax.sweep import choose_batch_size, run_plan, static_params
 
     sp = spec(n, t1)
     sp["integrate"]["engine"] = engine
@@ -310,9 +310,9 @@ def run_scipy(n: int, t1: float, k: int) -> dict:
 
 
 def run_numba(n: int, t1: float, k: int) -> dict | None:
-    """The compiled one-trajectory-at-a-time baseline (:mod:`stabjax.numba_baseline`); None without numba."""
+    """The compiled one-trajectory-at-a-time baseline (:mod:`benchmarks.numba_baseline`); None without numba."""
     try:
-        from . import numba_baseline as mod
+        from benchmarks import numba_baseline as mod
     except ImportError:
         return None
     c = paper_constants()
@@ -332,9 +332,9 @@ def run_numba(n: int, t1: float, k: int) -> dict | None:
 def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, k_verdict: int) -> dict:
     """Final states of the native engine vs the diffrax baseline and SciPy; its verdicts (and those of
     run_spec and of the fused engine) vs the diffrax engine path."""
-    from .config import IntegrateConfig
-    from .engines import diffrax_engine, fused as fused_engine, native
-    from .registry import get_system
+    from stabjax.config import IntegrateConfig
+    from stabjax.engines import diffrax_engine, fused as fused_engine, native
+    from stabjax.registry import get_system
 
     s = get_system(SYSTEM)
     out = {}
@@ -377,12 +377,12 @@ def _strip(d: dict) -> dict:
 
 def main(sizes=(256, 4096, 65536), t1: float = 1e4, out: str | Path = "results/bench.json", quick: bool = False,
          scipy_k: int | None = None, skip_diffrax_above: int | None = None, with_fused: bool = True) -> dict:
-    from .config import setup_jax
+    from stabjax.config import setup_jax
 
     setup_jax()
     import jax
 
-    from .engines import fused
+    from stabjax.engines import fused
 
     if quick:  # smoke test: one tiny size, short horizon
         sizes, t1 = [16], min(t1, 20.0)

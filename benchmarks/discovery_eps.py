@@ -1,4 +1,4 @@
-"""Discovery settings measured on the examples (docs/performance.md): python docs/discovery_eps.py"""
+"""Discovery settings measured on the examples (docs/performance.md): python -m benchmarks.discovery_eps"""
 import numpy as np, tomllib
 from stabjax.sweep import run_spec
 from stabjax.discover import discover, DiscoveryConfig

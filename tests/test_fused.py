@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from stabjax import verdict as V
-from stabjax.config import STATUS_MAX_STEPS
+from stabjax.status import MAX_STEPS as STATUS_MAX_STEPS
 from stabjax.engines import diffrax_engine, lanes, vmath
 from stabjax.engines import fused as fast
 from stabjax.engines.base import Unsupported

@@ -1,6 +1,6 @@
 """Benchmark of the fixed-point early stop (:mod:`stabjax.early`): each example with and without it.
 
-``python -m stabjax.early_bench [EXAMPLE ...] [--n N] [--engine E] [--set key=value ...]``: for each
+``python -m benchmarks.early_bench [EXAMPLE ...] [--n N] [--engine E] [--set key=value ...]``: for each
 example spec (``stabjax/examples/<name>/spec.toml``), the sweep runs with ``[integrate] early_stop =
 false`` and ``true``, each once to compile and once timed; printed: trajectory-steps, wall time of the
 timed run, how many trajectories stopped at a fixed point, and the number of starts whose outcome
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-EXAMPLES = Path(__file__).resolve().parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[1] / "stabjax" / "examples"
 
 
 def _set(spec: dict, dotted: str, value) -> None:
@@ -27,9 +27,9 @@ def _set(spec: dict, dotted: str, value) -> None:
 
 
 def measure(name: str, n: int | None = None, engine: str = "auto", sets: dict | None = None) -> dict:
-    from .early import STOP_FIXED_POINT
-    from .spec import load_spec, make_plan
-    from .sweep import run_plan
+    from stabjax.early import STOP_FIXED_POINT
+    from stabjax.spec import load_spec, make_plan
+    from stabjax.sweep import run_plan
 
     base = load_spec(EXAMPLES / name / "spec.toml")
     if n is not None and "sample" in base:
@@ -64,9 +64,9 @@ def measure(name: str, n: int | None = None, engine: str = "auto", sets: dict | 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .config import setup_jax
+    from stabjax.config import setup_jax
 
-    ap = argparse.ArgumentParser(prog="python -m stabjax.early_bench", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.early_bench", description=__doc__.split("\n")[0])
     ap.add_argument("examples", nargs="*", default=["pendulum", "lorenz", "lorenz63", "duffing"])
     ap.add_argument("--n", type=int, default=None, help="starts per example (default: the spec's)")
     ap.add_argument("--engine", default="auto")

@@ -8,7 +8,7 @@ optional ``numba`` (``pip install "stabjax[bench]"``): importing this module wit
 
     ys, acc = solve_many(y0s (k, 6), alphas (k,), c, t1, rtol, atol)
 
-``c`` is :func:`stabjax.bench.paper_constants` (J, D (3 or 3x3), a, mu, b, sigma, omega0, r,
+``c`` is :func:`benchmarks.bench.paper_constants` (J, D (3 or 3x3), a, mu, b, sigma, omega0, r,
 normalize, ...). Returns the final states (k, 6) and the accepted step counts (k,).
 
 Model (``stabjax/systems/monoaxial.py``): with s_hat = s/|s| if normalize else s,
@@ -222,7 +222,7 @@ def _t1_floor(t1: float) -> float:
 
 
 def pack_constants(c: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(P, Dm) for the compiled right-hand side from :func:`stabjax.bench.paper_constants`."""
+    """(P, Dm) for the compiled right-hand side from :func:`benchmarks.bench.paper_constants`."""
     J = np.asarray(c["J"], float).reshape(3)
     r = np.asarray(c["r"], float).reshape(3)
     D = np.asarray(c["D"], float)

@@ -13,7 +13,7 @@ Two questions, each answered in one process:
    tolerances, final state only) and a SciPy ``solve_ivp`` DOP853 loop over a subset with a
    NumPy right-hand side.
 
-Run: ``python -m stabjax.bench_models [--n 4096] [--t1 1000] [--rounds 3]``.
+Run: ``python -m benchmarks.bench_models [--n 4096] [--t1 1000] [--rounds 3]``.
 """
 from __future__ import annotations
 
@@ -43,8 +43,8 @@ def _timed(fn):
 
 def door_cost(n: int = 4096, t1: float = 1e3, rounds: int = 3) -> dict:
     """Built-in monoaxial by name vs the same class loaded from its file (interleaved rounds)."""
-    from .spec import make_plan
-    from .sweep import run_plan
+    from stabjax.spec import make_plan
+    from stabjax.sweep import run_plan
 
     grid = {"alpha": {"start": 0.3, "stop": 1.0, "num": n}}
     plans = {"builtin": make_plan({"system": "monoaxial", "grid": grid, "integrate": {"t1": t1}}),
@@ -74,8 +74,8 @@ def baselines(n: int = 4096, t1: float = 1e3, k_scipy: int = 8, model: Path = MO
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
 
-    from .spec import make_plan
-    from .sweep import run_plan
+    from stabjax.spec import make_plan
+    from stabjax.sweep import run_plan
 
     plan = make_plan(_spec(n, t1, model))
     run_plan(make_plan(_spec(min(n, 256), t1, model)))  # compile (same kernel: the chunk size is not compiled in)
@@ -125,7 +125,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", type=Path, default=None, help="JSON file for the figures")
     ap.add_argument("--model", type=Path, default=MODEL, help="the Duffing example's model file")
     a = ap.parse_args(argv)
-    from .config import setup_jax
+    from stabjax.config import setup_jax
 
     setup_jax()
     res = {"door": door_cost(a.n, a.t1, a.rounds), "duffing": baselines(a.n, a.t1, model=a.model)}

@@ -1,6 +1,6 @@
 """Benchmark of the adaptive boundary refinement against the full lattice of the same resolution.
 
-``python -m stabjax.refine_bench`` (or ``stabjax bench --suite refine``): trajectories and
+``python -m benchmarks.refine_bench`` (or ``stabjax bench --suite refine``): trajectories and
 trajectory-steps of :mod:`stabjax.refine` on a spec with a ``[refine]`` section (default: paper A's
 (alpha, sigma) map, ``sweeps/refine_default.toml``) against the plain sweep over the refinement's
 whole final lattice; with the full lattice run whole, also the boundary edges the refinement missed.
@@ -15,9 +15,9 @@ from typing import Any, Mapping
 import numpy as np
 import xarray as xr
 
-from .errors import ValidationError
-from .refine import RefineConfig, classes, fine_values, horizon_times, refine_config, refine_plan
-from .spec import Plan, load_spec, make_plan
+from stabjax.errors import ValidationError
+from stabjax.refine import RefineConfig, classes, fine_values, horizon_times, refine_config, refine_plan
+from stabjax.spec import Plan, load_spec, make_plan
 
 
 # ---- benchmark ----------------------------------------------------------------------------------
@@ -48,7 +48,7 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
     full lattice's dataset there; ``full_from``: compare with such a dataset instead of integrating the full
     lattice again (same lattice and fingerprint required; its recorded steps and wall time are reported).
     """
-    from .sweep import run_plan
+    from stabjax.sweep import run_plan
 
     if isinstance(spec, (str, Path)):
         spec = load_spec(spec)
@@ -81,7 +81,7 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
             pick = np.arange(rows)
         fplan = make_plan(fspec)
         if full_from is not None:
-            from .sweep import open_result
+            from stabjax.sweep import open_result
 
             fds = open_result(full_from)
             # the same computation up to the last bits of the lattice (coarse grids of 9 and 17 values halved
@@ -174,10 +174,10 @@ def format_benchmark(r: Mapping[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from .config import setup_jax
+    from stabjax.config import setup_jax
 
     setup_jax()
-    ap = argparse.ArgumentParser(prog="python -m stabjax.refine_bench", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.refine_bench", description=__doc__.split("\n")[0])
     ap.add_argument("--bench", action="store_true", help=argparse.SUPPRESS)  # accepted: the older spelling
     ap.add_argument("--spec", default=str(BENCH_SPEC), help="spec with a [refine] section (default: %(default)s)")
     ap.add_argument("--t1", type=float, default=None)

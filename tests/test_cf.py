@@ -1,0 +1,92 @@
+"""The sweep's dataset follows CF-1.10 (issue 25), checked with cf_xarray's decoding rather than by
+reading attributes back: every categorical variable decodes through its flags (``ds.v.cf == name``
+selects exactly the trajectories whose code is that name's), every numeric variable and coordinate
+has units and a long name, and the globals CF asks for are there. Run on the netCDF file written
+through the chunk store and on the in-memory dataset, which must agree."""
+import tomllib
+
+import cf_xarray  # noqa: F401 - registers the .cf accessor
+import numpy as np
+import pytest
+import xarray as xr
+
+from stabjax.cli import main
+from stabjax.spec import make_plan
+from stabjax.sweep import run_plan
+
+SAMPLED = """
+system = "monoaxial"
+name = "cf"
+[params]
+mu = 1.5
+sigma = 1.3333333333333333
+[grid]
+alpha = [0.35, 0.7, 0.95]
+[sample]
+n = 6
+seed = 0
+s0 = {dist = "cap", center = "r", half_angle = 0.5}
+[integrate]
+t1 = 100.0
+n_checkpoints = 32
+"""
+CATEGORICAL = ("verdict", "outcome", "solver_status", "decay_reason")
+
+
+def check_cf(ds: xr.Dataset):
+    assert ds.attrs["Conventions"] == "CF-1.10"
+    for key in ("title", "history", "source"):
+        assert ds.attrs[key], key
+    assert "monoaxial" in ds.attrs["source"] and "tsit5" in ds.attrs["source"]
+    for name, var in ds.variables.items():
+        assert var.attrs.get("long_name"), name
+        if var.dtype.kind in "biuf":
+            assert var.attrs.get("units"), name
+    flagged = [k for k in ds.data_vars if ds[k].cf.is_flag_variable]
+    assert set(CATEGORICAL) | {k for k in ds.data_vars if k.startswith("theory_")} <= set(flagged)
+    for k in flagged:
+        values = np.asarray(ds[k].attrs["flag_values"])
+        meanings = ds[k].attrs["flag_meanings"].split()
+        assert len(values) == len(meanings) == len(set(meanings)), k
+        codes = ds[k].values
+        assert np.isin(codes, values).all(), (k, np.unique(codes))  # no code without a meaning
+        covered = np.zeros(codes.shape, int)
+        for v, m in zip(values, meanings):
+            sel = (ds[k].cf == m).values  # cf_xarray's decoding of the flag
+            np.testing.assert_array_equal(sel, codes == v, err_msg=f"{k} == {m}")
+            covered += sel
+        assert (covered == 1).all(), k
+
+
+@pytest.fixture(scope="module")
+def in_memory():
+    return run_plan(make_plan(tomllib.loads(SAMPLED)), None, batch_size=8)
+
+
+def test_sweep_dataset_is_cf(in_memory, tmp_path):
+    check_cf(in_memory)
+    spec = tmp_path / "cf.toml"
+    spec.write_text(SAMPLED)
+    out = tmp_path / "cf.nc"
+    try:
+        main(["sweep", str(spec), "--out", str(out), "--batch-size", "8", "--no-progress", "--no-plot", "--keep-store"])
+    except SystemExit as exc:
+        assert not exc.code
+    with xr.open_dataset(out) as ds:
+        check_cf(ds.load())
+        assert list(ds.data_vars) == list(in_memory.data_vars)  # the store keeps the dataset's order
+        for k in in_memory.data_vars:
+            np.testing.assert_array_equal(ds[k].values, in_memory[k].values, err_msg=k)
+            for a in ("units", "long_name", "flag_meanings"):
+                assert ds[k].attrs.get(a) == in_memory[k].attrs.get(a), (k, a)
+    check_cf(xr.open_zarr(tmp_path / "cf.nc.zarr").load())  # the kept store is the same dataset
+
+
+def test_solver_status_flags_cover_the_engines_codes():
+    from stabjax.dataset import status_flags
+    from stabjax.outcomes import STATUS_ESCAPED
+
+    values, meanings = status_flags()
+    names = meanings.split()
+    assert names[0] == "successful" and names[1] == "max_steps_reached"
+    assert values[names.index("escaped")] == STATUS_ESCAPED
