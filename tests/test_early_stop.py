@@ -215,3 +215,31 @@ def test_spec_validation():
         make_plan({"system": "monoaxial", "integrate": {"t1": 100.0, "early_stop": True}})
     assert make_plan(_spec(Saddle, early_stop=False)).icfg.early_stop is False
     assert make_plan(_spec(Saddle)).icfg.early_stop is True
+
+
+def test_lorenz63_at_rest_stops_without_moving_its_features():
+    """Lorenz-63 at r = 24.4 (example): starts next to C+ come to rest slowly (Re lambda = -0.0102)
+    and the numerical solution hovers 240-570 tolerance units away; with the stop the features sit
+    within DISTANCE_TOL units, so both runs' means agree within twice that (per component, RMS bound
+    times sqrt(n)). Native engine (the examples' default), rule outcomes instead of discovery (two starts)."""
+    spec = load_spec(EXAMPLES / "lorenz63" / "spec.toml")
+    c = np.sqrt(8.0 / 3.0 * 23.4)
+    spec.pop("sample")
+    spec["grid"] = {"x0": [c + 1.0, c + 0.5]}
+    spec["params"] = {"y0": c, "z0": 23.4}
+    spec["outcomes"] = {"rules": {"rest_plus": "std(x) < 1e-3 and mean(x) > 0",
+                                  "rest_minus": "std(x) < 1e-3 and mean(x) < 0"}}
+    runs = {}
+    for es in (False, True):
+        plan = make_plan(dict(spec, integrate={**spec["integrate"], "early_stop": es}))
+        runs[es] = (plan, run_plan(plan))
+    plan, on = runs[True]
+    off = runs[False][1]
+    np.testing.assert_array_equal(on.outcome.values, off.outcome.values)
+    names = str(on.outcome.attrs["flag_meanings"]).split()
+    assert [names[i] for i in on.outcome.values] == ["rest_plus", "rest_plus"]
+    assert (on.stop_reason.values == early.STOP_FIXED_POINT).all()
+    assert (on.stopped_at.values < plan.icfg.t1).all()
+    eq = np.abs(off.feat_mean.values)  # |x|, |y|, |z| at rest (observables: the state)
+    tol = 2 * np.sqrt(3) * early.DISTANCE_TOL * (plan.icfg.atol + plan.icfg.rtol * eq)
+    assert (np.abs(on.feat_mean.values - off.feat_mean.values) <= tol).all()
