@@ -224,26 +224,28 @@ def window_index(ts: np.ndarray, vcfg) -> int:
     return int(np.argmax(inw)) if inw.any() else len(ts)
 
 
-def fast_forward(c, n_in, obs):
+def fast_forward(c, n_in, obs, xp=jnp):
     """The fold state ``c`` after ``n_in`` more checkpoints inside the feature window, all observing
     ``obs`` (the frozen state's observables), and ``obs`` as the final value: the late-window
     features of a run that stays at the stopped state (mean, min, max include it; its spread adds
     nothing). The attitude-verdict entries of the fold are left as they were at the stop (those
-    verdicts are never computed from a stopped run, :func:`resolve`). Plain JAX, one trajectory."""
+    verdicts are never computed from a stopped run, :func:`resolve`). One trajectory in JAX (the
+    fused engine vmaps it), or with ``xp=numpy`` a batch at once (leading dims; ``n_in`` shaped
+    (..., 1)): the native engine applies it on the host without a compile per batch size."""
     if "feat" not in c:
         return c
     fe = c["feat"]
-    F = fe.shape[1]
-    m = min(int(obs.shape[0]), F)
-    o = obs[:m].astype(fe.dtype)
-    w = jnp.asarray(n_in, fe.dtype)
+    F = fe.shape[-1]
+    m = min(int(obs.shape[-1]), F)
+    o = obs[..., :m].astype(fe.dtype)
+    w = xp.asarray(n_in, fe.dtype)
     has = w > 0
-    rows = [jnp.where(has, jnp.maximum(fe[0, :m], o), fe[0, :m]),
-            jnp.where(has, jnp.minimum(fe[1, :m], o), fe[1, :m]),
-            fe[2, :m] + w * o, fe[3, :m] + w * o * o, fe[4, :m] + w, o]
-    head = jnp.stack(rows)
+    rows = [xp.where(has, xp.maximum(fe[..., 0, :m], o), fe[..., 0, :m]),
+            xp.where(has, xp.minimum(fe[..., 1, :m], o), fe[..., 1, :m]),
+            fe[..., 2, :m] + w * o, fe[..., 3, :m] + w * o * o, fe[..., 4, :m] + w * xp.ones_like(o), o]
+    head = xp.stack(rows, axis=-2)
     out = dict(c)
-    out["feat"] = head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
+    out["feat"] = head if m == F else xp.concatenate([head, fe[..., m:]], axis=-1)
     return out
 
 

@@ -74,8 +74,6 @@ class _Kernel:
         self.vcfg = vcfg
         self.icfg = icfg
         self._finalize = jax.jit(jax.vmap(lambda c, ok: V.finalize(c, ok, vcfg)))
-        # after a fixed-point stop the remaining checkpoints observe the frozen state (stabjax.early)
-        self._forward = jax.jit(jax.vmap(early.fast_forward))
 
 
 @functools.lru_cache(maxsize=32)
@@ -185,7 +183,9 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
         K = len(kern.ts)
         ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
         n_in = np.where(fp, K - np.maximum(ck, kern.k_w), 0).astype(np.float64)
-        c = kern._forward(c, jnp.asarray(n_in), jnp.asarray(raw["obs"][:, : max(model.n_obs, 1)]))
+        # the remaining checkpoints observe the frozen state (NumPy, batched: no compile per batch size)
+        ff = early.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
+        c = {k: np.where(fp.reshape((-1,) + (1,) * (np.ndim(v) - 1)), ff[k], v) for k, v in c.items()}
     summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
     summ["n_steps"] = raw["nacc"]
     summ["n_rejected"] = raw["nrej"]
