@@ -100,6 +100,12 @@ class IntegrateConfig:
 
     ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
     (status :data:`stabjax.status.ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
+
+    ``early_stop``: stop a trajectory once it sits at a stable equilibrium (:mod:`stabjax.early`;
+    autonomous models only). None: decided per plan -- on where it cannot change an outcome (named
+    outcomes or discovery on an autonomous model), off elsewhere and for a config used without a
+    plan; true where the attitude verdicts are the outcomes is refused (their decay laws need the run
+    up to t1).
     """
 
     t1: float = 1.0e4
@@ -115,6 +121,7 @@ class IntegrateConfig:
     width: int = 0
     threads: int = 0
     escape_radius: float | None = None
+    early_stop: bool | None = None
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None, *, section: str = "integrate", default_t1: float | None = None):
@@ -134,7 +141,7 @@ class IntegrateConfig:
         # types first (the dataclass itself is also built from Python code, not only from specs)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("solver", "engine") or (v is None and f.default is None):
+            if f.name in ("solver", "engine", "early_stop") or (v is None and f.default is None):
                 continue
             if isinstance(f.default, int) and not isinstance(f.default, bool):
                 integer(v, f"{section}.{f.name}")
@@ -160,6 +167,8 @@ class IntegrateConfig:
         integer(self.lanes, f"{section}.lanes", lo=0, hi=2**24)
         integer(self.width, f"{section}.width", lo=0, hi=1024)
         integer(self.threads, f"{section}.threads", lo=0, hi=4096)
+        if self.early_stop is not None and not isinstance(self.early_stop, (bool, np.bool_)):
+            raise ValidationError(f"{section}.early_stop", f"must be true or false, got {self.early_stop!r}")
         if self.escape_radius is not None and not (np.isfinite(self.escape_radius) and self.escape_radius > 0):
             raise ValidationError(f"{section}.escape_radius", f"must be a finite number > 0, got {self.escape_radius}")
 
