@@ -365,7 +365,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
             # no progress possible (at t1 a step of length 0 may still observe the last checkpoint)
-            collapsed = ((t_next - t_prev) <= MIN_STEP_REL * jnp.abs(t_prev)) & (t_prev < t1)
+            collapsed = ~((t_next - t_prev) > MIN_STEP_REL * jnp.abs(t_prev)) & (t_prev < t1)  # a NaN step too
             stuck = active & ~reached & (((nacc + nrej) >= max_steps) | ~finite | collapsed)
             done = reached | stuck
             status = jnp.where(reached, STATUS_OK, STATUS_MAX_STEPS)
