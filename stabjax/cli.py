@@ -434,7 +434,7 @@ def sweep(
                       same=lambda p: _png_spec(p) == _spec_digest(this_spec),
                       what="the map of a previous result of this spec")
     store = store or default_store(out)
-    check_store_path(store, inputs)
+    check_store_path(store, inputs, outputs=(out, out.with_suffix(".png") if plot else None))
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
                           markup=False)

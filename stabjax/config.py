@@ -135,6 +135,12 @@ class IntegrateConfig:
 
     ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
     (status :data:`stabjax.status.ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
+
+    ``early_stop``: stop a trajectory once it sits at a stable equilibrium (:mod:`stabjax.early`;
+    autonomous models only). None: decided per plan -- on where it cannot change an outcome (named
+    outcomes or discovery on an autonomous model), off elsewhere and for a config used without a
+    plan; true where the attitude verdicts are the outcomes is refused (their decay laws need the run
+    up to t1).
     """
 
     t1: float = 1.0e4
@@ -147,6 +153,7 @@ class IntegrateConfig:
     dt0: float | None = None
     engine: str = "auto"
     escape_radius: float | None = None
+    early_stop: bool | None = None
     settings: Settings = Settings()
 
     def __post_init__(self):
@@ -174,7 +181,7 @@ class IntegrateConfig:
         # types first (the dataclass itself is also built from Python code, not only from specs)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("solver", "engine", "settings") or (v is None and f.default is None):
+            if f.name in ("solver", "engine", "settings", "early_stop") or (v is None and f.default is None):
                 continue
             if isinstance(f.default, int) and not isinstance(f.default, bool):
                 integer(v, f"{section}.{f.name}")
@@ -196,6 +203,8 @@ class IntegrateConfig:
             raise ValidationError(f"{section}.dt0", f"must be in (0, t1 - t0], got {self.dt0}")
         if not isinstance(self.engine, str):  # which names exist: stabjax.engines.check_choice
             raise ValidationError(f"{section}.engine", f"must be an engine's name, got {self.engine!r}")
+        if self.early_stop is not None and not isinstance(self.early_stop, (bool, np.bool_)):
+            raise ValidationError(f"{section}.early_stop", f"must be true or false, got {self.early_stop!r}")
         if self.escape_radius is not None and not (np.isfinite(self.escape_radius) and self.escape_radius > 0):
             raise ValidationError(f"{section}.escape_radius", f"must be a finite number > 0, got {self.escape_radius}")
 

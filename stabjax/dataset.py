@@ -35,7 +35,11 @@ from .status import verdicts as status_verdicts
 
 THEORY_CHUNK = 262_144  # trajectories per host-side pass over the parameters
 # per-trajectory results that are not classifier summaries
-_DOC = {"lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
+_DOC = {"stopped_at": "time at which the integration of this trajectory ended (t1 unless it stopped early: "
+                      "escape, stable fixed point, failure; see stop_reason)",
+        "stop_reason": "why the integration ended (stabjax.early): none = ran to t1, escaped, fixed_point = "
+                       "reached a stable equilibrium within the solver tolerance (autonomous models), failed",
+        "lyapunov": "largest Lyapunov exponent over the feature window (finite-time estimate from the tangent "
                     "dynamics, stabjax.lyapunov); NaN where the solver did not reach t1"}
 
 
@@ -226,6 +230,10 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
                                  {"long_name": "horizon T: verdicts of the prefix t <= T of each run"})
         if "observable" in extra and "observable" not in coords:
             coords["observable"] = ("observable", list(plan.system.observables)[: v.shape[-1]])
+    if "stop_reason" in data:
+        from .early import REASONS
+
+        data["stop_reason"][2].update(flag_values=np.arange(len(REASONS), dtype=np.int8), flag_meanings=" ".join(REASONS))
     if "verdict" in data:
         data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
     if "outcome" in results:
@@ -280,14 +288,15 @@ def _words(names) -> str:
     return " ".join(str(n).strip().replace(" ", "_") for n in names)
 
 
-def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
+def cf_attributes(ds: xr.Dataset, plan, *, activity: str = "sweep", trajectories: int | None = None) -> xr.Dataset:
     """CF-1.10 metadata, in place: global ``Conventions``, ``title``, ``history``, ``source`` and
     ``references`` (the model's paper, where known); ``long_name`` and ``units`` on every numeric
     coordinate and variable (the models are written in nondimensional time and state, so a quantity
     without a declared unit is ``"1"``; text coordinates carry a ``long_name`` only); and
     ``flag_values``/``flag_meanings`` on every categorical variable (verdict, outcome, solver_status,
     decay_reason, theory predicates), so that CF tools (cf_xarray: ``ds.verdict.cf == "converged"``)
-    decode the codes."""
+    decode the codes. ``activity``/``trajectories``: what produced the dataset, for ``title`` and
+    ``history`` (a refinement runs fewer trajectories than its plan's grid holds)."""
     from . import __version__
 
     if "solver_status" in ds:
@@ -295,6 +304,11 @@ def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
         ds["solver_status"].attrs.update(long_name="solver status of the trajectory (diffrax RESULTS codes; "
                                                    "100: escaped the escape radius)",
                                          flag_values=values.astype(ds["solver_status"].dtype), flag_meanings=meanings)
+    if "stop_reason" in ds:
+        from .early import REASONS
+
+        ds["stop_reason"].attrs.update(flag_values=np.arange(len(REASONS), dtype=ds["stop_reason"].dtype),
+                                       flag_meanings=" ".join(REASONS))
     if "decay_reason" in ds:
         codes = sorted(V.DECAY_REASONS)
         ds["decay_reason"].attrs.update(flag_values=np.array(codes, ds["decay_reason"].dtype),
@@ -309,10 +323,11 @@ def cf_attributes(ds: xr.Dataset, plan) -> xr.Dataset:
     created = ds.attrs.get("created") or time.strftime("%Y-%m-%dT%H:%M:%S%z")
     ds.attrs.update(
         Conventions=CONVENTIONS,
-        title=f"stabjax sweep {plan.name}: {title}",
+        title=f"stabjax {activity} {plan.name}: {title}",
         source=f"stabjax {__version__}: {sysname} integrated with {plan.icfg.solver} (rtol {plan.icfg.rtol:g}, "
                f"atol {plan.icfg.atol:g}) to t1 = {plan.icfg.t1:g}",
-        history=f"{created}: stabjax {__version__} sweep {plan.name} ({plan.size} trajectories)",
+        history=f"{created}: stabjax {__version__} {activity} {plan.name} "
+                f"({plan.size if trajectories is None else trajectories} trajectories)",
     )
     if getattr(plan.system, "paper", ""):
         ds.attrs["references"] = str(plan.system.paper)

@@ -10,7 +10,8 @@ An identity is a plain JSON-able dict built from
 
 * the resolved plan: its spec (a ``--t1`` override is recorded in it), the system's name, the
   effective ``[integrate]`` and ``[verdict]`` settings, a digest of every parameter value the plan
-  resolves to (a plan changed in code rather than through its spec differs here), and its size;
+  resolves to (a plan changed in code rather than through its spec differs here; a plan over
+  explicit grid points, ``Plan.points``, includes the points), and its size;
 * the model's source files: the file defining the system's class and every *local* module it
   imported (:func:`model_sources`; "local" = outside the standard library and the installed
   packages, e.g. a ``helpers.py`` beside the model), each with its sha256;
@@ -112,10 +113,16 @@ def plain(x):
 
 def parameter_digest(plan) -> str:
     """Hash of every parameter value a plan resolves to (grid axes, samples, fixed values: each
-    small, the cartesian product is not formed)."""
+    small, the cartesian product is not formed) and, for a plan over explicit grid points
+    (``Plan.points``, an explorer's round), those points in their order: two rounds of the same
+    size at other points are other computations, and a store or a worker must tell them apart
+    from the identity alone (no caller-side digest in the overrides)."""
     h = hashlib.sha256()
     items = ([(f"grid:{a.key}", a.values) for a in plan.grid] + sorted((f"sample:{k}", v) for k, v in plan.sample.items())
              + sorted((f"fixed:{k}", v) for k, v in plan.fixed.items()))
+    points = getattr(plan, "points", None)
+    if points is not None:
+        items.append(("points", points))
     for name, arr in items:
         a = np.ascontiguousarray(np.asarray(arr, dtype=float))
         h.update(name.encode() + str(a.shape).encode() + a.tobytes())

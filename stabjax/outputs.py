@@ -60,11 +60,17 @@ def input_files(*paths, system=None) -> tuple[Path, ...]:
     return tuple(files)
 
 
-def check_store_path(store: Path, inputs) -> None:
+def check_store_path(store: Path, inputs, outputs=()) -> None:
     """A chunk store is a directory of the sweep's own files: never an input file, never a folder
-    holding the spec or the model (a ``--restart`` there would be one step from deleting them)."""
+    holding the spec or the model (a ``--restart`` there would be one step from deleting them), never
+    one of the files the same command writes (``--store`` equal to ``--out`` or its map: the store
+    would be made, filled for minutes, and the result could not be written over it)."""
     from .errors import ValidationError
 
+    for o in outputs:
+        if o is not None and Path(store).resolve() == Path(o).resolve():
+            raise ValidationError("--store", f"{store} is also where this command writes {o}; "
+                                             "give --store a directory of its own (default: <out>.zarr)")
     if store.exists() and not store.is_dir():
         raise ValidationError("--store", f"{store} exists and is not a directory" +
                               (" (it is this command's input)" if same_file_as_any(store, inputs) else ""))

@@ -18,8 +18,12 @@ every boundary segment is then one lattice step long, i.e. bracketed to ``tol_a`
 
 Labels. A point's label is its ``verdict`` (:mod:`stabjax.verdict`) or, for systems that declare
 named outcomes, its ``outcome``; with ``[sample] n > 1`` it is the dominant (most frequent) label
-of the point's samples (ties: the lower code). With several verdict horizons (results of shape
-``(N, n_horizons)``) one horizon is refined: ``horizon = t`` picks it, default ``t1``.
+of the point's samples (ties: the lower code). The runner returns a verdict per horizon (results of shape
+``(N, n_horizons)``); ``horizon = t`` brackets one of them (default ``t1``), ``horizons = "all"`` or a list
+of times brackets each of them in the same run: a cell is split where the labels of *any* horizon differ on
+its boundary, so each horizon's boundary is bracketed to the tolerance from one set of points (they are
+integrated once, whatever the number of horizons). The dataset's segments carry their ``segment_horizon``;
+``point_label`` is the longest horizon's label, ``point_label_by_horizon`` every horizon's.
 ``pair = ["converged", "flipped"]`` restricts boundaries to adjacent points labelled one of each;
 ``pair = ["converged", "*"]`` separates one outcome from all the others.
 
@@ -40,8 +44,8 @@ runner (:func:`stabjax.sweep.run_points`), so a refinement gets what a sweep get
 of ``--batch-size``, Dask workers, progress, and a chunk store per round (``<out>.zarr/round_NNNN``,
 ``--store``/``--keep-store``) from which a killed run resumes without recomputing a finished chunk.
 
-Layout: the [refine] table, its lattice and the point labels are :mod:`stabjax.refine_config`; here are
-the explorer, the theory distance, the output dataset and its plot.
+Layout: the [refine] table, its lattice and the point labels are :mod:`stabjax.refine_config`; the plot is
+:mod:`stabjax.refine_plot`; here are the explorer, the theory distance and the output dataset.
 """
 from __future__ import annotations
 
@@ -55,8 +59,8 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
-from . import verdict as V
 from .errors import StabjaxError, ValidationError
+from .refine_plot import plot_refine  # noqa: F401 - the plot, re-exported (stabjax.refine.plot_refine)
 from .spec import Plan, load_spec, make_plan
 
 # the [refine] table, its lattice and the labels: stabjax.refine_config (re-exported here)
@@ -73,8 +77,11 @@ class Refiner:
     It integrates nothing itself; :func:`refine_plan` hands each round to the sweep's runner.
 
     Lattice coordinates: axis ``a`` runs over ``0 .. (n_a - 1) * 2**L_a``; coarse grid points are the
-    multiples of ``2**L_a``. ``lab`` holds the label of every evaluated site (-1: not evaluated).
-    A cell is ``(lo, ext)``: its lower corner and its extent (powers of two) per axis.
+    multiples of ``2**L_a``. ``labs[h]`` holds the label at horizon ``cfg.horizons[h]`` of every evaluated
+    site (-1: not evaluated); ``lab`` is the longest horizon's. A cell is ``(lo, ext)``: its lower corner and
+    its extent (powers of two) per axis. With several horizons a cell is split where *any* horizon's labels
+    differ on its boundary, so every horizon's boundary ends bracketed to the tolerance (a cell none of them
+    straddles is never split), from the same runs: the runner returns every horizon's verdict at once.
     """
 
     def __init__(self, plan: Plan, cfg: RefineConfig):
@@ -83,7 +90,8 @@ class Refiner:
         self.step = tuple(2**L for L in cfg.levels)
         self.fine = [fine_values(ax.values, ax.log, L) for ax, L in zip(plan.grid, cfg.levels)]
         self.shape = tuple(len(f) for f in self.fine)
-        self.lab = np.full(self.shape, -1, np.int16)
+        self.H = len(cfg.horizons)
+        self.labs = np.full((self.H, *self.shape), -1, np.int16)
         self.cls = np.append(classes(cfg), -1)  # index -1 (unknown) -> class -1
         self.coords: list[np.ndarray] = []  # per round: (P, D) lattice coordinates
         self.results: list[dict[str, np.ndarray]] = []
@@ -91,6 +99,11 @@ class Refiner:
         self.point_share: list[np.ndarray] = []
         self.leaves: list | None = None  # None: the coarse grid is not evaluated yet
         self.done = False
+
+    @property
+    def lab(self) -> np.ndarray:
+        """Labels at the longest horizon bracketed (-1: not evaluated)."""
+        return self.labs[-1]
 
     def values(self, coords: np.ndarray) -> np.ndarray:
         """Grid-axis values (P, D) of lattice points."""
@@ -126,7 +139,7 @@ class Refiner:
     def observe(self, coords: np.ndarray, res: Mapping[str, np.ndarray]):
         """The results of the proposed points (point-major: each point's samples contiguous)."""
         lab, share = _labels(self.plan, self.cfg, res, len(coords))
-        self.lab[tuple(coords.T)] = lab
+        self.labs[(slice(None), *coords.T)] = lab.T
         self.coords.append(coords)
         self.results.append(dict(res))
         self.point_labels.append(lab)
@@ -151,21 +164,24 @@ class Refiner:
         return self
 
     # -- cell geometry --------------------------------------------------------------------------
-    def cell_edges(self, lo, ext):
-        """Label arrays along each edge of a cell (1-D: the interval itself), with their axis and origin."""
+    def cell_edges(self, lo, ext, h: int = -1):
+        """Label arrays (at horizon index ``h``) along each edge of a cell (1-D: the interval itself), with
+        their axis and origin."""
+        lab = self.labs[h]
         if self.D == 1:
-            return [(0, (lo[0],), self.lab[lo[0]: lo[0] + ext[0] + 1])]
+            return [(0, (lo[0],), lab[lo[0]: lo[0] + ext[0] + 1])]
         (i, j), (di, dj) = lo, ext
-        return [(0, (i, j), self.lab[i: i + di + 1, j]), (0, (i, j + dj), self.lab[i: i + di + 1, j + dj]),
-                (1, (i, j), self.lab[i, j: j + dj + 1]), (1, (i + di, j), self.lab[i + di, j: j + dj + 1])]
+        return [(0, (i, j), lab[i: i + di + 1, j]), (0, (i, j + dj), lab[i: i + di + 1, j + dj]),
+                (1, (i, j), lab[i, j: j + dj + 1]), (1, (i + di, j), lab[i + di, j: j + dj + 1])]
 
     def _straddles(self, lo, ext) -> bool:
-        seen = set()
-        for _, _, e in self.cell_edges(lo, ext):
-            c = self.cls[e]
-            seen.update(np.unique(c[c >= 0]).tolist())
-            if len(seen) > 1:
-                return True
+        for h in range(self.H):  # a boundary at any horizon
+            seen = set()
+            for _, _, e in self.cell_edges(lo, ext, h):
+                c = self.cls[e]
+                seen.update(np.unique(c[c >= 0]).tolist())
+                if len(seen) > 1:
+                    return True
         return False
 
     def _children(self, lo, ext):
@@ -181,12 +197,13 @@ class Refiner:
         return [(lo[0] + a * ext[0], lo[1] + b * ext[1]) for a in (0, 1) for b in (0, 1)]
 
     # -- results ----------------------------------------------------------------------------------
-    def segments(self) -> list[tuple[int, tuple[int, ...], tuple[int, ...]]]:
-        """Boundary segments: (axis, lattice point p, lattice point q) with q after p on that axis,
-        consecutive evaluated points on a leaf's edge whose labels fall in different classes."""
+    def segments(self, h: int = -1) -> list[tuple[int, tuple[int, ...], tuple[int, ...]]]:
+        """Boundary segments at horizon index ``h`` (default: the longest): (axis, lattice point p, lattice
+        point q) with q after p on that axis, consecutive evaluated points on a leaf's edge whose labels fall in
+        different classes."""
         out = set()
         for lo, ext in self.leaves or []:
-            for a, origin, e in self.cell_edges(lo, ext):
+            for a, origin, e in self.cell_edges(lo, ext, h):
                 known = np.nonzero(e >= 0)[0]
                 for u, w in zip(known[:-1], known[1:]):
                     cu, cw = self.cls[e[u]], self.cls[e[w]]
@@ -283,10 +300,14 @@ def theory_distance(plan: Plan, mids: np.ndarray, axis: int, n_scan: int = 513, 
 def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = frozenset(),
              rounds_resumed: int = 0) -> xr.Dataset:
     plan, cfg = ref.plan, ref.cfg
+    from .dataset import cf_attributes
     from .sweep import provenance
 
     names = [ax.name for ax in plan.grid]
-    segs = ref.segments()
+    # every horizon's boundary, ascending in horizon (one horizon: the segments as they always were)
+    per_h = [ref.segments(h) for h in range(ref.H)]
+    segs = [s for hs in per_h for s in hs]
+    seg_h = np.concatenate([np.full(len(hs), h, np.int64) for h, hs in enumerate(per_h)])
     S = len(segs)
     seg_axis = np.array([s[0] for s in segs], np.int8)
     P = np.array([s[1] for s in segs], np.int64).reshape(S, ref.D)
@@ -296,13 +317,21 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     mid = np.empty_like(vp)
     for a, ax in enumerate(plan.grid):  # midpoint in the axis's own metric (log axes: geometric)
         mid[:, a] = np.sqrt(vp[:, a] * vq[:, a]) if ax.log else 0.5 * (vp[:, a] + vq[:, a])
-    lab_p = ref.lab[tuple(P.T)] if S else np.zeros(0, np.int16)
-    lab_q = ref.lab[tuple(Q.T)] if S else np.zeros(0, np.int16)
+    lab_p = ref.labs[(seg_h, *P.T)] if S else np.zeros(0, np.int16)
+    lab_q = ref.labs[(seg_h, *Q.T)] if S else np.zeros(0, np.int16)
+    horizons = np.asarray(cfg.horizons, float)
     flag = {"flag_values": np.arange(len(cfg.names), dtype=np.int16), "flag_meanings": " ".join(cfg.names)}
-    data: dict[str, Any] = {"segment_axis": ("segment", seg_axis, {"long_name": "index of the grid axis the segment "
-                                                                 "runs along", "axes": " ".join(names)})}
+    # the axis a segment runs along is a category (flags) with two axes; with one it is always 0, and a
+    # one-element flag list comes back from netCDF as a scalar that CF tools (cf_xarray) cannot decode
+    axis_flags = {"flag_values": np.arange(ref.D, dtype=np.int8), "flag_meanings": " ".join(names)} if ref.D > 1 else {}
+    data: dict[str, Any] = {"segment_axis": ("segment", seg_axis, {
+        "long_name": "grid axis the segment runs along (index into the axes attribute)", "axes": " ".join(names),
+        **axis_flags}),
+        "segment_horizon": ("segment", horizons[seg_h], {
+            "long_name": f"verdict horizon T whose {cfg.label}s the segment brackets"})}
+    units_of = [{"units": ax.param.unit} if ax.param.unit else {} for ax in plan.grid]  # else "1" (cf_attributes)
     for a, (n, ax) in enumerate(zip(names, plan.grid)):
-        units = {"units": ax.param.unit} if ax.param.unit else {}
+        units = units_of[a]
         data[f"{n}_lo"] = ("segment", vp[:, a], {"long_name": f"{n} at the segment's first corner", **units})
         data[f"{n}_hi"] = ("segment", vq[:, a], {"long_name": f"{n} at the segment's second corner", **units})
         data[f"{n}_mid"] = ("segment", mid[:, a], {"long_name": f"{n} at the segment's midpoint", **units})
@@ -312,7 +341,9 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     data["label_hi"] = ("segment", lab_q, {"long_name": f"{cfg.label} at the second corner", **flag})
     width_ok = np.all([np.abs(vq[:, a] - vp[:, a]) <= cfg.tol[a] * (1 + 1e-9) for a in range(ref.D)], axis=0) \
         if S else np.zeros(0, bool)
-    data["bracketed"] = ("segment", width_ok.astype(np.int8), {"long_name": "1: bracket within the tolerance on every axis"})
+    data["bracketed"] = ("segment", width_ok.astype(np.int8), {
+        "long_name": "whether the bracket is within the tolerance on every axis",
+        "flag_values": np.array([0, 1], np.int8), "flag_meanings": "wider_than_tolerance within_tolerance"})
     # theory: only segments between the stable outcome and another one say how conservative the theorem is
     main = ""
     if cfg.stable is not None and S:
@@ -325,7 +356,7 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
             data[f"theory_distance_{n}"] = ("segment", d, {
                 "long_name": f"signed distance along {n} from the segment midpoint to the theorem's zero contour "
                              f"(> 0: outside the guaranteed region, the theorem is conservative; NaN: no zero on the "
-                             f"line, or not a {cfg.stable} boundary)"})
+                             f"line, or not a {cfg.stable} boundary)", **units_of[a]})
     # every evaluated point
     C = np.concatenate(ref.coords) if ref.coords else np.zeros((0, ref.D), np.int64)
     pv = val(C)
@@ -334,10 +365,16 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     steps = np.concatenate([np.asarray(r["n_steps"]).reshape(len(c), ns).sum(axis=1)
                             for r, c in zip(ref.results, ref.coords)])
     for a, n in enumerate(names):
-        data[f"point_{n}"] = ("point", pv[:, a], {"long_name": f"{n} of an evaluated point"})
-    data["point_label"] = ("point", np.concatenate(ref.point_labels), {"long_name": f"dominant {cfg.label}", **flag})
-    data["point_share"] = ("point", np.concatenate(ref.point_share),
-                           {"long_name": "fraction of the point's samples carrying its label"})
+        data[f"point_{n}"] = ("point", pv[:, a], {"long_name": f"{n} of an evaluated point", **units_of[a]})
+    plab, pshare = np.concatenate(ref.point_labels), np.concatenate(ref.point_share)  # (points, horizons)
+    data["point_label"] = ("point", plab[:, -1], {"long_name": f"dominant {cfg.label} at the longest horizon "
+                                                               f"bracketed (T = {cfg.horizon:g})", **flag})
+    data["point_share"] = ("point", pshare[:, -1],
+                           {"long_name": "fraction of the point's samples carrying its label (longest horizon)"})
+    data["point_label_by_horizon"] = (("point", "horizon"), plab,
+                                      {"long_name": f"dominant {cfg.label} at each horizon bracketed", **flag})
+    data["point_share_by_horizon"] = (("point", "horizon"), pshare, {
+        "long_name": "fraction of the point's samples carrying its label at each horizon bracketed"})
     data["point_round"] = ("point", rounds, {"long_name": "round in which the point was evaluated"})
     data["point_steps"] = ("point", steps, {"long_name": "accepted solver steps over the point's samples"})
     # the theorem's margin on a regular grid, so that the plot needs nothing but this file
@@ -345,7 +382,10 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     tgrid = [np.linspace(float(ax.values.min()), float(ax.values.max()), nt) for ax in plan.grid]
     mesh = np.meshgrid(*tgrid, indexing="ij")
     mt, main = _margin(plan, np.stack([g.ravel() for g in mesh], axis=1))
-    coords = {f"{n}_theory": (f"{n}_theory", g, {"long_name": f"{n} (theory grid)"}) for n, g in zip(names, tgrid)}
+    coords = {f"{n}_theory": (f"{n}_theory", g, {"long_name": f"{n} (theory grid)", **u})
+              for n, g, u in zip(names, tgrid, units_of)}
+    coords["horizon"] = ("horizon", horizons, {"long_name": "verdict horizon T bracketed: labels of the prefix "
+                                                            "t <= T of each run"})
     if main:
         data["theory_margin"] = (tuple(f"{n}_theory" for n in names), mt.reshape(mesh[0].shape),
                                  {"long_name": f"margin of {main} (> 0: the theorem guarantees stability)"})
@@ -361,13 +401,17 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     ds.attrs.update(
         kind="refine", theory_main=main, refine_json=json.dumps({**asdict(cfg), "tol": list(cfg.tol)}),
         axes=" ".join(names), label=cfg.label, label_names=" ".join(cfg.names), stable=cfg.stable or "",
-        pair=" ".join(cfg.pair) if cfg.pair else "", horizon=cfg.horizon, rounds=len(ref.coords),
+        pair=" ".join(cfg.pair) if cfg.pair else "", horizon=cfg.horizon, horizons=list(cfg.horizons),
+        n_segments_by_horizon=[len(hs) for hs in per_h], rounds=len(ref.coords),
         n_points=ref.n_points, n_trajectories=ref.n_points * ns, total_steps=ref.total_steps,
         lattice_shape=list(ref.shape), full_grid_points=full, full_grid_trajectories=full * ns,
         n_segments=S, n_unbracketed=int(S - width_ok.sum()), rounds_resumed=int(rounds_resumed),
         wall_time_s=float(wall), engine=",".join(sorted(engines)) or "resumed",
         theory_distance_json=json.dumps(dist_summary),
     )
+    # CF-1.10 as a sweep's dataset (Conventions, title, history, source; units and long_name everywhere; the
+    # categorical variables above carry their flags), so that the same tools read both
+    cf_attributes(ds, plan, activity="refinement", trajectories=ref.n_points * ns)
     return ds
 
 
@@ -440,74 +484,23 @@ def format_summary(ds: xr.Dataset) -> str:
              f"from {ds.attrs['n_points']} points ({ds.attrs['n_trajectories']} trajectories, "
              f"{ds.attrs['total_steps']:,} steps, {ds.attrs['rounds']} rounds); the full lattice of the same resolution "
              f"({' x '.join(map(str, np.atleast_1d(ds.attrs['lattice_shape'])))}) holds {ds.attrs['full_grid_points']:,}"]
+    hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs.get("horizon")]))
+    if len(hs) > 1 and "segment_horizon" in ds:  # each horizon's bracket
+        names = ds.attrs["axes"].split()
+        sh = ds["segment_horizon"].values
+        for h in hs:
+            sel = sh == h
+            line = f"horizon T = {h:g}: {int(sel.sum())} segment(s)"
+            if len(names) == 1 and 0 < sel.sum() <= 4:
+                n = names[0]
+                lo, hi = ds[f"{n}_lo"].values[sel], ds[f"{n}_hi"].values[sel]
+                line += ", " + ", ".join(f"{n} in [{a:.6g}, {b:.6g}]" for a, b in zip(lo, hi))
+            lines.append(line)
     summ = json.loads(ds.attrs.get("theory_distance_json", "{}"))
     for n, s in summ.items():
         lines.append(f"distance to the {ds.attrs['theory_main']} boundary along {n} (> 0: theorem conservative): "
                      f"median {s['median']:+.4g}, range [{s['min']:+.4g}, {s['max']:+.4g}]")
     return "\n".join(lines)
-
-
-# ---- plot ---------------------------------------------------------------------------------------
-
-
-def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
-    """Evaluated points (coloured by label), bracketed boundary midpoints, and the theorem's boundary."""
-    from .plotting import plt, symbol
-    from matplotlib.lines import Line2D
-
-    names = ds.attrs["axes"].split()
-    lnames = ds.attrs["label_names"].split()
-    colors = list(V.COLORS) if ds.attrs.get("label") == "verdict" else \
-        [plt.get_cmap("tab10")(i % 10) for i in range(len(lnames))]
-    own = ax is None
-    if own:
-        fig, ax = plt.subplots(figsize=(7.5, 5.2), constrained_layout=True)
-    else:
-        fig = ax.figure
-    lab = ds["point_label"].values
-    handles = []
-    main = ds.attrs.get("theory_main", "")
-    unit = lambda n: f" [{ds[n + '_mid'].attrs['units']}]" if "units" in ds[n + "_mid"].attrs else ""
-    if len(names) == 2:
-        xd, yd = names[1], names[0]  # same orientation as plot_sweep: second axis horizontal
-        for c in np.unique(lab):
-            sel = lab == c
-            ax.scatter(ds[f"point_{xd}"].values[sel], ds[f"point_{yd}"].values[sel], s=4, color=colors[c], lw=0)
-            handles.append(Line2D([], [], color=colors[c], marker="o", ls="", label=lnames[c]))
-        ax.plot(ds[f"{xd}_mid"].values, ds[f"{yd}_mid"].values, "k.", ms=2.5)
-        handles.append(Line2D([], [], color="k", marker=".", ls="", label="bracketed boundary (midpoints)"))
-        if "theory_margin" in ds:
-            m = ds["theory_margin"].transpose(f"{yd}_theory", f"{xd}_theory").values
-            if np.nanmin(m) < 0 < np.nanmax(m):
-                ax.contour(ds[f"{xd}_theory"].values, ds[f"{yd}_theory"].values, m, levels=[0.0], colors="k",
-                           linewidths=2.0)
-                handles.append(Line2D([], [], color="k", lw=2, label=f"theory boundary ({main})"))
-        ax.set_xlabel(symbol(xd) + unit(xd))
-        ax.set_ylabel(symbol(yd) + unit(yd))
-    else:
-        xd = names[0]
-        x = ds[f"point_{xd}"].values
-        for c in np.unique(lab):
-            sel = lab == c
-            ax.scatter(x[sel], np.full(sel.sum(), c), s=14, color=colors[c], label=lnames[c], zorder=3)
-        for i, (lo, hi) in enumerate(zip(ds[f"{xd}_lo"].values, ds[f"{xd}_hi"].values)):
-            ax.axvspan(min(lo, hi), max(lo, hi), color="0.6", alpha=0.5, label="bracketed boundary" if i == 0 else None)
-        if "theory_margin" in ds:
-            from .plotting import zero_crossings
-
-            for i, xc in enumerate(zero_crossings(ds[f"{xd}_theory"].values, ds["theory_margin"].values)):
-                ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
-        ax.set_yticks(range(len(lnames)), lnames)
-        ax.set_xlabel(symbol(xd) + unit(xd))
-        ax.legend(fontsize=8)
-    if handles:
-        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
-    t1 = json.loads(ds.attrs.get("integrate_json", "{}")).get("t1", float("nan"))
-    ax.set_title(f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')} refined (horizon {ds.attrs['horizon']:g}"
-                 f", t1 = {t1:g}; {ds.attrs['n_points']} of {ds.attrs['full_grid_points']} lattice points)", fontsize=9)
-    from .plotting import save
-
-    return save(fig, out, own)
 
 
 def run_cli(plan: Plan, out: Path, *, plot: bool = True, console=None, **run) -> xr.Dataset:

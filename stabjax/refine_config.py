@@ -3,7 +3,8 @@
 A refinement (:mod:`stabjax.refine`) cuts each coarse interval of axis ``a`` into ``2**L_a`` parts, ``L_a``
 the fewest halvings that bring every interval to the tolerance ``tol_a`` (log axes in log space). A point's
 label is its verdict (escape counted as diverged, :mod:`stabjax.status`) or its named outcome, dominant over
-its samples, at one verdict horizon. Kept apart from the refiner so that the table can be checked, and the
+its samples, at each verdict horizon the refinement brackets (``horizon = t``: one; ``horizons = "all"`` or a
+list: several, from the same runs). Kept apart from the refiner so that the table can be checked, and the
 lattice rebuilt (the refinement benchmark), without the explorer or the runner.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ from .spec import Plan
 from .status import verdicts as status_verdicts
 from .validate import number as _number
 
-REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "max_points")
+REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "horizons", "max_points")
 DEFAULT_REL_TOL = 1 / 64
 MAX_LATTICE = 1 << 28  # lattice sites held as labels in memory (int16): 0.5 GiB at most
 ANY = "*"
@@ -37,8 +38,14 @@ class RefineConfig:
     names: tuple[str, ...]  # label code -> name
     pair: tuple[str, str] | None
     stable: str | None  # the label whose region is compared with the theorem's
-    horizon: float  # the verdict horizon refined
+    horizons: tuple[float, ...]  # the verdict horizons bracketed, ascending (one per run of the runner: the
+    # runner returns every horizon's verdict, so bracketing several costs only the points where they differ)
     max_points: int
+
+    @property
+    def horizon(self) -> float:
+        """The longest horizon bracketed: the one ``point_label`` reports."""
+        return self.horizons[-1]
 
 
 def label_names(plan: Plan, label: str) -> tuple[str, ...]:
@@ -133,25 +140,52 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
     else:
         stable = pair[0] if pair else ("converged" if "converged" in names else None)
 
-    t1 = plan.icfg.t1
-    horizon = t1
-    if "horizon" in raw:
-        horizon = _number(raw["horizon"], "refine.horizon")
-        if not plan.icfg.t0 < horizon <= t1:
-            raise ValidationError("refine.horizon", f"must be in (t0, t1] = ({plan.icfg.t0:g}, {t1:g}], got {horizon:g}")
-        hs = horizon_times(plan)
-        if horizon != t1 and (hs is None or not np.any(np.isclose(hs, horizon, rtol=1e-12, atol=0))):
-            raise ValidationError("refine.horizon", f"{horizon:g} is not one of the verdict horizons "
-                                  f"({', '.join(f'{h:g}' for h in (hs if hs is not None else [t1]))})")
+    horizons = _horizons(plan, raw, label)
     max_points = raw.get("max_points", 1_000_000)
     if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
         raise ValidationError("refine.max_points", f"must be an integer >= 1, got {max_points!r}")
     size = int(np.prod([(ax.size - 1) * 2**L + 1 for ax, L in zip(plan.grid, levels)]))
-    if size > MAX_LATTICE:
-        raise ValidationError("refine.tol", f"the finest lattice would hold {size:,} points (limit {MAX_LATTICE:,}); "
-                              "use a coarser tolerance")
+    if size * len(horizons) > MAX_LATTICE:  # one label per site and horizon
+        raise ValidationError("refine.tol", f"the finest lattice would hold {size:,} points x {len(horizons)} "
+                              f"horizon(s) (limit {MAX_LATTICE:,} labels); use a coarser tolerance")
     return RefineConfig(tol=tuple(tols), levels=tuple(levels), label=label, names=names, pair=pair, stable=stable,
-                        horizon=float(horizon), max_points=int(max_points))
+                        horizons=horizons, max_points=int(max_points))
+
+
+def _horizon(plan: Plan, value, field: str) -> float:
+    """One horizon time, checked: in (t0, t1] and one of the plan's verdict horizons (t1 always is)."""
+    t0, t1 = plan.icfg.t0, plan.icfg.t1
+    h = _number(value, field)
+    if not t0 < h <= t1:
+        raise ValidationError(field, f"must be in (t0, t1] = ({t0:g}, {t1:g}], got {h:g}")
+    hs = horizon_times(plan)
+    if h != t1:
+        match = np.nonzero(np.isclose(hs, h, rtol=1e-12, atol=0))[0]
+        if not len(match):
+            raise ValidationError(field, f"{h:g} is not one of the verdict horizons ({', '.join(f'{x:g}' for x in hs)})")
+        h = float(hs[match[0]])
+    return float(h)
+
+
+def _horizons(plan: Plan, raw: Mapping[str, Any], label: str) -> tuple[float, ...]:
+    """The horizons a refinement brackets: ``horizon = t`` (one), ``horizons = "all"`` (every verdict horizon
+    of the plan) or ``horizons = [t, ...]``; default t1. Named outcomes have one horizon (t1)."""
+    if "horizon" in raw and "horizons" in raw:
+        raise ValidationError("refine.horizons", "give horizon (one) or horizons (several), not both")
+    if "horizons" in raw:
+        v = raw["horizons"]
+        if label != "verdict":
+            raise ValidationError("refine.horizons", "several horizons need label = \"verdict\" (named outcomes are "
+                                  "decided once, at t1)")
+        if v == "all":
+            return tuple(float(h) for h in horizon_times(plan))
+        if not isinstance(v, list) or not v:
+            raise ValidationError("refine.horizons", f"must be \"all\" or a non-empty list of horizon times, got {v!r}")
+        hs = sorted({_horizon(plan, x, f"refine.horizons[{i}]") for i, x in enumerate(v)})
+        return tuple(hs)
+    if "horizon" in raw:
+        return (_horizon(plan, raw["horizon"], "refine.horizon"),)
+    return (float(plan.icfg.t1),)
 
 
 def fine_values(coarse: np.ndarray, log: bool, level: int) -> np.ndarray:
@@ -186,26 +220,32 @@ def _levels(coarse: np.ndarray, log: bool, tol: float) -> int:
 
 
 def _labels(plan: Plan, cfg: RefineConfig, res: Mapping[str, np.ndarray], n_points: int):
-    """Per-point label (dominant over samples) and the fraction of samples carrying it."""
+    """Per-point label (dominant over samples) and the fraction of samples carrying it, at each horizon of
+    ``cfg.horizons``: two (n_points, n_horizons) arrays."""
     if cfg.label not in res:
         raise StabjaxError(f"the engine returned no {cfg.label!r} (refine.label)")
     lab = np.asarray(res[cfg.label])
     if cfg.label == "verdict":  # an escaped point is diverged, as in a sweep (one rule: stabjax.status)
         lab = status_verdicts(np.asarray(res["solver_status"]), lab)
-    if lab.ndim == 2:  # (N, n_horizons): horizons ascending, last = t1
+    if lab.ndim == 1:  # one label per trajectory (named outcomes, or a single-horizon engine): at t1
+        if any(h != plan.icfg.t1 for h in cfg.horizons):
+            raise StabjaxError(f"the results hold one {cfg.label} per trajectory (at t1) but the refinement asks "
+                               f"for horizons {list(cfg.horizons)}")
+        lab = np.repeat(lab[:, None], len(cfg.horizons), axis=1)
+    else:  # (N, n_horizons): horizons ascending, last = t1
         hs = horizon_times(plan)
-        if hs is not None and len(hs) == lab.shape[1]:
-            col = int(np.argmin(np.abs(hs - cfg.horizon)))
-        elif cfg.horizon == plan.icfg.t1:
-            col = lab.shape[1] - 1
+        if len(hs) == lab.shape[1]:
+            cols = [int(np.argmin(np.abs(hs - h))) for h in cfg.horizons]
+        elif all(h == plan.icfg.t1 for h in cfg.horizons):
+            cols = [lab.shape[1] - 1] * len(cfg.horizons)
         else:
             raise StabjaxError(f"results hold {lab.shape[1]} horizons but the plan does not say which times")
-        lab = lab[:, col]
-    lab = lab.astype(np.int64).reshape(n_points, -1)
+        lab = lab[:, cols]
+    lab = lab.astype(np.int64).reshape(n_points, -1, len(cfg.horizons))  # (points, samples, horizons)
     k = len(cfg.names)
-    counts = np.stack([(lab == c).sum(axis=1) for c in range(k)], axis=1)
-    dom = counts.argmax(axis=1)  # ties: the lower code
-    return dom.astype(np.int16), counts.max(axis=1) / lab.shape[1]
+    counts = np.stack([(lab == c).sum(axis=1) for c in range(k)], axis=-1)  # (points, horizons, codes)
+    dom = counts.argmax(axis=-1)  # ties: the lower code
+    return dom.astype(np.int16), counts.max(axis=-1) / lab.shape[1]
 
 
 def classes(cfg: RefineConfig) -> np.ndarray:

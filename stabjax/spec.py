@@ -538,6 +538,14 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         raise ValidationError("outcomes.lyapunov", f"the exponent is kept as an extra observable: at most "
                               f"{VD.MAX_FEATURE_OBS - 1} observables beside it, {system.name} has {n_obs - 1}")
     vcfg = VD.bind(vcfg, icfg.t0, icfg.t1, horizons=horizons, n_obs=n_obs)
+    # early stop at a stable fixed point: on by default where it cannot change an outcome (stabjax.early);
+    # the tangent dynamics read t (their window), so the integrated system decides
+    from .early import resolve as _early
+    from .lyapunov import tangent, window_start
+
+    integrated = tangent(system, window_start(icfg.t0, icfg.t1, vcfg.feature_window), float(icfg.t1)) if lyap \
+        else system
+    icfg = _early(icfg, integrated, decl is not None)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
                 start_labels=None if from_file is None else from_file[1])

@@ -512,7 +512,7 @@ class ChunkStore:
                     trailing = tuple(arrays[k]["trailing"])
                     if v.shape != (hi - lo, *trailing):
                         raise StoreError(f"chunk {i}: result {k} has shape {v.shape}, expected {(hi - lo, *trailing)}")
-                    b = np.ascontiguousarray(v.reshape(block + trailing))
+                    b = v.reshape(block + trailing).copy(order="C")  # ascontiguousarray makes a 0-d block 1-d
                     g[k][region + (slice(None),) * len(trailing)] = b
                     sums[k] = checksum(b)
                 if "outcome" in rec and self._basin_per_chunk():

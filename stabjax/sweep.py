@@ -239,8 +239,6 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     chunks are a power of two (>= 64) trajectories, so that a shape-compiled engine compiles a few shapes for
     all the rounds of an explorer rather than one per round.
     """
-    import hashlib
-
     from . import store as S
 
     setup_jax()
@@ -254,9 +252,7 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
             else b
     batch = choose_batch_size(plan, batch_size, memory_limit)
     check_plan(plan)
-    digest = hashlib.sha256(values.tobytes()).hexdigest()[:16]
-    overrides = {**{k: v for k, v in (overrides or {}).items() if v is not None},
-                 "points": f"{len(values)} points, sha256 {digest}"}
+    overrides = {k: v for k, v in (overrides or {}).items() if v is not None}  # the points: in the plan's identity
     sink = S.ChunkStore(store, plan, batch, overrides=overrides, restart=restart) if store is not None \
         else _Memory(plan, batch)
     try:

@@ -132,7 +132,7 @@ def coerce_field(cls, name: str, value: Any, field: str) -> Any:
     """Check ``value`` against the declared type of dataclass field ``name`` (bool, int, float, str,
     optional float, tuple of floats); other annotations pass through for the record's own checks."""
     ann = _annotation(cls, name).replace(" ", "")
-    if ann == "bool":
+    if ann in ("bool", "bool|None"):
         return boolean(value, field)
     if ann == "int":
         return integer(value, field)

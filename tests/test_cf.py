@@ -33,19 +33,21 @@ n_checkpoints = 32
 CATEGORICAL = ("verdict", "outcome", "solver_status", "decay_reason")
 
 
-def check_cf(ds: xr.Dataset):
+def check_cf(ds: xr.Dataset, categorical=CATEGORICAL, theory_flags=True, system="monoaxial"):
+    """``categorical``: the variables that must decode through flags (besides the theory predicates of a
+    sweep, ``theory_flags``; a refinement's ``theory_*`` are distances and margins, numbers with units)."""
     assert ds.attrs["Conventions"] == "CF-1.10"
     for key in ("title", "history", "source"):
         assert ds.attrs[key], key
-    assert "monoaxial" in ds.attrs["source"] and "tsit5" in ds.attrs["source"]
+    assert system in ds.attrs["source"] and "tsit5" in ds.attrs["source"]
     for name, var in ds.variables.items():
         assert var.attrs.get("long_name"), name
         if var.dtype.kind in "biuf":
             assert var.attrs.get("units"), name
     flagged = [k for k in ds.data_vars if ds[k].cf.is_flag_variable]
-    assert set(CATEGORICAL) | {k for k in ds.data_vars if k.startswith("theory_")} <= set(flagged)
+    assert set(categorical) | {k for k in ds.data_vars if theory_flags and k.startswith("theory_")} <= set(flagged)
     for k in flagged:
-        values = np.asarray(ds[k].attrs["flag_values"])
+        values = np.atleast_1d(ds[k].attrs["flag_values"])  # netCDF reads a one-element list back as a scalar
         meanings = ds[k].attrs["flag_meanings"].split()
         assert len(values) == len(meanings) == len(set(meanings)), k
         codes = ds[k].values
@@ -90,3 +92,39 @@ def test_solver_status_flags_cover_the_engines_codes():
     names = meanings.split()
     assert names[0] == "successful" and names[1] == "max_steps_reached"
     assert values[names.index("escaped")] == STATUS_ESCAPED
+
+
+# t1 = 1000: long enough for the converged region (alpha >= 0.45 here) to be told from flipped (alpha <= 0.4)
+REFINE = SAMPLED.replace("alpha = [0.35, 0.7, 0.95]", "alpha = [0.3, 0.5, 0.7]").replace(
+    "t1 = 100.0\nn_checkpoints = 32", "t1 = 1000.0\nn_checkpoints = 200") + """
+[refine]
+rel_tol = 0.125
+"""
+REFINE_CATEGORICAL = ("label_lo", "label_hi", "bracketed", "point_label")  # + segment_axis with two axes
+
+
+def test_refinement_dataset_is_cf(tmp_path):
+    """A refinement's dataset (stabjax.refine) follows the same conventions as a sweep's: the checker above
+    on the in-memory dataset and on the netCDF file `stabjax sweep` writes for a spec with [refine]. Fails
+    if a refinement variable lacks units or a long name, or a label variable's codes do not decode."""
+    from stabjax.refine import refine_spec
+
+    ds = refine_spec(tomllib.loads(REFINE))
+    assert ds.attrs["kind"] == "refine" and ds.attrs["n_segments"] >= 1  # something to check on every variable
+    assert "theory_margin" in ds and np.isfinite(ds["theory_distance_alpha"].values).any()
+    check_cf(ds, REFINE_CATEGORICAL, theory_flags=False)
+    assert ds.attrs["title"].startswith("stabjax refinement cf")
+    assert f"({ds.attrs['n_trajectories']} trajectories)" in ds.attrs["history"]
+    assert ds["point_label"].attrs["flag_meanings"].split() == ds.attrs["label_names"].split()
+    assert "flag_values" not in ds["segment_axis"].attrs  # one axis: always 0 (see stabjax.refine.assemble)
+    spec = tmp_path / "cfr.toml"
+    spec.write_text(REFINE)
+    out = tmp_path / "cfr.nc"
+    try:
+        main(["sweep", str(spec), "--out", str(out), "--no-progress", "--no-plot"])
+    except SystemExit as exc:
+        assert not exc.code
+    with xr.open_dataset(out) as written:
+        check_cf(written.load(), REFINE_CATEGORICAL, theory_flags=False)
+        for k in REFINE_CATEGORICAL:
+            np.testing.assert_array_equal(written[k].values, ds[k].values, err_msg=k)

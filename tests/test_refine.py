@@ -243,19 +243,26 @@ def test_dominant_label_and_horizon_column():
         return {"verdict": v, "solver_status": np.zeros(len(v), np.int32)}
 
     cfg = RefineConfig(tol=(0.1,), levels=(1,), label="verdict", names=V.NAMES, pair=None, stable="converged",
-                       horizon=100.0, max_points=10)
+                       horizons=(100.0,), max_points=10)
     plan = SimpleNamespace(vcfg=V.bind(VerdictConfig(), 0.0, 100.0, horizons=[10.0, 1.0]),
                            icfg=SimpleNamespace(t1=100.0, t0=0.0))
     lab, share = _labels(plan, cfg, ok(np.array([1, 1, 0, 3, 0, 3])), 2)  # 2 points x 3 samples
-    np.testing.assert_array_equal(lab, [1, 3])
-    np.testing.assert_allclose(share, [2 / 3, 2 / 3])
+    np.testing.assert_array_equal(lab, [[1], [3]])  # (points, horizons)
+    np.testing.assert_allclose(share, [[2 / 3], [2 / 3]])
     lab, share = _labels(plan, cfg, ok(np.array([3, 0, 2, 2])), 2)  # a tie goes to the lower code
-    np.testing.assert_array_equal(lab, [0, 2])
-    np.testing.assert_allclose(share, [1 / 2, 1])
+    np.testing.assert_array_equal(lab, [[0], [2]])
+    np.testing.assert_allclose(share, [[1 / 2], [1]])
     hv = np.array([[1, 2, 0], [1, 2, 3]])  # horizons 1, 10, 100 (t1)
-    np.testing.assert_array_equal(_labels(plan, cfg, ok(hv), 2)[0], [0, 3])
-    cfg10 = RefineConfig(**{**cfg.__dict__, "horizon": 10.0})
-    np.testing.assert_array_equal(_labels(plan, cfg10, ok(hv), 2)[0], [2, 2])
+    np.testing.assert_array_equal(_labels(plan, cfg, ok(hv), 2)[0], [[0], [3]])
+    cfg10 = RefineConfig(**{**cfg.__dict__, "horizons": (10.0,)})
+    np.testing.assert_array_equal(_labels(plan, cfg10, ok(hv), 2)[0], [[2], [2]])
+    both = RefineConfig(**{**cfg.__dict__, "horizons": (1.0, 100.0)})  # several horizons: their columns, in order
+    np.testing.assert_array_equal(_labels(plan, both, ok(hv), 2)[0], [[1, 0], [1, 3]])
+    # samples x horizons: the mode is taken per horizon (point 0: horizon 1 -> 1, horizon 100 -> 0 by a tie)
+    hs = np.array([[1, 0], [1, 2], [2, 2], [3, 3]])  # 2 points x 2 samples, columns = horizons 1 and 100 of (1, 10, 100)
+    lab, share = _labels(plan, both, ok(np.stack([hs[:, 0], hs[:, 0], hs[:, 1]], axis=1)), 2)
+    np.testing.assert_array_equal(lab, [[1, 0], [2, 2]])
+    np.testing.assert_allclose(share, [[1, 1 / 2], [1 / 2, 1 / 2]])
 
 
 @pytest.mark.parametrize("refine, field", [
@@ -545,3 +552,182 @@ def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
     np.testing.assert_array_equal(ref["point_label"].values, sw["verdict"].values[:, -1])
     assert np.all(ref["point_label"].values[esc] == V.DIVERGED)
     assert np.all(ref["point_label"].values[k < C1 - DELTA] == V.CONVERGED)
+
+
+def test_identity_covers_the_points_of_a_round(oscillator, tmp_path):
+    """The run's identity (stabjax.identity) covers ``Plan.points``: a round's chunk store holding other points
+    of the same count is refused (and recomputed with restart), the same points resume without integrating.
+    Fails if the identity hashes only the grid axes (two rounds of equal size would share a fingerprint and
+    the second would silently read the first one's verdicts), or if run_points still needs a digest of its
+    own in the overrides."""
+    import dataclasses
+
+    from stabjax import identity as I
+    from stabjax import sweep
+    from stabjax.spec import make_plan
+    from stabjax.store import StoreError, read_manifest
+    from stabjax.sweep import run_points
+
+    plan = make_plan(spec({"k": [0.0, 1.0]}, {}, params={"c": C1}))
+    a = np.array([[0.1], [C1 - 0.01], [0.9]])
+    b = np.array([[0.1], [C1 + 0.01], [0.9]])  # same count, one point on the other side of the boundary
+    pa, pb = dataclasses.replace(plan, points=a), dataclasses.replace(plan, points=b)
+    assert I.parameter_digest(pa) != I.parameter_digest(pb) != I.parameter_digest(plan)
+    assert I.fingerprint(pa) != I.fingerprint(pb)
+    assert I.fingerprint(pa) == I.fingerprint(dataclasses.replace(plan, points=a.copy()))
+    assert I.fingerprint(dataclasses.replace(plan, points=a[::-1].copy())) != I.fingerprint(pa)  # order counts
+
+    store = tmp_path / "round.zarr"
+    res_a, info = run_points(plan, a, store=store, keep_store=True)
+    assert info["n_resumed"] == 0
+    assert "points" not in read_manifest(store)["identity"]["overrides"]  # no workaround digest
+    np.testing.assert_array_equal(np.asarray(res_a["verdict"])[:, -1], closed_form(a[:, 0], C1))
+
+    def refuse(*_a, **_k):
+        raise AssertionError("the same points must resume, not integrate")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep, "solve_chunk", refuse)
+        again, info = run_points(plan, a, store=store, keep_store=True)
+    assert info["n_resumed"] == info["n_chunks"]
+    np.testing.assert_array_equal(again["verdict"], res_a["verdict"])
+    with pytest.raises(StoreError, match="different computation.*parameters"):
+        run_points(plan, b, store=store, keep_store=True)
+    res_b, info = run_points(plan, b, store=store, restart=True, keep_store=True)
+    assert info["n_resumed"] == 0  # recomputed
+    np.testing.assert_array_equal(np.asarray(res_b["verdict"])[:, -1], closed_form(b[:, 0], C1))
+    assert closed_form(b[1:2, 0], C1)[0] != closed_form(a[1:2, 0], C1)[0]
+
+
+def test_two_axis_refinement_dataset_is_cf(oscillator, tmp_path):
+    """A 2-D refinement's dataset over two horizons (disk boundaries by closed form, no integration) passes the CF check of
+    tests/test_cf.py in memory and read back from netCDF: segment_axis decodes to the axis names, every label
+    variable to the verdict names. Fails if a variable lacks units/long_name or a code lacks a meaning."""
+    import xarray as xr
+    from test_cf import REFINE_CATEGORICAL, check_cf
+
+    from stabjax.refine import Refiner, assemble, refine_config
+    from stabjax.spec import make_plan
+    from stabjax.sweep import write
+
+    disks = [lambda p, r=r: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < r * r for r in (0.35, 0.3)]
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}, "c": {"start": 0.1, "stop": 1.0, "num": 4}},
+                          {"tol": 0.05, "horizons": "all"}, verdict={"horizons": [5.0]}))
+    ds = assemble(Refiner(plan, refine_config(plan)).run(_by_values(plan, _by_horizon(disks))))
+    along = ds["segment_axis"].values
+    assert set(along) == {0, 1} and list(ds["horizon"].values) == [5.0, T1]
+    np.testing.assert_array_equal((ds["segment_axis"].cf == "k").values, along == 0)
+    categorical = (*REFINE_CATEGORICAL, "segment_axis", "point_label_by_horizon")
+    check_cf(ds, categorical, theory_flags=False, system="test_oscillator")
+    write(ds, tmp_path / "r2.nc")
+    with xr.open_dataset(tmp_path / "r2.nc") as back:
+        check_cf(back.load(), categorical, theory_flags=False, system="test_oscillator")
+
+
+def _by_horizon(boundaries):
+    """A solve_points whose verdict at horizon h (columns: the plan's horizons, ascending) is converged where
+    ``boundaries[h](p)`` holds, flipped elsewhere (closed forms, no integration)."""
+    def solve_points(p):
+        v = np.stack([np.where(inside(p), V.CONVERGED, V.FLIPPED) for inside in boundaries], axis=1).astype(np.int8)
+        return {"verdict": v, "solver_status": np.zeros(len(v), np.int32), "n_steps": np.ones(len(v), np.int64)}
+    return solve_points
+
+
+def test_multi_horizon_1d_brackets_each_horizon(oscillator):
+    """``horizons = "all"``: one run brackets the boundary of every horizon (closed forms k = 0.81 at T = 5,
+    0.6 at T = 20, 0.37 at t1 = 50). Each bracket holds its own boundary and is within the tolerance; the
+    points are the coarse grid plus each boundary's bisection (the three single-horizon runs' points, the
+    shared coarse grid counted once); every point's label at each horizon is that horizon's closed form.
+    Fails if a horizon's boundary is not refined, or labels are read from the wrong horizon column."""
+    from stabjax.refine import Refiner, assemble, format_summary, refine_config
+    from stabjax.spec import make_plan
+
+    bounds = {5.0: 0.81, 20.0: 0.6, 50.0: 0.37}
+    solve = _by_horizon([lambda p, b=b: p["k"] < b for b in bounds.values()])
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "horizons": "all"},
+             verdict={"horizons": [5.0, 20.0]})
+    plan = make_plan(s)
+    cfg = refine_config(plan)
+    assert cfg.horizons == (5.0, 20.0, 50.0) and cfg.horizon == 50.0
+    ds = assemble(Refiner(plan, cfg).run(_by_values(plan, solve)))
+    assert ds.attrs["n_segments"] == 3 and ds.attrs["n_unbracketed"] == 0
+    np.testing.assert_array_equal(ds["segment_horizon"].values, [5.0, 20.0, 50.0])
+    for h, b in bounds.items():
+        sel = ds["segment_horizon"].values == h
+        lo, hi = float(ds["k_lo"].values[sel][0]), float(ds["k_hi"].values[sel][0])
+        assert lo < b <= hi and hi - lo <= 0.01, (h, lo, hi)
+    singles = []
+    for h in bounds:
+        p1 = make_plan({**s, "refine": {"tol": 0.01, "horizon": h}})
+        singles.append(Refiner(p1, refine_config(p1)).run(_by_values(p1, solve)).n_points)
+    assert ds.attrs["n_points"] == sum(singles) - 2 * 5  # the coarse grid (5 points) is shared
+    k = ds["point_k"].values
+    expect = np.stack([np.where(k < b, V.CONVERGED, V.FLIPPED) for b in bounds.values()], axis=1)
+    np.testing.assert_array_equal(ds["point_label_by_horizon"].values, expect)
+    np.testing.assert_array_equal(ds["point_label"].values, expect[:, -1])  # the longest horizon
+    np.testing.assert_array_equal(ds["horizon"].values, [5.0, 20.0, 50.0])
+    text = format_summary(ds)
+    for h in bounds:
+        assert f"horizon T = {h:g}: 1 segment(s), k in [" in text
+    # a list picks some horizons; a time that is not a verdict horizon, or both keys, is refused
+    assert refine_config(make_plan({**s, "refine": {"horizons": [50.0, 5.0]}})).horizons == (5.0, 50.0)
+    for bad in ({"horizons": [7.0]}, {"horizons": []}, {"horizons": "some"}, {"horizon": 5.0, "horizons": "all"}):
+        with pytest.raises(ValidationError, match="refine.horizons"):
+            refine_config(make_plan({**s, "refine": bad}))
+
+
+def test_multi_horizon_2d_finds_every_edge_at_every_horizon(oscillator, tmp_path):
+    """Disks shrinking with the horizon (radius 0.35, 0.3, 0.25 at T = 5, 20, 50): for each horizon the
+    refinement's segments are exactly the boundary edges of the full lattice at that horizon, although cells
+    are split by the union of the three boundaries. The plot draws each horizon's bracket."""
+    from stabjax.refine import Refiner, assemble, plot_refine, refine_config
+    from stabjax.spec import make_plan
+
+    radii = (0.35, 0.3, 0.25)
+    disks = [lambda p, r=r: (p["k"] - 0.5) ** 2 + (p["c"] - 0.5) ** 2 < r * r for r in radii]
+    plan = make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 9}, "c": {"start": 0.0, "stop": 1.0, "num": 9}},
+                          {"tol": 0.02, "horizons": "all"}, verdict={"horizons": [5.0, 20.0]}))
+    cfg = refine_config(plan)
+    ref = Refiner(plan, cfg).run(_by_values(plan, _by_horizon(disks)))
+    kf, cf = ref.fine
+    K, C = np.meshgrid(kf, cf, indexing="ij")
+    for h, inside in enumerate(disks):
+        full = inside({"k": K, "c": C})
+        edges = {(0, (i, j), (i + 1, j)) for i, j in zip(*np.nonzero(full[1:] != full[:-1]))}
+        edges |= {(1, (i, j), (i, j + 1)) for i, j in zip(*np.nonzero(full[:, 1:] != full[:, :-1]))}
+        assert set(ref.segments(h)) == edges and edges, radii[h]
+    coords = np.concatenate(ref.coords)
+    assert len({tuple(c) for c in coords}) == len(coords) < K.size / 2
+    ds = assemble(ref)
+    assert list(ds.attrs["n_segments_by_horizon"]) == [len(ref.segments(h)) for h in range(3)]
+    for h, r in zip(cfg.horizons, radii):  # each segment's corners lie on both sides of its own horizon's circle
+        sel = ds["segment_horizon"].values == h
+        d = lambda e: np.hypot(ds[f"k_{e}"].values[sel] - 0.5, ds[f"c_{e}"].values[sel] - 0.5)
+        assert np.all((d("lo") < r) != (d("hi") < r))
+    png = tmp_path / "mh.png"
+    plot_refine(ds, png)
+    assert png.stat().st_size > 0
+
+
+def test_multi_horizon_refinement_through_the_runner(oscillator):
+    """Integrated: the oscillator's boundary is k = c at every horizon (up to the bands of the module
+    docstring, < DELTA for T >= 25); a refinement over horizons 25 and 50 brackets it at both, and its labels
+    at each horizon are the sweep runner's verdict columns at the same points (an independent path: run_points
+    on the evaluated points, escape mapped by stabjax.status)."""
+    from stabjax import status
+    from stabjax.refine import refine_spec
+    from stabjax.spec import make_plan
+    from stabjax.sweep import run_points
+
+    s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": 0.01, "horizons": [25.0, 50.0]},
+             params={"c": C1}, verdict={"horizons": [25.0]})
+    ds = refine_spec(s)
+    assert list(ds["segment_horizon"].values) == [25.0, 50.0] and ds.attrs["n_unbracketed"] == 0
+    for lo, hi in zip(ds["k_lo"].values, ds["k_hi"].values):
+        assert lo - DELTA <= C1 <= hi + DELTA and hi - lo <= 0.01
+    k = ds["point_k"].values
+    res, _ = run_points(make_plan({key: v for key, v in s.items() if key != "refine"}), k[:, None])
+    v = status.verdicts(np.asarray(res["solver_status"]), np.asarray(res["verdict"]))
+    np.testing.assert_array_equal(ds["point_label_by_horizon"].values, v)
+    for h in range(2):
+        np.testing.assert_array_equal(v[:, h][np.abs(k - C1) > DELTA], closed_form(k, C1)[np.abs(k - C1) > DELTA])

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import early
 from .. import verdict as V
 from ..config import IntegrateConfig, escape_radius
 from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS
@@ -46,48 +47,83 @@ SOLVERS = {
 CHUNK = 4096  # the diffrax engine stores every checkpoint: bound its memory per call
 
 
-def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p):
+def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, final: bool = False):
     """One trajectory: ``(diffrax solution, solver_status)``; the status is diffrax's code, or
-    :data:`STATUS_MAX_STEPS` for a collapsed step size, :data:`STATUS_ESCAPED` for an escape."""
+    :data:`STATUS_MAX_STEPS` for a collapsed step size, :data:`STATUS_ESCAPED` for an escape.
+    ``final``: also save the state where the solve ended (``sol.ys = (saved, y_end)``,
+    ``sol.ts = (ts, t_end)``), needed to tell a fixed-point stop (:mod:`stabjax.early`) from an escape."""
     args = system.prepare(p)
     y0 = system.initial_state(p)
     term = diffrax.ODETerm(system.rhs)
     saveat = diffrax.SaveAt(ts=ts) if saveat_fn is None else diffrax.SaveAt(ts=ts, fn=saveat_fn)
+    if final:
+        saveat = diffrax.SaveAt(subs=[saveat.subs, diffrax.SubSaveAt(t1=True)])
     solver = SOLVERS[icfg.solver]()
     # implicit solvers: a PI controller (diffrax docs' suggestion for mildly stiff problems); with the
     # default I controller Kvaerno5 rejected about half its steps on the gyrodyne model
     pi = dict(pcoeff=0.3, icoeff=0.4) if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
     radius = escape_radius(system, icfg)
+    fixed = early.active(system, icfg)
     # step-size collapse (as in the other engines, but absolute: diffrax's dtmin is a constant):
     # a step below ~10 ulp of the horizon's largest time stops the solve (dt_min_reached)
     dtmin = MIN_STEP_REL * max(abs(float(icfg.t0)), abs(float(icfg.t1)))
+
+    def stop(t, y, a, **kw):  # the same predicates as the lane engines (escape; stable fixed point)
+        out = jnp.asarray(False)
+        if radius is not None:
+            out = out | (jnp.max(jnp.abs(y)) > radius)
+        if fixed:
+            out = out | early.at_fixed_point(system.rhs, t, y, a, float(icfg.rtol), float(icfg.atol))
+        return out
+
     sol = diffrax.diffeqsolve(
         term, solver, icfg.t0, icfg.t1, icfg.dt0, y0, args=args, saveat=saveat,
         stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, dtmin=dtmin, force_dtmin=False, **pi),
         max_steps=icfg.max_steps, throw=False,
         adjoint=diffrax.ForwardMode(),  # plain while loop: no checkpointing machinery for a forward-only solve
-        event=None if radius is None else diffrax.Event(lambda t, y, a, **kw: jnp.max(jnp.abs(y)) > radius),
+        event=None if radius is None and not fixed else diffrax.Event(stop),
     )
     status = sol.result._value
     collapsed = sol.result == diffrax.RESULTS.dt_min_reached
     status = jnp.where(collapsed, STATUS_MAX_STEPS, status)
-    if radius is not None:
-        status = jnp.where(sol.result == diffrax.RESULTS.event_occurred, STATUS_ESCAPED, status)
+    event = sol.result == diffrax.RESULTS.event_occurred
+    if radius is not None and fixed:
+        if not final:
+            raise ValueError("a fixed-point stop needs final=True to be told from an escape")
+        y_end = sol.ys[1][-1]
+        status = jnp.where(event, jnp.where(jnp.max(jnp.abs(y_end)) > radius, STATUS_ESCAPED, 0), status)
+    elif radius is not None:
+        status = jnp.where(event, STATUS_ESCAPED, status)
+    elif fixed:
+        status = jnp.where(event, 0, status)
     return sol, status.astype(jnp.int32)
 
 
 @functools.lru_cache(maxsize=64)
 def _batch_fn(system, icfg: IntegrateConfig, vcfg):
-    """Compiled ``params(B, ...) -> summaries(B)``; cached so each spec compiles once, not per chunk."""
+    """Compiled ``params(B, ...) -> summaries(B)``; cached so each spec compiles once, not per chunk.
+
+    After a fixed-point stop (:mod:`stabjax.early`) the checkpoints past the stop observe the frozen
+    state, exactly what the lane engines' :func:`stabjax.early.fast_forward` folds in."""
     ts = jnp.asarray(V.checkpoint_times(icfg.checkpoints(), vcfg))  # every horizon exactly
     classify = system.classify or V.classify
+    fixed = early.active(system, icfg)
 
     def one(p):
-        sol, status = solve_one(system, icfg, ts, lambda t, y, a: system.observe(t, y, a), p)
-        out = dict(classify(ts, sol.ys, status == 0, vcfg, icfg.t0))
+        sol, status = solve_one(system, icfg, ts, lambda t, y, a: system.observe(t, y, a), p, final=True)
+        obs, y_end = sol.ys[0], sol.ys[1][-1]
+        t_end = sol.ts[1][-1]
+        event = sol.result == diffrax.RESULTS.event_occurred
+        at_fp = event & (status == 0)
+        if fixed:
+            frozen = system.observe(t_end, y_end, system.prepare(p))
+            obs = jnp.where((at_fp & (ts > t_end))[:, None], frozen[None, :], obs)
+        out = dict(classify(ts, obs, status == 0, vcfg, icfg.t0))
         out["n_steps"] = sol.stats["num_accepted_steps"]
         out["n_rejected"] = sol.stats["num_rejected_steps"]
         out["solver_status"] = status  # 0 success, else the failure reason (stabjax.status)
+        out["stopped_at"] = t_end
+        out["fixed_point"] = at_fp
         return out
 
     return jax.jit(jax.vmap(one))

@@ -51,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .. import early
 from .. import verdict as V
 from ..config import escape_radius
 from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
@@ -84,7 +85,8 @@ class _Model:
     constants are kept in a template and only its lane-varying entries are carried.
     """
 
-    def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late):
+    def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
+                 fixed_point: tuple[float, float] | None = None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
@@ -112,6 +114,9 @@ class _Model:
             self.rhs = LaneFn(system.rhs, ex_t, ex_y, ex_args)
             self.obs = LaneFn(system.observe, ex_t, ex_y, ex_args)
             self.upd = LaneFn(lambda c, t, o: V.update(c, t, o, vcfg, t_late), ex_c, ex_t, ex_obs)
+            # the stop test at a stable fixed point (stabjax.early), fixed_point = (rtol, atol)
+            self.fp = None if fixed_point is None else LaneFn(
+                lambda t, y, a: early.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
             # dry run of every function on abstract lanes: an unsupported primitive shows up now
             L = 8
             jax.eval_shape(self._dry, *[sds((L,), f64) for _ in range(sum(int(np.prod(s)) for s in self.dyn_shapes.values()))])
@@ -125,6 +130,8 @@ class _Model:
         t = jnp.zeros((L,))
         f = self.f(L, t, y0, args_objs)
         o = self.observe(L, t, y0, args_objs)
+        if self.fp is not None:
+            self.at_fixed_point(L, t, y0, args_objs)
         c = flat_rows(self.c_spec.objs([jnp.zeros((L,), d) for d, n in zip(self.c_spec.dtypes, self.c_spec.sizes)
                                         for _ in range(n)]), L)
         return f, self.update(L, c, t, o)
@@ -166,6 +173,10 @@ class _Model:
         out = Lanes(L).eval_closed(self.obs.closed, [obj0(t), obj1(y)] + args_objs)
         return flat_rows(out, L, [np.float64])
 
+    def at_fixed_point(self, L, t, y, args_objs):
+        out = Lanes(L).eval_closed(self.fp.closed, [obj0(t), obj1(y)] + args_objs)
+        return flat_rows(out, L, [np.bool_])[0]
+
     def update(self, L, c_rows, t, obs_rows):
         ins = self.c_spec.objs(c_rows) + [obj0(t), obj1(obs_rows)]
         out = Lanes(L).eval_closed(self.upd.closed, ins)
@@ -197,9 +208,11 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
     max_steps = int(icfg.max_steps)
     t_late = V.late_start(vcfg, t0, float(ts_np[-1]))
     f64 = jnp.float64
-    model = _Model(system, static, dyn_shapes, vcfg, t_late)
+    fixed = early.active(system, icfg)
+    model = _Model(system, static, dyn_shapes, vcfg, t_late, (rtol, atol) if fixed else None)
     n_state = model.n_state
     radius = escape_radius(system, icfg)
+    k_w = early.window_index(ts_np, vcfg)  # first checkpoint of the feature window
 
     def run(p: Mapping[str, jnp.ndarray], one):
         with materializing(one.reshape(())):
@@ -246,13 +259,14 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             c0 = V.init(f64, vcfg)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
-            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi)
+            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi)
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
             jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64, vcfg)), jnp.ones((1,), bool)))
         out = {k: jnp.zeros((M, *s.shape[1:]), s.dtype) for k, s in summ_shape.items()}  # trailing dims: horizons, observables
-        for k in ("n_steps", "n_rejected", "solver_status"):
+        for k in ("n_steps", "n_rejected", "solver_status", "fixed_point"):
             out[k] = jnp.zeros((M,), jnp.int32)
+        out["stopped_at"] = jnp.zeros((M,), f64)
         if with_state:
             for i in range(n_state):
                 out[f"__y{i}"] = jnp.zeros((M,), f64)
@@ -261,9 +275,17 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
         def sel(mask, a, b):
             return jax.tree.map(lambda x, y: jnp.where(mask, x, y), a, b)
 
-        def finish_and_refill(carry, done, status):
+        def finish_and_refill(carry, done, status, at_fp):
             lane, idx, nxt, out = carry
-            summ = v_finalize(model.c_spec.tree(lane["vc"], L), status == STATUS_OK)
+            ctree = model.c_spec.tree(lane["vc"], L)
+            if fixed:  # the remaining checkpoints observe the frozen state (stabjax.early.fast_forward)
+                obs = jnp.stack(model.observe(L, lane["t"], lane["y"], model.args_objs(lane["args"])), axis=-1)
+                n_in = K - jnp.maximum(lane["ck"], k_w)
+                ff = jax.vmap(early.fast_forward, in_axes=(-1, 0, 0), out_axes=-1)(ctree, n_in, obs)
+                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp, a, b), ff, ctree)
+            summ = v_finalize(ctree, status == STATUS_OK)
+            summ["fixed_point"] = at_fp.astype(jnp.int32)
+            summ["stopped_at"] = lane["t"]
             summ["n_steps"] = lane["nacc"]
             summ["n_rejected"] = lane["nrej"]
             summ["solver_status"] = status
@@ -337,12 +359,13 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             nrej = lane["nrej"] + (stepped & ~keep).astype(jnp.int32)
             y = [jnp.where(keep, a, b) for a, b in zip(y_new, y)]
             f = [jnp.where(keep, a, b) for a, b in zip(f7, f1)]
-            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej)
+            nt = lane["nt"]
+            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej, nt=nt)
 
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
             # no progress possible (at t1 a step of length 0 may still observe the last checkpoint)
-            collapsed = ((t_next - t_prev) < MIN_STEP_REL * jnp.abs(t_prev)) & (t_prev < t1)
+            collapsed = ~((t_next - t_prev) > MIN_STEP_REL * jnp.abs(t_prev)) & (t_prev < t1)  # a NaN step too
             stuck = active & ~reached & (((nacc + nrej) >= max_steps) | ~finite | collapsed)
             done = reached | stuck
             status = jnp.where(reached, STATUS_OK, STATUS_MAX_STEPS)
@@ -351,9 +374,18 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 escaped = active & stepped & keep & (size > radius)
                 done = done | escaped
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
+            at_fp = jnp.zeros_like(done)
+            if fixed:  # at an accepted step that reached a checkpoint: a stable equilibrium, within tolerance
+                # asked once per early.TEST_EVERY checkpoints of the lane (its cost: n right-hand sides)
+                test = active & stepped & keep & (n_ck > 0) & ~done & (ck >= nt)
+                at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
+                                 lambda: jnp.zeros_like(done))
+                lane["nt"] = jnp.where(test, ck + early.TEST_EVERY, nt).astype(jnp.int32)
+                done = done | at_fp
+                status = jnp.where(at_fp, STATUS_OK, status)
             status = status.astype(jnp.int32)
             carry = (lane, idx, nxt, out)
-            return lax.cond(jnp.any(done), lambda c: finish_and_refill(c, done, status), lambda c: c, carry)
+            return lax.cond(jnp.any(done), lambda c: finish_and_refill(c, done, status, at_fp), lambda c: c, carry)
 
         def cond(carry):
             return jnp.any(carry[1] < M)
@@ -473,7 +505,8 @@ class FusedEngine(Engine):
         super().prepare(system, params, icfg, vcfg, static)
         st, dyn = split_static(params, static)
         shapes = tuple(sorted((k, np.shape(v)[1:]) for k, v in dyn.items()))
-        _Model(system, st, dict(shapes), vcfg, V.late_start(vcfg, float(icfg.t0), float(icfg.t1)))
+        _Model(system, st, dict(shapes), vcfg, V.late_start(vcfg, float(icfg.t0), float(icfg.t1)),
+               (float(icfg.rtol), float(icfg.atol)) if early.active(system, icfg) else None)
 
     def default_chunk(self, plan) -> int:
         """Lanes are refilled from a queue: longer chunks waste less at the tail. On a GPU 2^18

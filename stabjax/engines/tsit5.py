@@ -28,7 +28,9 @@ SAFETY, FACTORMIN, FACTORMAX = 0.9, 0.2, 10.0
 # Step-size collapse: a proposed step below MIN_STEP_REL * |t| (5 to 10 ulp of t) cannot make
 # progress (t + h rounds to within a few ulp of t), so the trajectory stops as failed (status 1)
 # instead of rejecting steps until max_steps (SciPy's solve_ivp uses 10 ulp). Happens at a
-# finite-time blow-up; diffrax itself has no such test (see the diffrax engine's dtmin).
+# finite-time blow-up; diffrax itself has no such test (see the diffrax engine's dtmin). The test is
+# ``<=``: at t = 0 a step that underflowed to 0 (a derivative so large that every step is rejected,
+# e.g. a parameter of 1e308) would otherwise loop for ever, uncounted by max_steps.
 MIN_STEP_REL = 10 * 2.0 ** -52
 
 

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ... import early
 from ... import verdict as V
 from ...config import escape_radius
 from ...status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
@@ -61,7 +62,10 @@ class _Kernel:
         ts = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
         self.ts = np.ascontiguousarray(ts, np.float64)
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
-        self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late)
+        self.fixed = early.active(system, icfg)
+        self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late,
+                                 (float(icfg.rtol), float(icfg.atol)) if self.fixed else None)
+        self.k_w = early.window_index(self.ts, vcfg)
         self.width = width
         self.source = kernel_source(self.model, width, escape_radius(system, icfg))
         if eval_only:
@@ -175,10 +179,20 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     ain, y0 = model.host_inputs(dyn, n)
     raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
     c = model.c_tree_from(raw["c"])
+    fp = raw["fp"] != 0
+    if fp.any():
+        K = len(kern.ts)
+        ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
+        n_in = np.where(fp, K - np.maximum(ck, kern.k_w), 0).astype(np.float64)
+        # the remaining checkpoints observe the frozen state (NumPy, batched: no compile per batch size)
+        ff = early.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
+        c = {k: np.where(fp.reshape((-1,) + (1,) * (np.ndim(v) - 1)), ff[k], v) for k, v in c.items()}
     summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
     summ["n_steps"] = raw["nacc"]
     summ["n_rejected"] = raw["nrej"]
     summ["solver_status"] = raw["status"]
+    summ["stopped_at"] = raw["t"]
+    summ["fixed_point"] = fp.astype(np.int32)
     if with_state:
         summ["state_t1"] = raw["y"]
         summ["t_stop"] = raw["t"]
@@ -199,6 +213,8 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
     nacc = np.zeros(n, np.int32)
     nrej = np.zeros(n, np.int32)
     status = np.full(n, STATUS_MAX_STEPS, np.int32)
+    fp = np.zeros(n, np.int32)
+    oout = np.zeros((n, max(model.n_obs, 1)), np.float64)
     nxt = np.zeros(1, np.int64)
     ndone = np.zeros(1, np.int64)
     stop = np.zeros(1, np.int32)
@@ -213,7 +229,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
               dt0=float(icfg.dt0) if icfg.dt0 is not None else -1.0,
               ain=ptr(ain), y0in=ptr(y0), c0=ptr(c0), ts=ptr(kern.ts), cout=ptr(cout), yout=ptr(yout),
               nacc_out=ptr(nacc), nrej_out=ptr(nrej), status_out=ptr(status), next=ptr(nxt), ndone=ptr(ndone),
-              stop=ptr(stop), tout=ptr(tout), drains=ptr(drains))
+              stop=ptr(stop), tout=ptr(tout), fp_out=ptr(fp), oout=ptr(oout), drains=ptr(drains))
     n_threads = max(1, min(int(threads or default_threads()), -(-n // kern.width)))
     workers = [threading.Thread(target=kern.lib.stabjax_run, args=(ctypes.byref(job),), daemon=True)
                for _ in range(n_threads)]
@@ -235,7 +251,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
         raise RuntimeError(f"native engine finished {int(ndone[0])} of {n} trajectories")
     # drains: FIFO items classified on overflow and when their lane finished (an observable of the
     # queue for tests; the per-lane order of classifier updates, hence every result, is the same)
-    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status,
+    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status, "fp": fp, "obs": oout,
             "drains": {"overflow": int(drains[0]), "late": int(drains[1])}}
 
 

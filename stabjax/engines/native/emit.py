@@ -343,10 +343,12 @@ class NativeModel:
     trajectory and passed in.
     """
 
-    def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late):
+    def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
+                 fixed_point: tuple[float, float] | None = None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.system = system
+        self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.early
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
         self.dyn_shapes = {k: tuple(dyn_shapes[k]) for k in self.dyn_keys}
@@ -439,6 +441,19 @@ class NativeModel:
         upd = _function("f_upd", em.lines, "const double *restrict c, const double t, const double *restrict o, "
                                            "double *restrict out")
         self.functions = rhs + "\n" + obs + "\n" + upd
+        if self.fixed_point is not None:
+            # -- the fixed-point stop test (stabjax.early.at_fixed_point) -> out[0] = 1.0 / 0.0 --
+            from ... import early
+
+            em = CEmit()
+            y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+            rt, at = self.fixed_point
+            closed = jax.make_jaxpr(lambda t, yy, a: early.at_fixed_point(system.rhs, t, yy, a, rt, at))(
+                ex_t, ex_y, ex_args)
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_])
+            self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+                                                "const double *restrict a, double *restrict out")
 
     # -- host side ----------------------------------------------------------------------------
     @functools.cached_property

@@ -189,6 +189,8 @@ typedef struct {{
     int64_t *next, *ndone;
     volatile int32_t *stop;
     double *tout;
+    int32_t *fp_out;
+    double *oout;
     int64_t *drains;  /* [0] items drained from a full FIFO (overflow), [1] drained when a lane finished */
 }} job_t;
 
@@ -221,6 +223,7 @@ int64_t stabjax_run(const job_t *jb) {{
     double Y[NS * W] ALIGN, KS[7][NS * W] ALIGN, YT[NS * W] ALIGN, YN[NS * W] ALIGN, A[NA * W] ALIGN, C[NC * W] ALIGN,
         CN[NC * W] ALIGN, OBS[NO * W] ALIGN, T[W] ALIGN, TN[W] ALIGN, H[W] ALIGN, TP[W] ALIGN, TNX[W] ALIGN, TC[W] ALIGN,
         NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN, TV[NTV * W] ALIGN;
+    /*FP_DECL*/
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
     /* checkpoint items of one step, and each lane's FIFO of observed checkpoints (time, observables) */
     double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN;
@@ -241,7 +244,7 @@ int64_t stabjax_run(const job_t *jb) {{
 #define REFILL(l) do {{ \\
         const int64_t j_ = __atomic_fetch_add(jb->next, 1, __ATOMIC_RELAXED); \\
         if (j_ < n) {{ \\
-            IDX[l] = j_; ACT[l] = 1.0; \\
+            IDX[l] = j_; ACT[l] = 1.0; /*FP_REFILL*/ \\
             for (int q = 0; q < NA; q++) A[q * W + (l)] = jb->ain[j_ * NA + q]; \\
             for (int q = 0; q < NS; q++) Y[q * W + (l)] = jb->y0in[j_ * NS + q]; \\
             for (int q = 0; q < NC; q++) C[q * W + (l)] = jb->c0[q]; \\
@@ -429,6 +432,7 @@ int64_t stabjax_run(const job_t *jb) {{
             {commit_body}
             T[l] = TP[l]; TN[l] = TNX[l];
         }}
+        /*FP_TEST*/
 
         /* finished or stuck lanes: write out, refill from the queue. A lane finishes once in
            thousands of steps; a vector test of a superset of the condition skips the scalar loop
@@ -439,23 +443,25 @@ int64_t stabjax_run(const job_t *jb) {{
             const double probe = {fin_probe};  /* NaN iff some component of f is not finite */
             {esc_vec}const double c1 = T[l] >= t1 ? 1.0 : 0.0, c2 = NACC[l] + NREJ[l] >= max_steps_d ? 1.0 : 0.0;
             /* step-size collapse: the next step is within ~10 ulp of t, no progress is possible */
-            const double c3 = TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l]) && T[l] < t1 ? 1.0 : 0.0;
-            const double c = c1 + c2 + c3 + (probe != probe ? 1.0 : 0.0){esc_term} > 0.0 ? ACT[l] : 0.0;
+            const double c3 = !(TN[l] - T[l] > {flit(MIN_STEP_REL)} * fabs(T[l])) && T[l] < t1 ? 1.0 : 0.0;  /* NaN step too */
+            const double c = c1 + c2 + c3 + (probe != probe ? 1.0 : 0.0){esc_term}/*FP_CAND*/ > 0.0 ? ACT[l] : 0.0;
             cand = c > cand ? c : cand;
         }}
         if (cand != 0.0) for (int l = 0; l < W; l++) {{
             if (ACT[l] == 0.0) continue;
-            {esc_scalar}const int reached = {reached};
+            {esc_scalar}/*FP_SCALAR*/
+            const int reached = {reached};
             const int stuck = {stuck}((NACC[l] + NREJ[l] >= max_steps_d) | !finite_row(KS[0] + l)
-                                      | ((TN[l] - T[l] < {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
-            if (!({done})) continue;
+                                      | (!(TN[l] - T[l] > {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
+            if (!({done} | fixedp)) continue;
             const int64_t j = IDX[l];
             while (QN[l] > 0) {{ DRAIN_ONE(l); n_late++; }}
             for (int q = 0; q < NC; q++) jb->cout[j * NC + q] = C[q * W + l];
             for (int q = 0; q < NS; q++) jb->yout[j * NS + q] = Y[q * W + l];
             jb->tout[j] = T[l];
             jb->nacc_out[j] = (int32_t)NACC[l]; jb->nrej_out[j] = (int32_t)NREJ[l];
-            jb->status_out[j] = {status};
+            jb->status_out[j] = fixedp ? {STATUS_OK} : {status};
+            /*FP_OUT*/
             __atomic_fetch_add(jb->ndone, 1, __ATOMIC_RELAXED);
             finished++;
             REFILL(l);
@@ -482,6 +488,45 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     f_upd(c, t, o, out, 1);
 }}
 """
+    if model.fixed_point is None:
+        src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
+        src = src.replace("/*FP_SCALAR*/", "const int fixedp = 0;").replace("/*FP_OUT*/", "")
+    else:  # the fixed-point stop (stabjax.early): tested after a step that reached a checkpoint
+        from ...early import TEST_EVERY
+
+        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
+                                         "    for (int l = 0; l < W; l++) NT[l] = 0.0;")
+        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0;")
+        # a lane asks when a step reached a checkpoint and TEST_EVERY checkpoints passed since it last asked
+        src = src.replace("/*FP_TEST*/", """
+        #pragma omp simd
+        for (int l = 0; l < W; l++) FP[l] = 0.0;
+        if (any0 != 0.0) {
+            double anyt = 0.0;
+            #pragma omp simd reduction(max:anyt)
+            for (int l = 0; l < W; l++) {
+                const double m = R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0;
+                FPM[l] = m;
+                anyt = m > anyt ? m : anyt;
+            }
+            if (anyt != 0.0) {
+                #pragma omp simd
+                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
+                #pragma omp simd
+                for (int l = 0; l < W; l++) {
+                    FP[l] = FPM[l] != 0.0 ? FPT[l] : 0.0;
+                    NT[l] = FPM[l] != 0.0 ? (double)CK[l] + %d.0 : NT[l];
+                }
+            }
+        }""" % TEST_EVERY)
+        src = src.replace("/*FP_CAND*/", " + FP[l]")
+        esc_guard = " && !escaped" if escape is not None else ""
+        src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
+        src = src.replace("/*FP_OUT*/", f"""jb->fp_out[j] = fixedp;
+            if (fixedp) {{
+                f_obs(T[l], Y + l, A + l, OB0 + l, W);
+                for (int q = 0; q < NO; q++) jb->oout[j * NO + q] = OB0[q * W + l];
+            }}""")
     return src
 
 
@@ -501,5 +546,6 @@ class Job(ctypes.Structure):
                 ("cout", ctypes.c_void_p), ("yout", ctypes.c_void_p),
                 ("nacc_out", ctypes.c_void_p), ("nrej_out", ctypes.c_void_p), ("status_out", ctypes.c_void_p),
                 ("next", ctypes.c_void_p), ("ndone", ctypes.c_void_p), ("stop", ctypes.c_void_p),
-                ("tout", ctypes.c_void_p), ("drains", ctypes.c_void_p)]
+                ("tout", ctypes.c_void_p), ("fp_out", ctypes.c_void_p), ("oout", ctypes.c_void_p),
+                ("drains", ctypes.c_void_p)]
 
