@@ -291,7 +291,7 @@ class ChunkStore:
         foreign = sorted(p.name for p in self.path.iterdir() if not _ours_transient(p))
         if foreign:
             shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
-            raise StoreError(f"{self.path} exists and is not a stabjax store (it holds {shown}); nothing in it was "
+            raise StoreError(f"--store: {self.path} exists and is not a stabjax store (it holds {shown}); nothing in it was "
                              "changed. Use a new or empty directory for --store (or another --out)")
 
     def _previous(self, restart: bool) -> dict | None:
@@ -731,8 +731,11 @@ def finished_store(store: str | Path):
     from .errors import ValidationError
 
     store = Path(store)
-    if not store.is_dir():
+    if not store.exists():
         raise ValidationError("store", f"not found: {store}")
+    if not store.is_dir():
+        raise ValidationError("store", f"{store} is a file, not a stabjax store (a directory written by "
+                                       "'stabjax sweep ... --keep-store')")
     m = read_manifest(store)
     if m is None:
         raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST})")

@@ -60,3 +60,20 @@ def test_a_spec_of_one_trajectory_runs(tmp_path, capsys):
     assert code in (0, 1) and "wrote" in o, err  # 1 only if no rule classifies it: said, not a crash
     assert all(files(tmp_path)[k] == v for k, v in before.items())
     assert int(xr.load_dataset(out).attrs["n_trajectories"]) == 1
+
+
+def test_store_refusals_name_the_option_and_say_what_the_file_is(tmp_path, capsys, monkeypatch):
+    # the refusal of a user's folder as --store did not name the option; `export spec.toml` said
+    # "not found" of a file that exists
+    monkeypatch.chdir(tmp_path)
+    spec = spec_file(tmp_path)
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "n.txt").write_text("mine")
+    before = files(tmp_path)
+    code, out, err = cli(capsys, "sweep", spec, "--out", "r.nc", "--store", "notes")
+    clean(out, err)
+    assert code == 2 and "--store: " in err and "n.txt" in err, err
+    code, out, err = cli(capsys, "export", spec, "--out", "x.nc")
+    clean(out, err)
+    assert code == 2 and "is a file, not a stabjax store" in err and "not found" not in err, err
+    assert files(tmp_path) == before
