@@ -398,7 +398,7 @@ def sweep(
     scheduler: Optional[str] = typer.Option(None, help="run the chunks on an existing Dask scheduler "
                                             "(tcp://HOST:8786 or a scheduler file)"),
     workers: Optional[int] = typer.Option(None, help="run the chunks on a local Dask cluster of N worker processes"),
-    threads: Optional[int] = typer.Option(None, help="native engine threads per Dask worker "
+    threads: Optional[int] = typer.Option(None, help="engine threads per Dask worker "
                                           "(default: cores // workers locally)"),
     oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
                                        "(or more local workers than GPUs)"),

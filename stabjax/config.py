@@ -18,7 +18,6 @@ import numpy as np
 
 from .errors import ValidationError
 
-ENGINES = ("auto", "native", "fused", "diffrax")
 # explicit Runge-Kutta pairs and (kvaerno*) L-stable ESDIRK methods for stiff systems; only tsit5
 # runs on the native and fused engines, the others on the diffrax engine
 SOLVERS = ("tsit5", "dopri5", "dopri8", "heun", "bosh3", "kvaerno5", "kvaerno3")
@@ -87,16 +86,52 @@ class VerdictConfig:
         return replace(self, **kw)
 
 
+class Settings(Mapping):
+    """Engine settings as an immutable, hashable mapping (``IntegrateConfig.settings``). This module
+    knows none of their names: the engines declare them and check them
+    (:data:`stabjax.engines.SETTINGS`); the layers between pass them on."""
+
+    __slots__ = ("_items",)
+
+    def __init__(self, items: Mapping[str, Any] | None = None, **kw):
+        self._items = tuple(sorted({**dict(items or {}), **kw}.items()))
+
+    def __getitem__(self, k):
+        for name, v in self._items:
+            if name == k:
+                return v
+        raise KeyError(k)
+
+    def __iter__(self):
+        return (k for k, _ in self._items)
+
+    def __len__(self):
+        return len(self._items)
+
+    def __hash__(self):
+        return hash(self._items)
+
+    def __eq__(self, other):
+        return isinstance(other, Mapping) and dict(self) == dict(other)
+
+    def __repr__(self):
+        return f"Settings({dict(self._items)!r})"
+
+    def __reduce__(self):
+        return Settings, (dict(self._items),)
+
+    def __deepcopy__(self, memo):  # immutable (dataclasses.asdict deep-copies field values)
+        return self
+
+
 @dataclass(frozen=True)
 class IntegrateConfig:
     """The ``[integrate]`` table of a sweep spec.
 
-    ``engine``: "auto" (native C engine on CPU when a compiler works, else the fused XLA engine,
-    else diffrax), or one of "native", "fused", "diffrax" (a named engine that cannot run the
-    system falls back in the same order, with one line saying why). ``lanes``: fused engine,
-    trajectories stepped side by side per device (0: 256 on CPU, 2^18 on a GPU). ``width``:
-    native engine, trajectories per SIMD block (0: 16). ``threads``: native engine, threads
-    (0: one per core available to the process). None of these changes a result.
+    ``engine``: "auto" or the name of an engine (:data:`stabjax.engines.CHOICES`; the engines
+    package checks it and says what a name falls back to). ``settings``: the engines' own tuning
+    settings (a :class:`Settings`; a dict is converted), declared and checked by the engines
+    (:data:`stabjax.engines.SETTINGS`), read by none of the layers between.
 
     ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
     (status :data:`stabjax.status.ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
@@ -117,11 +152,13 @@ class IntegrateConfig:
     n_checkpoints: int = 2000
     dt0: float | None = None
     engine: str = "auto"
-    lanes: int = 0
-    width: int = 0
-    threads: int = 0
     escape_radius: float | None = None
     early_stop: bool | None = None
+    settings: Settings = Settings()
+
+    def __post_init__(self):
+        if not isinstance(self.settings, Settings):
+            object.__setattr__(self, "settings", Settings(self.settings))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None, *, section: str = "integrate", default_t1: float | None = None):
@@ -129,6 +166,9 @@ class IntegrateConfig:
         from .validate import record_from_dict
 
         d = dict(d or {})
+        if "settings" in d:  # engine settings come through stabjax.engines.integrate_config, checked there
+            raise ValidationError(f"{section}.settings", "engine settings are keys of [engine] (or [integrate]), "
+                                                         "not a table named settings")
         if "t1" not in d and default_t1 is not None:
             d["t1"] = default_t1
         cfg = record_from_dict(cls, d, section)
@@ -141,7 +181,7 @@ class IntegrateConfig:
         # types first (the dataclass itself is also built from Python code, not only from specs)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("solver", "engine", "early_stop") or (v is None and f.default is None):
+            if f.name in ("solver", "engine", "settings", "early_stop") or (v is None and f.default is None):
                 continue
             if isinstance(f.default, int) and not isinstance(f.default, bool):
                 integer(v, f"{section}.{f.name}")
@@ -161,12 +201,8 @@ class IntegrateConfig:
         integer(self.n_checkpoints, f"{section}.n_checkpoints", lo=8, hi=200_000)
         if self.dt0 is not None and not (self.dt0 > 0 and self.dt0 <= self.t1 - self.t0):
             raise ValidationError(f"{section}.dt0", f"must be in (0, t1 - t0], got {self.dt0}")
-        if not isinstance(self.engine, str) or self.engine not in ENGINES:
-            raise ValidationError(f"{section}.engine", f"unknown engine {self.engine!r}; choose from {', '.join(ENGINES)}")
-        # 0: automatic; at most 2^24 lanes (a GPU keeps 2^18 busy): the lane state is allocated up front
-        integer(self.lanes, f"{section}.lanes", lo=0, hi=2**24)
-        integer(self.width, f"{section}.width", lo=0, hi=1024)
-        integer(self.threads, f"{section}.threads", lo=0, hi=4096)
+        if not isinstance(self.engine, str):  # which names exist: stabjax.engines.check_choice
+            raise ValidationError(f"{section}.engine", f"must be an engine's name, got {self.engine!r}")
         if self.early_stop is not None and not isinstance(self.early_stop, (bool, np.bool_)):
             raise ValidationError(f"{section}.early_stop", f"must be true or false, got {self.early_stop!r}")
         if self.escape_radius is not None and not (np.isfinite(self.escape_radius) and self.escape_radius > 0):
@@ -202,16 +238,23 @@ def verdict_config(system, overrides: Mapping[str, Any] | None = None, section: 
 
 
 def versions() -> dict[str, str]:
-    """Library versions recorded with every result (imports diffrax only when called)."""
+    """Library versions recorded with every result (read from the installed packages' metadata:
+    importing diffrax, for its version alone, took a second of every run that never used it)."""
     import platform
+    from importlib.metadata import PackageNotFoundError, version
 
-    import diffrax
     import jax
     import xarray as xr
 
     from . import __version__
 
-    return {"stabjax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
+    try:
+        dfx = version("diffrax")
+    except PackageNotFoundError:  # pragma: no cover - a source tree without metadata
+        import diffrax
+
+        dfx = diffrax.__version__
+    return {"stabjax": __version__, "jax": jax.__version__, "diffrax": dfx,
             "numpy": np.__version__, "xarray": xr.__version__, "python": platform.python_version()}
 
 
@@ -332,4 +375,4 @@ def _host_devices(jax) -> None:
         pass
 
 
-__all__ = ["IntegrateConfig", "VerdictConfig", "verdict_config", "escape_radius", "setup_jax", "ENGINES", "SOLVERS"]
+__all__ = ["IntegrateConfig", "Settings", "VerdictConfig", "verdict_config", "escape_radius", "setup_jax", "SOLVERS"]

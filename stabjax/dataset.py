@@ -379,7 +379,7 @@ def provenance(plan) -> dict[str, Any]:
         "paper": plan.system.paper,
         "spec_json": json.dumps(jsonable(plan.spec)),
         "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
-        "integrate_json": json.dumps(plan.icfg.__dict__),
+        "integrate_json": json.dumps({**plan.icfg.__dict__, "settings": dict(plan.icfg.settings)}),
         "verdict_json": json.dumps(plan.vcfg.__dict__),
         "system_ref": str(plan.spec.get("system", plan.system.name)),
         **identity_attrs(plan),  # fingerprint, model file and every local module it imports, with hashes

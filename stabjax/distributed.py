@@ -17,8 +17,8 @@ store: it collects results as chunks complete (:func:`distributed.as_completed`)
 
 Local workers are started by spawning (``distributed.worker.multiprocessing-method: spawn``),
 never by forking this process, which has loaded JAX. Threads: every worker runs one chunk at a
-time (one Dask thread); the engine inside it uses ``threads`` OS threads, passed with every task as
-``[integrate] threads`` of the worker's plan (a setting that changes no result).
+time (one Dask thread); the engine inside it uses ``threads`` OS threads, passed with every task and
+set on the worker's plan by :func:`stabjax.engines.with_threads` (an engine setting that changes no result).
 ``workers * threads`` may not exceed this machine's cores unless ``oversubscribe``.
 A plan over explicit points (``Plan.points``: a round of :mod:`stabjax.refine`) travels with its points
 and runs through :meth:`DaskExecutor.map_chunks` like any plan. On a host with
@@ -75,7 +75,8 @@ def payload_for(plan, batch: int, overrides: Mapping[str, Any] | None = None, th
 
     from .spec import jsonable
 
-    return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"), "icfg": dict(plan.icfg.__dict__),
+    return {"spec": jsonable(plan.spec), "t1": (overrides or {}).get("t1"),
+            "icfg": {**plan.icfg.__dict__, "settings": dict(plan.icfg.settings)},
             "vcfg": asdict(plan.vcfg), "batch": int(batch), "identity": I.identity(plan), "threads": threads,
             "points": None if plan.points is None else np.asarray(plan.points, float).tolist()}  # explicit points
 
@@ -98,9 +99,10 @@ def worker_plan(payload: Mapping[str, Any]):
         from .spec import make_plan
 
         plan = make_plan(payload["spec"], t1=payload["t1"])
-        # the native engine's threads per worker: an [integrate] setting that changes no result
-        threads = {"threads": int(payload["threads"])} if payload.get("threads") else {}
-        plan = replace(plan, icfg=replace(plan.icfg, **{**payload["icfg"], **threads}),
+        from . import engines
+
+        # the engine's threads per worker: an engine setting that changes no result
+        plan = replace(plan, icfg=engines.with_threads(replace(plan.icfg, **payload["icfg"]), payload.get("threads")),
                        vcfg=replace(plan.vcfg, **{k: (tuple(v) if isinstance(v, list) else v)  # JSON: lists
                                                   for k, v in payload["vcfg"].items()}))
         if payload.get("points") is not None:  # a plan over explicit grid points (a refinement round)

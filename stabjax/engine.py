@@ -10,9 +10,11 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from . import engines
-from .config import ENGINES, SOLVERS, IntegrateConfig, VerdictConfig, setup_jax, verdict_config
+from .config import SOLVERS, IntegrateConfig, Settings, VerdictConfig, setup_jax, verdict_config
 from .errors import ValidationError
 from .system import System
+
+ENGINES = engines.CHOICES  # kept for compatibility (it lived in stabjax.config)
 
 
 def _as_system(system) -> System:
@@ -54,15 +56,13 @@ def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t
              max_steps: int | None = None):
     """One trajectory with the full state saved at ``ts`` (default: 1000 points on [t0, t1]; t1 always included).
 
-    Runs on the diffrax engine (stops at once on a non-finite state, and at the system's escape
+    Runs on the engine that saves full states (:func:`stabjax.engines.trajectory_fn`; stops at once on a non-finite state, and at the system's escape
     radius if it has one). Returns a Dataset with a variable per state component (3-vectors on
     dim ``axis``) and per observable.
     """
     setup_jax()
     import jax.numpy as jnp
     import xarray as xr
-
-    from .engines.diffrax_engine import simulate_fn
 
     system = _as_system(system)
     t1 = float(system.default_t1 if t1 is None else t1)
@@ -78,7 +78,7 @@ def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t
     p = system.params.resolve(params)
     p = system.check(p)
     pj = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in p.items()}
-    sol = simulate_fn(system, icfg)(jnp.asarray(ts), pj)
+    sol = engines.trajectory_fn(system, icfg)(jnp.asarray(ts), pj)
     ys = np.asarray(sol["ys"])
     obs = np.asarray(sol["obs"])
     ds = xr.Dataset(coords={"t": ("t", ts, {"long_name": "time"})})
@@ -112,5 +112,5 @@ def _params_json(p: Mapping[str, np.ndarray]) -> str:
     return json.dumps({k: np.asarray(v).tolist() for k, v in p.items()})
 
 
-__all__ = ["IntegrateConfig", "VerdictConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS",
+__all__ = ["IntegrateConfig", "Settings", "VerdictConfig", "simulate", "solve_batch", "batch_params", "verdict_config", "SOLVERS",
            "ENGINES"]

@@ -36,8 +36,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-# [integrate] settings that choose how the work is spread, never what it computes (config.IntegrateConfig)
-EXECUTION_ONLY = ("lanes", "width", "threads")
+# engine settings that choose how the work is spread, never what it computes, are left out: the
+# engines declare which (stabjax.engines.SETTINGS, Setting.changes_results); this module names none
 
 
 # ---- the model's source files --------------------------------------------------------------------
@@ -132,12 +132,21 @@ def parameter_digest(plan) -> str:
 def identity(plan, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Everything that decides the numbers of ``plan`` run with ``overrides`` (see the module
     docstring); ``versions`` is informative (a change warns, see :func:`compare`)."""
-    from . import __version__
+    from . import __version__, engines
     from .config import versions
 
-    icfg = {k: v for k, v in plain(plan.icfg).items() if k not in EXECUTION_ONLY}
+    icfg = plain(plan.icfg)
+    icfg["settings"] = engines.result_settings(icfg.get("settings") or {})
+    if not icfg["settings"]:  # as identities were before engine settings moved (stores resume)
+        del icfg["settings"]
+    spec = plain(plan.spec)
+    for table in ("integrate", "engine"):  # the same settings as written in the spec
+        if isinstance(spec.get(table), Mapping):
+            spec[table] = engines.result_settings(spec[table])
+    if spec.get("engine") == {}:
+        del spec["engine"]
     return {
-        "spec": plain(plan.spec),
+        "spec": spec,
         "system": plan.system.name,
         "model": _model_entry(plan.system),
         "overrides": plain({k: v for k, v in (overrides or {}).items() if v is not None}),

@@ -2,7 +2,8 @@
 
 A spec has ``system``, optional ``name``, and the tables ``[params]`` (fixed overrides),
 ``[grid]`` (cartesian axes), ``[sample]`` (random axes shared by every grid point, so
-grid points are compared on common random numbers), ``[integrate]`` and ``[verdict]``.
+grid points are compared on common random numbers), ``[integrate]``, ``[engine]`` (the engines'
+tuning settings, declared and checked by :mod:`stabjax.engines`) and ``[verdict]``.
 
 Grid axis values: a list (scalars, or vectors for vector parameters), or
 ``{start, stop, num[, log]}``. A single entry of a vector/matrix parameter is addressed as
@@ -12,6 +13,11 @@ Sample distributions (per parameter, ``n`` draws, ``seed``):
 ``{dist="uniform", low, high}``, ``{dist="normal", mean, std}``, ``{dist="sphere"}``,
 ``{dist="cap", center=[..] | "<param name>", half_angle}`` (uniform on a spherical cap),
 ``{dist="ball", radius, center=[..]}`` (uniform in a ball), ``{dist="so3"}`` (uniform rotation matrices).
+
+Size (~560 lines): the :class:`Plan` and the one validation pass that builds it (:func:`make_plan`,
+with the grid-axis and sampling checks it calls), kept together so that every check runs, in order,
+before anything of the plan's size is allocated. The samplers (``_sample_args``, ``_sample``, ~90
+lines) could move to a module of their own if this file grows again.
 """
 from __future__ import annotations
 
@@ -26,6 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .config import IntegrateConfig, VerdictConfig, verdict_config
+from . import engines
 from . import validate as V
 from . import verdict as VD
 from .errors import ValidationError
@@ -36,7 +43,8 @@ from .system import System
 
 # every top-level key is read by something: a section nothing reads (formerly ``[run]``, accepted with
 # any content) is refused like any unknown key, so a setting the user believes in is never ignored
-TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "verdict", "outcomes", "refine"}
+TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "engine", "verdict", "outcomes",
+            "refine"}
 _NAME = re.compile(r"^(?![.\-\s])[^/\\\x00-\x1f]{1,128}$")  # a file stem: no path, no hidden file
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
@@ -397,7 +405,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
                                       "no '/' or '\\', not starting with '.', '-' or a space, at most 128 characters")
     if "description" in spec:
         V.string(spec["description"], "description")
-    for table in ("params", "grid", "sample", "integrate", "verdict"):
+    for table in ("params", "grid", "sample", "integrate", "engine", "verdict"):
         if table in spec:
             V.table(spec[table], table)
     given = dict(spec.get("params") or {})
@@ -492,7 +500,7 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         for key, a in checked.items():
             sample[key] = _sample(a, system.params[key], n_sample, rng)
 
-    icfg = IntegrateConfig.from_dict(spec.get("integrate"), default_t1=system.default_t1)
+    icfg = engines.integrate_config(spec.get("integrate"), spec.get("engine"), default_t1=system.default_t1)
     if t1 is not None:
         t1 = V.number(t1, "--t1")
         icfg = icfg.replace(t1=t1)

@@ -35,6 +35,10 @@ refused with a message naming what changed (library versions: recorded and repor
 
 Size (~750 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
 integrity checks are one file format and change together; the writer lock is :mod:`stabjax.lock`.
+
+Size (~750 lines): :class:`ChunkStore` is one object guarding one invariant (a chunk is listed in the
+manifest only once all its blocks are on disk), with the reads that must honour the same layout
+(:func:`verify`, :func:`load_results`, :func:`open_store`); split, the layout would be known in two places.
 """
 from __future__ import annotations
 

@@ -230,6 +230,14 @@ BAD_SPECS = [
     ({**M, "integrate": {"lanes": 2.5}}, "integrate.lanes"),
     ({**M, "integrate": {"lanes": 10**12}}, "integrate.lanes"),
     ({**M, "integrate": {"foo": 1}}, "integrate.foo"),
+    ({**M, "integrate": {"settings": {"threads": 1}}}, "integrate.settings"),
+    # [engine]: the engines' declared settings (stabjax.engines.SETTINGS)
+    ({**M, "engine": 3}, "engine"),
+    ({**M, "engine": {"foo": 1}}, "engine.foo"),
+    ({**M, "engine": {"threads": -1}}, "engine.threads"),
+    ({**M, "engine": {"width": 2.5}}, "engine.width"),
+    ({**M, "engine": {"lanes": 2**25}}, "engine.lanes"),
+    ({**M, "integrate": {"threads": 2}, "engine": {"threads": 2}}, "engine.threads"),
     # [verdict]
     ({**M, "verdict": 3}, "verdict"),
     ({**M, "verdict": {"converged_tol": True}}, "verdict.converged_tol"),

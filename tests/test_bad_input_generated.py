@@ -167,6 +167,8 @@ FIELDS = [
     (("integrate", "lanes"), "integrate.lanes", st.one_of(not_an_int, ints_outside(0, 2**24))),
     (("integrate", "width"), "integrate.width", st.one_of(not_an_int, ints_outside(0, 1024))),
     (("integrate", "threads"), "integrate.threads", st.one_of(not_an_int, ints_outside(0, 4096))),
+    (("engine", "threads"), "engine.threads", st.one_of(not_an_int, ints_outside(0, 4096))),
+    (("engine", "lanes"), "engine.lanes", st.one_of(not_an_int, ints_outside(0, 2**24))),
     (("verdict", "converged_tol"), "verdict.converged_tol", st.one_of(not_a_number, st.floats(max_value=0.0, min_value=-1e300))),
     (("verdict", "settle_tol"), "verdict.settle_tol", st.one_of(not_a_number, st.floats(max_value=0.0, min_value=-1e300))),
     (("verdict", "late_fraction"), "verdict.late_fraction", st.one_of(not_a_number, floats_outside(0.0, 1.0, lo_ok=False))),

@@ -31,7 +31,7 @@ from tolerances import global_error_bound
 
 HERE = Path(__file__).parent
 RTOL, ATOL, T1 = 1e-8, 1e-10, 4.0
-ICFG = IntegrateConfig(t1=T1, rtol=RTOL, atol=ATOL, n_checkpoints=8, threads=1)
+ICFG = IntegrateConfig(t1=T1, rtol=RTOL, atol=ATOL, n_checkpoints=8, settings={"threads": 1})
 
 # constant matrices of the one-line models
 # pivoting needed (|0.1| < |-1|); P + P^T > 0, so P + c y y^T (c >= 0) is never singular

@@ -66,6 +66,13 @@ def test_payload_replans_to_the_same_plan(plan):
     again = D.worker_plan(json.loads(json.dumps(p)))  # plain data survives any serialisation
     assert again.fingerprint() == plan.fingerprint() and again.icfg == plan.icfg and again.vcfg == plan.vcfg
     assert D.worker_plan(p) is again  # planned once per process
+    # engine settings travel as plain data; the worker's threads are set on its plan (stabjax.engines.with_threads)
+    from dataclasses import replace
+
+    tuned = replace(plan, icfg=plan.icfg.replace(settings={"threads": 2, "lanes": 64}))
+    D._PLANS.clear()
+    back = D.worker_plan(json.loads(json.dumps(D.payload_for(tuned, 4, {"t1": None}, threads=1))))
+    assert dict(back.icfg.settings) == {"threads": 1, "lanes": 64} and back.fingerprint() == plan.fingerprint()
     # a worker whose model file differs from the client's refuses the chunk
     D._PLANS.clear()
     with pytest.raises(StabjaxError, match="model source monoaxial.py differs"):
@@ -223,7 +230,7 @@ def test_ci_local_cluster_sweep_is_the_local_sweep(plan, reference, one_worker):
     assert ds.attrs["engine"] == reference.attrs["engine"] and "dask (local cluster, 1 workers" in ds.attrs["executor"]
     # the worker's engine threads travel with the task, in its plan's [integrate] settings, not in its environment
     assert set(one_worker.client.run(lambda: os.environ.get("STABJAX_THREADS")).values()) == {None}
-    threads = one_worker.client.run(lambda: sorted({p.icfg.threads for p in D._PLANS.values()}))
+    threads = one_worker.client.run(lambda: sorted({p.icfg.settings.get("threads") for p in D._PLANS.values()}))
     assert list(threads.values()) == [[1]]
 
 

@@ -132,11 +132,19 @@ def test_plan_is_frozen_and_the_engine_is_resolved_once(monkeypatch, tmp_path, c
 
 
 def test_loading_a_spec_imports_no_engine_and_import_changes_no_jax_setting():
+    """Validating a spec, its engine settings included, and computing its identity import no engine
+    module and never diffrax: the declarations are plain data in stabjax.engines (an earlier attempt that
+    asked each engine at resolution imported diffrax on every run and was reverted)."""
     code = ("import sys, stabjax.spec, stabjax.config, jax\n"
             "from stabjax.spec import load_spec, make_plan\n"
             "make_plan(load_spec('sweeps/default.toml'))\n"
+            "spec = {'system': 'monoaxial', 'integrate': {'t1': 5.0, 'threads': 2}, 'engine': {'lanes': 64, 'width': 8}}\n"
+            "plan = make_plan(spec)\n"
+            "assert dict(plan.icfg.settings) == {'threads': 2, 'lanes': 64, 'width': 8}, plan.icfg.settings\n"
+            "plan.fingerprint()\n"
             "assert 'diffrax' not in sys.modules, 'diffrax imported'\n"
-            "assert not any(m.startswith('stabjax.engines') for m in sys.modules), 'an engine imported'\n"
+            "engine_modules = {'stabjax.engines.native', 'stabjax.engines.fused', 'stabjax.engines.diffrax_engine'}\n"
+            "assert not engine_modules & set(sys.modules), 'an engine imported'\n"
             "assert not jax.config.jax_enable_x64, 'import switched x64 on'\n"
             "stabjax.config.setup_jax(); stabjax.config.setup_jax()\n"
             "assert jax.config.jax_enable_x64\n")
@@ -144,6 +152,82 @@ def test_loading_a_spec_imports_no_engine_and_import_changes_no_jax_setting():
     env["PYTHONPATH"] = ROOT
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_engines_declare_their_settings_and_read_only_those():
+    """Each engine's settings are its declaration in stabjax.engines.SETTINGS; an engine reads a setting
+    through Engine.setting, which knows only declared names (fails if an engine reads an undeclared one,
+    or a declaration lacks a range or a description)."""
+    for name in engines.ORDER:
+        eng = engines.get(name)
+        assert eng.settings == engines.SETTINGS[name]
+        for s in eng.settings:
+            assert s.lo <= s.default <= s.hi and s.doc
+            assert eng.setting(IntegrateConfig(), s.name) == s.default
+            assert eng.setting(IntegrateConfig(settings={s.name: s.hi}), s.name) == s.hi
+        with pytest.raises(KeyError):
+            eng.setting(IntegrateConfig(), "no_such_setting")
+    assert engines.THREADS in {s.name for s in engines.SETTINGS["native"]}
+    assert engines.with_threads(IntegrateConfig(), 3).settings == {"threads": 3}
+    assert engines.with_threads(IntegrateConfig(), None) == IntegrateConfig()
+
+
+def test_settings_that_change_no_result_leave_the_identity_and_the_results_alone(tmp_path):
+    """threads (native) and lanes (fused) change neither the fingerprint nor a bit of the result, whether
+    given in [engine] or [integrate]; width is declared as changing results (a dense-checkpoint run gives
+    last-bit different summaries at another SIMD width) and so changes the fingerprint. Fails if the
+    identity counts an execution-only setting (a resume with another thread count would be refused) or
+    ignores one that changes results (chunks of different bits would be mixed)."""
+    from stabjax import sweep
+
+    base = {"system": "monoaxial", "grid": {"alpha": [0.4, 0.55, 0.7], "sigma": [1.2, 1.4, 1.6]},
+            "integrate": {"t1": 20.0, "n_checkpoints": 32}}
+
+    def plan(integ=None, engine=None, choice=None):
+        spec = {**base, "integrate": {**base["integrate"], **(integ or {}), **({"engine": choice} if choice else {})}}
+        if engine:
+            spec["engine"] = engine
+        return make_plan(spec)
+
+    ref = plan(choice="native")
+    same = [plan({"threads": 1}, choice="native"), plan(None, {"threads": 2}, "native"),
+            plan(None, {"lanes": 8}, "native"), plan(None, {"threads": 2, "lanes": 64}, "native")]
+    for p in same:
+        assert p.fingerprint() == ref.fingerprint(), p.icfg.settings
+    assert plan(None, {"width": 8}, "native").fingerprint() != ref.fingerprint()
+    if engines.get("native").supports(ref.system, ref.icfg) is None:
+        r1 = sweep.run_plan(plan(None, {"threads": 1}, "native"), tmp_path / "t1.nc")
+        r2 = sweep.run_plan(plan(None, {"threads": 2}, "native"), tmp_path / "t2.nc")
+        assert r1.attrs["engine"] == r2.attrs["engine"] == "native"
+        for k in r1.data_vars:
+            np.testing.assert_array_equal(r1[k].values, r2[k].values, err_msg=k)
+        assert r1.attrs["fingerprint"] == r2.attrs["fingerprint"]
+    f1 = sweep.run_plan(plan(None, {"lanes": 4}, "fused"), tmp_path / "l4.nc")
+    f2 = sweep.run_plan(plan(None, {"lanes": 64}, "fused"), tmp_path / "l64.nc")
+    assert f1.attrs["engine"] == f2.attrs["engine"] == "fused" and f1.attrs["fingerprint"] == f2.attrs["fingerprint"]
+    for k in f1.data_vars:
+        np.testing.assert_array_equal(f1[k].values, f2[k].values, err_msg=k)
+
+
+def test_no_module_above_the_engines_tests_an_engine_name():
+    """Nothing outside stabjax/engines/ compares a value with an engine's name (==, !=, in): which
+    engine runs is the engines' business (fails on e.g. ``if plan.engine == "native"`` in refine.py)."""
+    import ast
+    from pathlib import Path
+
+    names = set(engines.ORDER)
+    found = []
+    pkg = Path(ROOT) / "stabjax"
+    for f in pkg.rglob("*.py"):
+        if (pkg / "engines") in f.parents:
+            continue
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.Compare):
+                for c in [node.left, *node.comparators]:
+                    consts = c.elts if isinstance(c, (ast.Tuple, ast.List, ast.Set)) else [c]
+                    if any(isinstance(x, ast.Constant) and x.value in names for x in consts):
+                        found.append(f"{f.relative_to(ROOT)}:{node.lineno}")
+    assert not found, found
 
 
 def test_x64_opt_out_is_refused(monkeypatch):

@@ -12,6 +12,7 @@ from scipy.integrate import solve_ivp
 
 from stabjax import verdict as V
 from stabjax.status import MAX_STEPS as STATUS_MAX_STEPS
+from stabjax import engines
 from stabjax.engines import diffrax_engine, lanes, vmath
 from stabjax.engines import fused as fast
 from stabjax.engines.base import Unsupported
@@ -136,13 +137,20 @@ def test_diffrax_path_subchunks_large_batches(monkeypatch):
 
 
 def test_engine_config_validation():
+    """Engine choice and settings are checked by the engines' declarations (stabjax.engines.SETTINGS):
+    fails if a bad name or value passes, or a setting of an engine the choice may fall back to is refused."""
     from stabjax.errors import ValidationError
 
     with pytest.raises(ValidationError, match="engine"):
-        IntegrateConfig.from_dict({"engine": "warp"})
+        engines.integrate_config({"engine": "warp"})
     with pytest.raises(ValidationError, match="lanes"):
-        IntegrateConfig.from_dict({"lanes": -1})
-    assert IntegrateConfig.from_dict({"engine": "diffrax", "lanes": 64}).lanes == 64
+        engines.integrate_config({"lanes": -1})
+    assert engines.integrate_config({"engine": "diffrax", "lanes": 64}).settings == {"lanes": 64}
+    assert engines.integrate_config({}, {"lanes": 64}).settings["lanes"] == 64
+    assert engines.get("fused").setting(engines.integrate_config({}, {"lanes": 64}), "lanes") == 64
+    assert engines.get("fused").setting(IntegrateConfig(), "lanes") == 0  # the declared default
+    with pytest.raises(ValidationError, match="lanes"):  # a config built in Python is checked when resolved
+        engines.resolve(SYS, IntegrateConfig(settings={"lanes": -1}))
 
 
 @pytest.mark.parametrize("name", list_systems(available_only=True))

@@ -82,11 +82,17 @@ def test_every_summary_is_bit_identical_across_threads_and_runs(nat):
 
 
 def test_classifier_queue_overflow_and_late_drains_change_nothing():
-    """Checkpoints so dense that lane FIFOs fill (QCAP) and hold items until the lane finishes (an
-    instrumented build of this kernel counted 5,122 overflow drains and 3,088 end-of-lane drains):
-    the summaries equal those of the diffrax engine path, which classifies checkpoint by checkpoint."""
+    """Checkpoints so dense that lane FIFOs fill (QCAP) and hold items until the lane finishes: the
+    kernel's drain counters (``run_raw(...)["drains"]``) show both overflow drains and end-of-lane drains
+    happen, and the summaries equal those of the diffrax engine, which classifies checkpoint by
+    checkpoint (no queue, hence no overflow). Fails if the overflow no longer happens (the test would
+    prove nothing: then raise n_checkpoints) or if a drain changes a summary."""
     icfg = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=4000)
     p = batch(20)
+    kern, dyn = native.kernel_for(SYS, icfg, SYS.verdict, p)
+    ain, y0 = kern.model.host_inputs(dyn, 20)
+    drains = native.run_raw(kern, ain, y0, threads=1)["drains"]
+    assert drains["overflow"] > 0 and drains["late"] > 0, drains  # measured: 5,122 and 3,088
     nat = native.solve(SYS, p, icfg, SYS.verdict, threads=1)
     ref = solve_batch(SYS, p, IntegrateConfig(**{**icfg.__dict__, "engine": "diffrax"}))
     np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
@@ -94,6 +100,11 @@ def test_classifier_queue_overflow_and_late_drains_change_nothing():
         np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
     for k in ("error_t1", "error_max_late", "error_max_settled", "peak_last", "decay_exponent"):
         np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
+    # a sparse run of the same trajectories does not overflow: the counter is not stuck above 0
+    sparse = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=64)
+    kern, dyn = native.kernel_for(SYS, sparse, SYS.verdict, p)
+    ain, y0 = kern.model.host_inputs(dyn, 20)
+    assert native.run_raw(kern, ain, y0, threads=1)["drains"]["overflow"] == 0
 
 
 def test_failures_are_reported_not_raised():

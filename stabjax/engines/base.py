@@ -1,7 +1,8 @@
 """The one protocol every engine implements, and the exception an engine raises to decline."""
 from __future__ import annotations
 
-from typing import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -9,6 +10,34 @@ import numpy as np
 # ``solver_status`` (codes: :mod:`stabjax.status`), each with leading dim N
 Result = dict[str, np.ndarray]
 Progress = Callable[[int, int], None]
+
+
+# the setting every engine that runs OS threads reads, and that whoever spreads the work over
+# processes (a Dask worker) sets: the one setting name the layers above may write (never read)
+THREADS = "threads"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One tuning setting an engine declares (``[engine]`` table of a spec, or ``[integrate]``).
+
+    An integer in [lo, hi]; ``default`` (0) means "the engine chooses". ``changes_results``: False
+    when no value changes any result in any bit (the identity of a run, :mod:`stabjax.identity`,
+    then ignores it: a resume with another value continues the same run); True when it may.
+    Declarations are plain data kept in :mod:`stabjax.engines` (importing them imports no engine).
+    """
+
+    name: str
+    lo: int
+    hi: int
+    doc: str
+    default: int = 0
+    changes_results: bool = False
+
+    def check(self, value: Any, field: str) -> int:
+        from ..validate import integer
+
+        return integer(value, field, lo=self.lo, hi=self.hi)
 
 
 class Unsupported(Exception):
@@ -32,10 +61,23 @@ class Engine:
     ``default_chunk(plan)``   trajectories per chunk of a sweep when the user gives none
     ``bytes_per_trajectory(plan)``  working memory of one trajectory of a chunk
     ``solve(...)``            integrate and classify: :data:`Result`
+    ``settings``              the :class:`Setting` s it reads from ``icfg.settings`` (declared in
+                              :data:`stabjax.engines.SETTINGS`); :meth:`setting` reads one
     """
 
     name: str = ""
     compiles_per_shape: bool = True
+
+    @property
+    def settings(self) -> tuple[Setting, ...]:
+        from . import SETTINGS
+
+        return SETTINGS.get(self.name, ())
+
+    def setting(self, icfg, name: str) -> int:
+        """The value of this engine's setting ``name`` in ``icfg`` (its declared default when unset)."""
+        decl = {s.name: s for s in self.settings}[name]
+        return int(icfg.settings.get(name, decl.default))
 
     def supports(self, system, icfg) -> str | None:
         raise NotImplementedError

@@ -435,7 +435,8 @@ def prepare_call(system, icfg, vcfg, params, *, lanes=None, n_devices=None, stat
     order = np.arange(total).reshape(per, n_dev).T.ravel()
     dyn = {k: v[order] for k, v in dyn.items()}
     shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items() if k != "__index__"))
-    fn = _compiled(system, icfg, vcfg, lanes, n_dev, StaticParams(st), shapes, bool(with_state))
+    key_cfg = icfg.replace(settings={}) if icfg.settings else icfg  # lanes is an argument: one entry per value
+    fn = _compiled(system, key_cfg, vcfg, lanes, n_dev, StaticParams(st), shapes, bool(with_state))
     args = ({k: jnp.asarray(v) for k, v in dyn.items()}, jnp.ones((n_dev,), jnp.float64))
     return _executable(fn, args), args, order, n
 
@@ -465,13 +466,13 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, lanes: int | 
     every other batch of the same sweep* (they are compiled in as constants); default: those equal
     across this batch. ``with_state``: also return ``state_t1`` (N, n_state) and ``t_stop`` (N,), the
     state and time where each trajectory stopped (t1 unless it failed or escaped).
-    ``lanes``: default ``icfg.lanes``, else :func:`default_lanes`.
+    ``lanes``: default the engine setting ``lanes`` of ``icfg.settings``, else :func:`default_lanes`.
     Raises :class:`Unsupported` when the system cannot run lane-wise.
     """
     reason = FusedEngine().supports(system, icfg)
     if reason is not None:
         raise Unsupported(reason)
-    fn, args, order, n = prepare_call(system, icfg, vcfg, params, lanes=lanes or icfg.lanes or None,
+    fn, args, order, n = prepare_call(system, icfg, vcfg, params, lanes=lanes or ENGINE.setting(icfg, "lanes") or None,
                                       n_devices=n_devices, static=static, with_state=with_state)
     return unpack(fn(*args), order, n)
 

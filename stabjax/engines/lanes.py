@@ -43,6 +43,10 @@ Length: about 770 lines, over the project's ~550-line guide, because this is one
 rule table of :meth:`Lanes.apply` and the methods its rules share (gather, scatter, loops); split
 across modules, the answer to "which primitives do the fast engines run" would be in several places.
 The linear-algebra algorithms, which are separate JAX functions, live in :mod:`.unrolled`.
+
+Size (~770 lines): one rule per JAX primitive, in one table (:class:`Lanes`), so that the fused and
+the native engine take exactly the same constructs; a rule split from its table would be found by
+neither engine's reader.
 """
 from __future__ import annotations
 

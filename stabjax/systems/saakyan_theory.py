@@ -24,6 +24,9 @@ always an off-target steady spin ``omega = omega0 + lam S0``, which is why the r
 :func:`steady_spins` finds all zeros (Levenberg-Marquardt on the sphere from a Fibonacci
 grid of starts, docs/models/saakyan.md, "The l of (1.18)"); :func:`l_spurious` takes the smallest
 |delta| over the nonzero ones; :func:`l_116` solves the paper's scalar equation (1.16).
+
+Size (~615 lines): the theorems of one paper (predicates, steady spins, the radius l of (1.18)) over
+shared notation; each predicate is tested against the paper's statements in tests/test_saakyan_theory.py.
 """
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ from ... import early
 from ... import verdict as V
 from ...config import escape_radius
 from ...status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
-from ..base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
+from ..base import THREADS, Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from ..static import StaticParams, split_static
 from ..tsit5 import SOLVER, t1_clip_floor
 from .build import available, compile_library, compiler
@@ -131,7 +131,7 @@ def warm(system, icfg, vcfg, params, *, static=None) -> float:
 
 def default_threads() -> int:
     """``$STABJAX_THREADS`` if set (a user's limit for a run in this process), else one
-    thread per core available to this process. ``[integrate] threads`` overrides both."""
+    thread per core available to this process. The engine setting ``threads`` overrides both."""
     from ...config import env_int
 
     env = env_int("STABJAX_THREADS")  # "abc" or 0: refused naming the variable, never ignored
@@ -157,8 +157,8 @@ def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = N
     st, dyn = split_static(params, static)
     shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items()))
     # the kernel does not depend on how many threads run it: one cache entry for any ``threads``
-    key_cfg = icfg.replace(threads=0) if icfg.threads else icfg
-    width = int(width or icfg.width or DEFAULT_WIDTH)
+    key_cfg = icfg.replace(settings={}) if icfg.settings else icfg
+    width = int(width or ENGINE.setting(icfg, "width") or DEFAULT_WIDTH)
     return _kernel(system, key_cfg, vcfg, StaticParams(st), shapes, width, eval_only), dyn
 
 
@@ -169,14 +169,15 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
 
     Same contract as :func:`stabjax.engines.fused.solve`. ``progress(done, n)`` is called from the
     calling thread about twice a second while the threads run. ``threads`` and ``width`` default
-    to ``icfg.threads`` and ``icfg.width`` (0: one thread per core, 16 lanes per block).
+    to the engine settings ``threads`` and ``width`` of ``icfg.settings`` (0: one thread per core,
+    16 lanes per block).
     Raises :class:`Unsupported` when the system cannot be translated or no C compiler works.
     """
     n = int(next(iter(params.values())).shape[0])
     kern, dyn = kernel_for(system, icfg, vcfg, params, static=static, width=width)
     model = kern.model
     ain, y0 = model.host_inputs(dyn, n)
-    raw = run_raw(kern, ain, y0, threads=threads or icfg.threads or None, progress=progress)
+    raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
     c = model.c_tree_from(raw["c"])
     fp = raw["fp"] != 0
     if fp.any():
@@ -217,6 +218,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
     nxt = np.zeros(1, np.int64)
     ndone = np.zeros(1, np.int64)
     stop = np.zeros(1, np.int32)
+    drains = np.zeros(2, np.int64)
     c0 = np.ascontiguousarray(model.c0, np.float64)
 
     def ptr(a):
@@ -227,7 +229,7 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
               dt0=float(icfg.dt0) if icfg.dt0 is not None else -1.0,
               ain=ptr(ain), y0in=ptr(y0), c0=ptr(c0), ts=ptr(kern.ts), cout=ptr(cout), yout=ptr(yout),
               nacc_out=ptr(nacc), nrej_out=ptr(nrej), status_out=ptr(status), next=ptr(nxt), ndone=ptr(ndone),
-              stop=ptr(stop), tout=ptr(tout), fp_out=ptr(fp), oout=ptr(oout))
+              stop=ptr(stop), tout=ptr(tout), fp_out=ptr(fp), oout=ptr(oout), drains=ptr(drains))
     n_threads = max(1, min(int(threads or default_threads()), -(-n // kern.width)))
     workers = [threading.Thread(target=kern.lib.stabjax_run, args=(ctypes.byref(job),), daemon=True)
                for _ in range(n_threads)]
@@ -247,7 +249,10 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
         w.join()
     if int(ndone[0]) != n:
         raise RuntimeError(f"native engine finished {int(ndone[0])} of {n} trajectories")
-    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status, "fp": fp, "obs": oout}
+    # drains: FIFO items classified on overflow and when their lane finished (an observable of the
+    # queue for tests; the per-lane order of classifier updates, hence every result, is the same)
+    return {"c": cout, "y": yout, "t": tout, "nacc": nacc, "nrej": nrej, "status": status, "fp": fp, "obs": oout,
+            "drains": {"overflow": int(drains[0]), "late": int(drains[1])}}
 
 
 class NativeEngine(Engine):

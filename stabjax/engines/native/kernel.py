@@ -191,6 +191,7 @@ typedef struct {{
     double *tout;
     int32_t *fp_out;
     double *oout;
+    int64_t *drains;  /* [0] items drained from a full FIFO (overflow), [1] drained when a lane finished */
 }} job_t;
 
 static inline double rms_scaled(const double *v, const double *scale) {{
@@ -270,7 +271,7 @@ int64_t stabjax_run(const job_t *jb) {{
 
 /* append an observed checkpoint (time TT, observables OO[q * STRIDE]) to lane L's FIFO */
 #define PUSH(L, TT, OO, STRIDE) do {{ \\
-        if (QN[L] == QCAP) DRAIN_ONE(L); \\
+        if (QN[L] == QCAP) {{ DRAIN_ONE(L); n_over++; }} \\
         const int pos_ = (QH[L] + QN[L]) % QCAP; \\
         FT[(L) * QCAP + pos_] = (TT); \\
         for (int q = 0; q < NO; q++) FO[((L) * QCAP + pos_) * NO + q] = (OO)[q * (STRIDE)]; \\
@@ -278,6 +279,7 @@ int64_t stabjax_run(const job_t *jb) {{
     }} while (0)
 
     for (int l = 0; l < W; l++) {{ QH[l] = 0; QN[l] = 0; }}
+    int64_t n_over = 0, n_late = 0;  /* drains (observable, tests: jb->drains); they change no result */
     int n_active = 0;
     for (int l = 0; l < W; l++) {{ REFILL(l); n_active += ACT[l] != 0.0; }}
 
@@ -453,7 +455,7 @@ int64_t stabjax_run(const job_t *jb) {{
                                       | (!(TN[l] - T[l] > {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
             if (!({done} | fixedp)) continue;
             const int64_t j = IDX[l];
-            while (QN[l] > 0) DRAIN_ONE(l);
+            while (QN[l] > 0) {{ DRAIN_ONE(l); n_late++; }}
             for (int q = 0; q < NC; q++) jb->cout[j * NC + q] = C[q * W + l];
             for (int q = 0; q < NS; q++) jb->yout[j * NS + q] = Y[q * W + l];
             jb->tout[j] = T[l];
@@ -466,6 +468,8 @@ int64_t stabjax_run(const job_t *jb) {{
             n_active += (ACT[l] != 0.0) - 1;
         }}
     }}
+    __atomic_fetch_add(jb->drains, n_over, __ATOMIC_RELAXED);
+    __atomic_fetch_add(jb->drains + 1, n_late, __ATOMIC_RELAXED);
     return finished;
 }}
 
@@ -542,5 +546,6 @@ class Job(ctypes.Structure):
                 ("cout", ctypes.c_void_p), ("yout", ctypes.c_void_p),
                 ("nacc_out", ctypes.c_void_p), ("nrej_out", ctypes.c_void_p), ("status_out", ctypes.c_void_p),
                 ("next", ctypes.c_void_p), ("ndone", ctypes.c_void_p), ("stop", ctypes.c_void_p),
-                ("tout", ctypes.c_void_p), ("fp_out", ctypes.c_void_p), ("oout", ctypes.c_void_p)]
+                ("tout", ctypes.c_void_p), ("fp_out", ctypes.c_void_p), ("oout", ctypes.c_void_p),
+                ("drains", ctypes.c_void_p)]
 
