@@ -346,10 +346,21 @@ def run_attrs(*, wall: float, steps: int, batch: int, n_resumed: int) -> dict[st
     return dict(wall_time_s=float(wall), total_steps=int(steps), batch_size=int(batch), chunks_resumed=int(n_resumed))
 
 
+def engines_of(manifest: Mapping[str, Any]) -> dict[str, list[list[int]]]:
+    """Engine -> runs [first, last] of chunk indices it computed (compact per-chunk record)."""
+    by = {}
+    for i in sorted(int(k) for k in manifest["chunks"]):
+        e = manifest["chunks"][str(i)].get("engine", "?")
+        runs = by.setdefault(e, [])
+        if runs and runs[-1][1] == i - 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return by
+
+
 def engine_attrs(manifest: Mapping[str, Any], executor: str, note: str = "") -> dict[str, Any]:
     """Which engines computed the chunks (resumed ones included), where, and why not the first choice."""
-    from .store import engines_of
-
     by = engines_of(manifest)
     return {"engine_note": note, "engine": ",".join(sorted(by)), "engine_chunks_json": json.dumps(by),
             "executor": executor}

@@ -33,7 +33,7 @@ import ast
 import functools
 import math
 import operator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
 
 import numpy as np
@@ -253,6 +253,65 @@ class _Verdicts:
 VERDICTS = _Verdicts()
 
 
+@dataclass(frozen=True)
+class DiscoveryConfig:
+    """``[outcomes.discovery]``: the grouping and typing settings (defaults measured on the examples,
+    ``docs/performance.md``: eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic
+    attractor's feature cloud nor merges Duffing's period-3 cycles).
+
+    eps              DBSCAN radius, in units of each observable's range over the sweep
+    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample
+    subsample        trajectories grouped by DBSCAN itself; the others join their nearest core sample
+    fixed_point_tol  window std / range below this for every observable -> fixed point
+    chaos_threshold  median largest Lyapunov exponent above this -> chaotic
+    lyapunov         integrate the tangent dynamics for the exponent (off: no chaotic/limit-cycle types)
+    seed             of the subsample
+    continuation     with one [grid] axis: group each grid point on its own and match the attractors
+                     of neighbouring points (:func:`continue_along`); off: group all points together
+    match_threshold  largest distance (scaled features) between representatives of one attractor at
+                     neighbouring grid points (default inf, as Attractors.jl's MatchBySSSetDistance: the
+                     greedy order alone decides; a finite value lets a far jump be a death and a birth)
+    """
+
+    eps: float = 0.05
+    min_samples: int = 5
+    subsample: int = 4000
+    fixed_point_tol: float = 1e-4
+    chaos_threshold: float = 0.01
+    lyapunov: bool = True
+    seed: int = 0
+    continuation: bool = True
+    match_threshold: float = math.inf
+
+    @classmethod
+    def from_dict(cls, d: Any, section: str = "outcomes.discovery") -> "DiscoveryConfig":
+        if d is None:
+            return cls()
+        if not isinstance(d, Mapping):
+            raise ValidationError(section, "must be a table")
+        known = {f.name: f for f in fields(cls)}
+        kw = {}
+        for k, v in d.items():
+            if k not in known:
+                raise ValidationError(f"{section}.{k}", f"unknown key; known: {', '.join(known)}")
+            default = known[k].default
+            if isinstance(default, bool):
+                if not isinstance(v, bool):
+                    raise ValidationError(f"{section}.{k}", f"must be true or false, got {v!r}")
+            elif isinstance(default, int):
+                if isinstance(v, bool) or not isinstance(v, int) or v < (0 if k == "seed" else 1):
+                    raise ValidationError(f"{section}.{k}", f"must be a positive integer, got {v!r}")
+            else:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or (
+                        math.isinf(v) and k != "match_threshold"):
+                    raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
+                if k != "chaos_threshold" and not v > 0:
+                    raise ValidationError(f"{section}.{k}", f"must be > 0, got {v!r}")
+                v = float(v)
+            kw[k] = v
+        return cls(**kw)
+
+
 @dataclass
 class Outcomes:
     """A system's outcome declaration (see the module docstring).
@@ -329,8 +388,6 @@ class Outcomes:
                     raise ValidationError(f"{section}.{k}", f"must be true or false, got {table[k]!r}")
                 kw[k] = table[k]
         if "discovery" in table:
-            from .discover import DiscoveryConfig
-
             DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
             kw["discovery"] = dict(table["discovery"])
             kw["discover"] = kw["discover"] or "discover" not in table

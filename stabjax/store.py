@@ -638,19 +638,6 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
     return bad
 
 
-def engines_of(manifest: Mapping[str, Any]) -> dict[str, list[list[int]]]:
-    """Engine -> runs [first, last] of chunk indices it computed (compact per-chunk record)."""
-    by = {}
-    for i in sorted(int(k) for k in manifest["chunks"]):
-        e = manifest["chunks"][str(i)].get("engine", "?")
-        runs = by.setdefault(e, [])
-        if runs and runs[-1][1] == i - 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    return by
-
-
 def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool = False) -> dict[str, Any]:
     """The per-trajectory records of a store, flat over the trajectories (N, *trailing) in the plan's
     C order: dask arrays reading the store (``lazy``) or numpy."""
@@ -755,5 +742,5 @@ def finished_store(store: str | Path):
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
-           "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "engines_of", "plan_from_manifest",
+           "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "plan_from_manifest",
            "stored_batch", "verify", "checksum"]
