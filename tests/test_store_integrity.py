@@ -14,30 +14,10 @@ import pytest
 import xarray as xr
 
 from stabjax import store as S
-from stabjax.cli import main
 from stabjax.spec import make_plan
 from stabjax.sweep import open_result, run_plan, run_spec
 
-TINY = """
-system = "monoaxial"
-name = "tiny"
-[params]
-mu = 1.5
-[grid]
-alpha = {start = 0.3, stop = 1.0, num = 4}
-sigma = [1.2, 1.3, 1.4, 1.5]
-[integrate]
-t1 = 100.0
-n_checkpoints = 32
-"""
-
-
-def cli(*args) -> int:
-    try:
-        main([str(a) for a in args])
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+from test_store import TINY, cli  # the same tiny sweep and in-process CLI as the store tests
 
 
 @pytest.fixture(scope="module")
