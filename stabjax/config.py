@@ -141,6 +141,11 @@ class IntegrateConfig:
     outcomes or discovery on an autonomous model), off elsewhere and for a config used without a
     plan; true where the attitude verdicts are the outcomes is refused (their decay laws need the run
     up to t1).
+
+    ``attractor_stop``: also stop a trajectory once it has stayed near an attractor this run has already
+    found, for a feature window's length (:mod:`stabjax.early`, the recurrence stop; off by default: a
+    heuristic, refused where it cannot apply). ``known_attractors``: the set the engines test (set by the
+    runner from the run's own first trajectories, never by a spec).
     """
 
     t1: float = 1.0e4
@@ -154,7 +159,9 @@ class IntegrateConfig:
     engine: str = "auto"
     escape_radius: float | None = None
     early_stop: bool | None = None
+    attractor_stop: bool = False
     settings: Settings = Settings()
+    known_attractors: Any = None
 
     def __post_init__(self):
         if not isinstance(self.settings, Settings):
@@ -169,6 +176,9 @@ class IntegrateConfig:
         if "settings" in d:  # engine settings come through stabjax.engines.integrate_config, checked there
             raise ValidationError(f"{section}.settings", "engine settings are keys of [engine] (or [integrate]), "
                                                          "not a table named settings")
+        if "known_attractors" in d:  # the runner's, found from the run itself
+            raise ValidationError(f"{section}.known_attractors", "unknown field (set by the runner, not by a spec); "
+                                                                 "ask for the stop with attractor_stop = true")
         if "t1" not in d and default_t1 is not None:
             d["t1"] = default_t1
         cfg = record_from_dict(cls, d, section)
@@ -181,9 +191,12 @@ class IntegrateConfig:
         # types first (the dataclass itself is also built from Python code, not only from specs)
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("solver", "engine", "settings", "early_stop") or (v is None and f.default is None):
+            if f.name in ("solver", "engine", "settings", "early_stop", "known_attractors") or (v is None and f.default is None):
                 continue
-            if isinstance(f.default, int) and not isinstance(f.default, bool):
+            if isinstance(f.default, bool):
+                if not isinstance(v, (bool, np.bool_)):
+                    raise ValidationError(f"{section}.{f.name}", f"must be true or false, got {v!r}")
+            elif isinstance(f.default, int):
                 integer(v, f"{section}.{f.name}")
             elif isinstance(f.default, float) or f.default is None:
                 number(v, f"{section}.{f.name}")

@@ -44,6 +44,29 @@ also switches it off for the tangent dynamics of the Lyapunov exponent (their wi
 ``t``). Why never for the attitude-verdict systems: their verdicts read decay laws and excursions
 over log-time windows up to t1, which a stopped run no longer has.
 
+**Near a known attractor (the recurrence idea; opt-in, ``[integrate] attractor_stop = true``).** The
+third decided fate, after Attractors.jl's recurrence mapper: a trajectory that has stayed within a known
+attractor's neighbourhood for as long as the feature window has the late-window features of that attractor
+and is stopped. "Known" means found by this run itself, from trajectories integrated to t1 first: a
+refinement's coarse round, a sweep's first chunk (:func:`known_attractors`). Each attractor is a cloud of
+at most :data:`CLOUD_POINTS` points of observable space (the observables at t1 of the trajectories that
+reached it, thinned by farthest-point sampling: the final states of many starts lie at all phases of a
+limit cycle and spread over a chaotic attractor by its natural measure), with a radius ``eps`` (twice the
+cloud's largest nearest-neighbour gap, so a trajectory on the attractor is always within reach of a cloud
+point, and at most a quarter of the distance to any other attractor's cloud, so no state is near two).
+Observables are scaled by their spread over all clouds, as discovery scales its features.
+
+The engines test at the fixed point's moments (a step that reached a checkpoint, every
+:data:`TEST_EVERY` checkpoints): the nearest attractor of the current observation (or none); a lane
+stops once the same attractor was found at every test over a span of ``dwell`` (the feature window's
+length). The stopped trajectory's late-window features are replaced by those of the attractor's
+representative (a trajectory of the cloud; :func:`substitute`), so every rule, template or discovery step
+gives it the attractor's outcome. What it cannot see: a trajectory that shadows an attractor for a whole
+window and then leaves (a neighbourhood that reaches a basin boundary). It is therefore off unless asked
+for, refused where the attractors move between trajectories (a varying parameter that is not an initial
+condition) and on models that read ``t``, and the tests and the benchmark compare every outcome with and
+without it (``python -m benchmarks.early_bench``).
+
 ``stop_reason`` codes (per trajectory, CF ``flag_values`` / ``flag_meanings``): :data:`REASONS`.
 """
 from __future__ import annotations
@@ -53,6 +76,8 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from dataclasses import dataclass
 
 from .errors import ValidationError
 
@@ -64,11 +89,19 @@ DISTANCE_TOL = 1000.0
 # reached a checkpoint (native engine, 4000 checkpoints); a stop comes at most 8 checkpoint intervals later
 TEST_EVERY = 8
 
-STOP_NONE, STOP_ESCAPED, STOP_FIXED_POINT, STOP_FAILED = 0, 1, 2, 3
-REASONS = ("none", "escaped", "fixed_point", "failed")
+STOP_NONE, STOP_ESCAPED, STOP_FIXED_POINT, STOP_FAILED, STOP_ATTRACTOR = 0, 1, 2, 3, 4
+REASONS = ("none", "escaped", "fixed_point", "failed", "attractor")
 REASON_DOC = ("stop_reason: why the integration ended before t1: none (ran to t1), escaped (left the escape "
               "radius), fixed_point (reached a stable equilibrium within the solver tolerance; stabjax.early), "
-              "failed (solver failure)")
+              "failed (solver failure), attractor (stayed near a known attractor for a feature window)")
+
+# the engines' per-trajectory stop code (result key "fixed_point"): 0 none, 1 fixed point, 2 + k attractor k
+HIT_NONE, HIT_FIXED_POINT, HIT_ATTRACTOR0 = 0, 1, 2
+
+# cloud points per known attractor: the test costs about CLOUD_POINTS * (3 n_obs + 1) flops per test
+CLOUD_POINTS = 48
+# fewest trajectories of one outcome that make a cloud (fewer: that attractor is not known, never stopped at)
+MIN_CLOUD = 8
 STOPPED_AT_DOC = "time at which the integration of this trajectory ended (t1 unless it stopped early)"
 
 
@@ -250,14 +283,179 @@ def fast_forward(c, n_in, obs, xp=jnp):
 
 
 def stop_reasons(status, fixed):
-    """``stop_reason`` codes from the solver status and the fixed-point flag (NumPy)."""
+    """``stop_reason`` codes from the solver status and the engines' stop code (NumPy)."""
     from .status import ESCAPED as STATUS_ESCAPED, OK as STATUS_OK
 
     status = np.asarray(status)
+    fixed = np.asarray(fixed)
     out = np.where(status == STATUS_OK, STOP_NONE, np.where(status == STATUS_ESCAPED, STOP_ESCAPED, STOP_FAILED))
-    return np.where(np.asarray(fixed, bool) & (status == STATUS_OK), STOP_FIXED_POINT, out).astype(np.int8)
+    ok = status == STATUS_OK
+    out = np.where((fixed == HIT_FIXED_POINT) & ok, STOP_FIXED_POINT, out)
+    return np.where((fixed >= HIT_ATTRACTOR0) & ok, STOP_ATTRACTOR, out).astype(np.int8)
+
+
+# ---- near a known attractor (the recurrence stop) -------------------------------------------------------------
+
+_FEAT_KEYS = ("feat_max", "feat_min", "feat_mean", "feat_std", "feat_final")
+
+
+@dataclass(frozen=True)
+class KnownAttractors:
+    """The attractors a run has found so far, as the engines test them (plain tuples: hashable, so the
+    compiled kernels are cached per set, and JSON-able, so a run's identity records it).
+
+    ``labels``: the outcome code of each attractor; ``cloud``: (K, P, n_obs) points of observable space
+    (flattened); ``scale``: (n_obs,) per-observable scale; ``eps``: (K,) radius in scaled units; ``dwell``:
+    the time a trajectory must stay near one attractor; ``features``: (K, 5, F) the representative's
+    ``feat_max``, ``feat_min``, ``feat_mean``, ``feat_std``, ``feat_final`` (flattened)."""
+
+    labels: tuple
+    cloud: tuple
+    shape: tuple
+    scale: tuple
+    eps: tuple
+    dwell: float
+    features: tuple
+    fshape: tuple
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.asarray(self.cloud, np.float64).reshape(self.shape)
+
+    @property
+    def reps(self) -> np.ndarray:
+        return np.asarray(self.features, np.float64).reshape(self.fshape)
+
+    def __len__(self):
+        return len(self.labels)
+
+
+def _farthest(x: np.ndarray, m: int) -> tuple[np.ndarray, float]:
+    """Indices of ``m`` points of ``x`` (n, d) by farthest-point sampling from the point nearest the
+    mean (deterministic), and the covering radius: the largest distance of a point of ``x`` to them."""
+    start = int(np.argmin(((x - x.mean(0)) ** 2).sum(1)))
+    sel = [start]
+    d = np.sqrt(((x - x[start]) ** 2).sum(1))
+    while len(sel) < min(m, len(x)):
+        i = int(np.argmax(d))
+        if d[i] == 0:
+            break
+        sel.append(i)
+        d = np.minimum(d, np.sqrt(((x - x[i]) ** 2).sum(1)))
+    return np.asarray(sel), float(d.max())
+
+
+def known_attractors(labels, results: dict, eligible, dwell: float) -> KnownAttractors | None:
+    """The attractors found among trajectories that ran to t1 (``results``: engine summaries, ``labels``:
+    their outcome codes, ``eligible``: the codes that name an attractor -- not escape, unclassified or
+    failed). None when no attractor has :data:`MIN_CLOUD` trajectories or no two can be told apart."""
+    labels = np.asarray(labels)
+    fin = np.asarray(results["feat_final"], np.float64)
+    if fin.ndim != 2:
+        return None
+    ran = np.asarray(results["solver_status"]) == 0
+    if "stop_reason" in results:  # only full runs: a stopped one's final observables are a representative's
+        ran &= np.asarray(results["stop_reason"]) == STOP_NONE
+    ok = ran & np.all(np.isfinite(fin), axis=1)
+    codes = [int(c) for c in eligible if np.count_nonzero(ok & (labels == c)) >= MIN_CLOUD]
+    if not codes:
+        return None
+    every = fin[ok & np.isin(labels, codes)]
+    scale = every.std(0)
+    scale = np.where(scale > 0, scale, np.maximum(np.abs(every).max(0), 1.0))
+    clouds, gaps, reps = [], [], []
+    for c in codes:
+        idx = np.flatnonzero(ok & (labels == c))
+        x = fin[idx] / scale
+        sel, cover = _farthest(x, CLOUD_POINTS)
+        pts = x[sel]
+        if len(pts) > 1:
+            dd = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)) + np.diag(np.full(len(pts), np.inf))
+            gap = float(dd.min(1).max())
+        else:
+            gap = 0.0
+        gaps.append(max(2.0 * gap, 2.0 * cover))
+        pts = np.concatenate([pts, np.repeat(pts[-1:], CLOUD_POINTS - len(pts), 0)])  # fixed P: pad
+        clouds.append(pts)
+        # representative: the cloud's member nearest the mean of the outcome's features
+        F = np.stack([np.asarray(results[k], np.float64)[idx] for k in _FEAT_KEYS], axis=1)  # (n, 5, F)
+        flat = F.reshape(len(idx), -1)
+        reps.append(F[int(np.argmin(((flat - flat.mean(0)) ** 2).sum(1)))])
+    clouds = np.stack(clouds)
+    K = len(codes)
+    eps = np.asarray(gaps)
+    for i in range(K):
+        floor = 1e-6  # a fixed point's cloud is one point: a radius of 1e-6 spreads (rtol-scale)
+        near = min((float(np.sqrt(((clouds[i][:, None] - clouds[j][None]) ** 2).sum(-1)).min())
+                    for j in range(K) if j != i), default=np.inf)
+        eps[i] = min(max(eps[i], floor), near / 4)
+    keep = eps > 0
+    if not keep.any():
+        return None
+    codes = [c for c, k in zip(codes, keep) if k]
+    clouds, eps, reps = clouds[keep], eps[keep], np.stack(reps)[keep]
+    return KnownAttractors(tuple(int(c) for c in codes), tuple((clouds * scale).ravel().tolist()), clouds.shape,
+                           tuple(scale.tolist()), tuple(eps.tolist()), float(dwell),
+                           tuple(reps.ravel().tolist()), reps.shape)
+
+
+def known_for(plan, results: dict) -> KnownAttractors | None:
+    """The attractors of ``plan`` found among ``results`` (a sweep's or refinement's records of trajectories
+    run without the recurrence stop, with their ``outcome`` codes): every declared rule or template outcome,
+    a dwell of the feature window's length."""
+    decl = plan.scheme.decl
+    n_attr = len(decl.rules) + len(decl.templates)
+    dwell = float(plan.vcfg.feature_window) * (float(plan.icfg.t1) - float(plan.icfg.t0))
+    return known_attractors(results["outcome"], results, range(n_attr), dwell)
+
+
+def with_known(plan, results: dict):
+    """``plan`` with the attractors found in ``results`` for its engines to stop at (unchanged if none)."""
+    import dataclasses
+
+    known = known_for(plan, results)
+    if known is None:
+        return plan
+    return dataclasses.replace(plan, icfg=plan.icfg.replace(known_attractors=known))
+
+
+def near_attractor(obs, known: KnownAttractors):
+    """Index (float) of the known attractor within whose radius ``obs`` lies, -1.0 if none (traced, one
+    trajectory; the radii never overlap, so at most one holds). Plain arithmetic and min reductions."""
+    pts = known.points  # constants: the lane-wise and C translations fold them
+    scale = np.asarray(known.scale)
+    o = obs[: pts.shape[2]] / scale
+    k_out = jnp.asarray(-1.0, jnp.float64)
+    for k in range(pts.shape[0]):
+        d2 = jnp.min(jnp.sum((o[None, :] - pts[k] / scale) ** 2, axis=1))
+        k_out = jnp.where(d2 <= known.eps[k] ** 2, float(k), k_out)
+    return k_out
+
+
+def substitute(res: dict, known: KnownAttractors) -> dict:
+    """Engine results with the features of every trajectory stopped near attractor k replaced by the
+    representative's (stop code ``HIT_ATTRACTOR0 + k``)."""
+    hit = np.asarray(res["fixed_point"])
+    k = hit - HIT_ATTRACTOR0
+    at = k >= 0
+    if not at.any():
+        return res
+    res = dict(res)
+    reps = known.reps
+    for j, key in enumerate(_FEAT_KEYS):
+        v = np.array(res[key], np.float64, copy=True)
+        m = min(v.shape[1], reps.shape[2])
+        v[at, :m] = reps[k[at], j, :m]
+        res[key] = v
+    return res
+
+
+def attractor_stop_active(system, icfg) -> bool:
+    """Whether the engines test for a known attractor: a set is known, an autonomous model, the generic fold."""
+    return getattr(icfg, "known_attractors", None) is not None and system.classify is None and is_autonomous(system)
 
 
 __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAILED", "is_autonomous", "resolve",
            "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "window_index", "fast_forward",
-           "stop_reasons"]
+           "stop_reasons", "KnownAttractors", "known_attractors", "known_for", "with_known", "near_attractor", "substitute", "attractor_stop_active",
+           "STOP_ATTRACTOR", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS"]

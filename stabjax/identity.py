@@ -139,6 +139,9 @@ def identity(plan, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]
     icfg["settings"] = engines.result_settings(icfg.get("settings") or {})
     if not icfg["settings"]:  # as identities were before engine settings moved (stores resume)
         del icfg["settings"]
+    for k in ("attractor_stop", "known_attractors"):  # unset: as identities were before the recurrence stop
+        if not icfg.get(k):
+            icfg.pop(k, None)
     spec = plain(plan.spec)
     for table in ("integrate", "engine"):  # the same settings as written in the spec
         if isinstance(spec.get(table), Mapping):

@@ -59,6 +59,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import xarray as xr
 
+from . import early
 from .errors import StabjaxError, ValidationError
 from .refine_plot import plot_refine  # noqa: F401 - the plot, re-exported (stabjax.refine.plot_refine)
 from .spec import Plan, load_spec, make_plan
@@ -446,8 +447,10 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     engines: set[str] = set()
     resumed = [0]
 
+    plans = [rplan]  # with the recurrence stop: rounds after the first stop at the first round's attractors
+
     def evaluate(r: int, values: np.ndarray) -> dict[str, np.ndarray]:
-        res, info = run_points(rplan, values, store=None if base is None else base / f"round_{r:04d}",
+        res, info = run_points(plans[-1], values, store=None if base is None else base / f"round_{r:04d}",
                                batch_size=batch_size, progress=progress, keep_store=True, executor=executor,
                                overrides=overrides)
         if cfg.label == "outcome" and "outcome" not in res:
@@ -455,6 +458,8 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
             res["outcome"] = point_outcomes(plan, params, res, len(values))
         engines.update(info["engines"])
         resumed[0] += info["n_resumed"] == info["n_chunks"]
+        if r == 0 and rplan.icfg.attractor_stop and "outcome" in res:
+            plans.append(early.with_known(rplan, res))
         return res
 
     t0 = time.perf_counter()

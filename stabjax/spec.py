@@ -546,10 +546,34 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     integrated = tangent(system, window_start(icfg.t0, icfg.t1, vcfg.feature_window), float(icfg.t1)) if lyap \
         else system
     icfg = _early(icfg, integrated, decl is not None)
+    if icfg.attractor_stop:
+        _check_attractor_stop(integrated, decl, grid, sample)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
                 start_labels=None if from_file is None else from_file[1])
     return plan
+
+
+def _check_attractor_stop(integrated, decl, grid, sample) -> None:
+    """Where the recurrence stop (stabjax.early) cannot apply, refuse it naming why."""
+    from .early import is_autonomous
+
+    field = "integrate.attractor_stop"
+    if decl is None or integrated.classify is not None:
+        raise ValidationError(field, f"{integrated.name}'s verdicts read the run up to t1; the stop needs named "
+                                     "outcomes (rules or templates)")
+    if decl.discover:
+        raise ValidationError(field, "discovery groups the whole run's trajectories at the end; the stop needs "
+                                     "declared outcomes (rules or templates)")
+    if not is_autonomous(integrated):
+        raise ValidationError(field, "the model (or the Lyapunov exponent's tangent dynamics) reads t: an attractor "
+                                     "of a non-autonomous system is not a set of observable values")
+    kinds = {p.name: p.kind for p in integrated.params.params} if hasattr(integrated.params, "params") else {}
+    varied = [ax.param.name for ax in grid] + list(sample)
+    moving = [k for k in varied if kinds.get(k, "model") != "initial"]
+    if moving:
+        raise ValidationError(field, f"{', '.join(moving)} vary and are not initial conditions: the attractors "
+                                     "move with them, so one run's attractors are not known at another point")
 
 
 def static_params(plan: Plan) -> list[str]:

@@ -402,6 +402,11 @@ class ChunkStore:
     def steps(self) -> int:
         return int(sum(c.get("steps", 0) for c in self.manifest["chunks"].values()))
 
+    def chunk_results(self, i: int) -> dict[str, np.ndarray]:
+        """The stored records of finished chunk ``i`` (flat over its trajectories)."""
+        lo, hi = self.bounds(i)
+        return {k: np.asarray(v[lo:hi]) for k, v in load_results(self.path, self.manifest, lazy=True).items()}
+
     # -- integrity
     def _check_chunks(self):
         """Drop from the manifest every finished chunk whose data are missing or differ from their

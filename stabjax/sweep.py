@@ -29,7 +29,7 @@ import numpy as np
 import xarray as xr
 
 from . import dataset as D
-from . import engines, signals
+from . import early, engines, signals
 from . import verdict as V
 from .config import setup_jax
 from .engines.base import N_SUMMARY_FIELDS
@@ -110,6 +110,10 @@ class _Memory:
     def steps(self) -> int:
         return int(sum(c["steps"] for c in self.manifest["chunks"].values()))
 
+    def chunk_results(self, i: int) -> dict[str, np.ndarray]:
+        lo, hi = self.bounds(i)
+        return {k: v[lo:hi] for k, v in self.results.items()}
+
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         lo, hi = self.bounds(i)
         for k, v in D.derive_chunk(self.plan, res, lo, hi, self.tf).items():
@@ -127,6 +131,7 @@ class _Memory:
         pass
 
 
+PILOT_MIN = 128  # trajectories: the smallest first chunk the recurrence stop learns attractors from
 LAZY_ABOVE = 1 << 22  # trajectories: above this, the netCDF file is written from the store chunk by chunk
 
 
@@ -183,6 +188,9 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
     if batch_size is None and store_path is not None and not restart:
         batch_size = S.stored_batch(store_path)  # a resume keeps the chunking it started with
+    if batch_size is None and plan.icfg.attractor_stop and plan.size >= 2 * PILOT_MIN:
+        # the recurrence stop learns the attractors from the first chunk: an eighth of the run (_run_chunks)
+        batch_size = min(choose_batch_size(plan, None, memory_limit), max(PILOT_MIN, -(-plan.size // 8)))
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
     tf = templates_first(plan)  # before the store exists: a refusal leaves nothing behind
@@ -289,40 +297,50 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
         if bar is not None and n_resumed:
             bar.update(sum(sink.bounds(i)[1] - sink.bounds(i)[0] for i in range(n_chunks) if i not in pending),
                        steps=0, chunks=n_resumed)
-        steps_run = 0
+        steps_run = [0]
         signals.hold()  # SIGTERM/SIGHUP: the chunk in flight is written, then the run stops
-        if executor is None:
-            for i in pending:
-                lo, hi = sink.bounds(i)
-                shown = [0]
 
-                def within(done, _total, lo=lo, hi=hi, shown=shown):
-                    k = min(done, hi - lo) - shown[0]
-                    if bar is not None and k > 0:
-                        bar.update(k, steps=steps_run)
-                        shown[0] += k
+        def go(plan: Plan, ids: list[int]):
+            if executor is None:
+                for i in ids:
+                    lo, hi = sink.bounds(i)
+                    shown = [0]
 
-                t0 = time.perf_counter()
-                res, eng = solve_chunk(plan, batch, i, progress=within)
-                sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
-                                         "seconds": round(time.perf_counter() - t0, 4)})
-                steps_run += int(res["n_steps"].sum())
-                if bar is not None:
-                    bar.update(hi - lo - shown[0], steps=steps_run, chunk_done=True)
-                if on_chunk is not None:
-                    on_chunk(i, n_chunks)
-                signals.checkpoint()
-        else:
-            for i, res, eng, info in executor.map_chunks(plan, batch, pending, overrides):
-                lo, hi = sink.bounds(i)
-                sink.write(i, res, eng, info)
-                steps_run += int(res["n_steps"].sum())
-                del res
-                if bar is not None:
-                    bar.update(hi - lo, steps=steps_run, chunk_done=True)
-                if on_chunk is not None:
-                    on_chunk(i, n_chunks)
-                signals.checkpoint()
+                    def within(done, _total, lo=lo, hi=hi, shown=shown):
+                        k = min(done, hi - lo) - shown[0]
+                        if bar is not None and k > 0:
+                            bar.update(k, steps=steps_run[0])
+                            shown[0] += k
+
+                    t0 = time.perf_counter()
+                    res, eng = solve_chunk(plan, batch, i, progress=within)
+                    sink.write(i, res, eng, {"worker": f"{platform.node()}:{os.getpid()}",
+                                             "seconds": round(time.perf_counter() - t0, 4)})
+                    steps_run[0] += int(res["n_steps"].sum())
+                    if bar is not None:
+                        bar.update(hi - lo - shown[0], steps=steps_run[0], chunk_done=True)
+                    if on_chunk is not None:
+                        on_chunk(i, n_chunks)
+                    signals.checkpoint()
+            else:
+                for i, res, eng, info in executor.map_chunks(plan, batch, ids, overrides):
+                    lo, hi = sink.bounds(i)
+                    sink.write(i, res, eng, info)
+                    steps_run[0] += int(res["n_steps"].sum())
+                    del res
+                    if bar is not None:
+                        bar.update(hi - lo, steps=steps_run[0], chunk_done=True)
+                    if on_chunk is not None:
+                        on_chunk(i, n_chunks)
+                    signals.checkpoint()
+
+        if plan.icfg.attractor_stop and plan.icfg.known_attractors is None and n_chunks > 1:
+            # the recurrence stop (stabjax.early): the first chunk runs to t1 and its trajectories make the
+            # known attractors of the rest (read back from the sink: a resumed run finds the same ones)
+            go(plan, [i for i in pending if i == 0])
+            plan = early.with_known(plan, sink.chunk_results(0))
+            pending = [i for i in pending if i != 0]
+        go(plan, pending)
     finally:
         signals.release()
         if bar is not None:

@@ -207,10 +207,12 @@ def solve(name: str, system, params: Mapping[str, np.ndarray], icfg, vcfg, *, st
     tangent dynamics) comes back in the model's own layout plus the exponent (``lyapunov``)."""
     from ..lyapunov import TangentSystem, split
 
-    from ..early import stop_reasons
+    from ..early import stop_reasons, substitute
 
     res = get(name).solve(system, params, icfg, vcfg, static=static, progress=progress)
     if "fixed_point" in res:  # why each integration ended (stabjax.early.REASONS)
+        if icfg.known_attractors is not None:  # stopped near attractor k: its representative's features
+            res = substitute(res, icfg.known_attractors)
         res = dict(res)
         res["stop_reason"] = stop_reasons(res["solver_status"], res.pop("fixed_point"))
     if isinstance(system, TangentSystem):

@@ -86,7 +86,7 @@ class _Model:
     """
 
     def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
-                 fixed_point: tuple[float, float] | None = None):
+                 fixed_point: tuple[float, float] | None = None, known=None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
@@ -117,6 +117,10 @@ class _Model:
             # the stop test at a stable fixed point (stabjax.early), fixed_point = (rtol, atol)
             self.fp = None if fixed_point is None else LaneFn(
                 lambda t, y, a: early.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
+            # the recurrence stop's test: the known attractor near the observation (stabjax.early)
+            self.known = known
+            self.at = None if known is None else LaneFn(
+                lambda t, y, a: early.near_attractor(jnp.ravel(system.observe(t, y, a)), known), ex_t, ex_y, ex_args)
             # dry run of every function on abstract lanes: an unsupported primitive shows up now
             L = 8
             jax.eval_shape(self._dry, *[sds((L,), f64) for _ in range(sum(int(np.prod(s)) for s in self.dyn_shapes.values()))])
@@ -132,6 +136,8 @@ class _Model:
         o = self.observe(L, t, y0, args_objs)
         if self.fp is not None:
             self.at_fixed_point(L, t, y0, args_objs)
+        if self.at is not None:
+            self.near_attractor(L, t, y0, args_objs)
         c = flat_rows(self.c_spec.objs([jnp.zeros((L,), d) for d, n in zip(self.c_spec.dtypes, self.c_spec.sizes)
                                         for _ in range(n)]), L)
         return f, self.update(L, c, t, o)
@@ -177,6 +183,10 @@ class _Model:
         out = Lanes(L).eval_closed(self.fp.closed, [obj0(t), obj1(y)] + args_objs)
         return flat_rows(out, L, [np.bool_])[0]
 
+    def near_attractor(self, L, t, y, args_objs):
+        out = Lanes(L).eval_closed(self.at.closed, [obj0(t), obj1(y)] + args_objs)
+        return materialize(flat_rows(out, L, [np.float64])[0])
+
     def update(self, L, c_rows, t, obs_rows):
         ins = self.c_spec.objs(c_rows) + [obj0(t), obj1(obs_rows)]
         out = Lanes(L).eval_closed(self.upd.closed, ins)
@@ -209,7 +219,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
     t_late = V.late_start(vcfg, t0, float(ts_np[-1]))
     f64 = jnp.float64
     fixed = early.active(system, icfg)
-    model = _Model(system, static, dyn_shapes, vcfg, t_late, (rtol, atol) if fixed else None)
+    known = icfg.known_attractors if early.attractor_stop_active(system, icfg) else None
+    model = _Model(system, static, dyn_shapes, vcfg, t_late, (rtol, atol) if fixed else None, known)
     n_state = model.n_state
     radius = escape_radius(system, icfg)
     k_w = early.window_index(ts_np, vcfg)  # first checkpoint of the feature window
@@ -259,7 +270,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             c0 = V.init(f64, vcfg)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
-            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi)
+            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi,
+                        ak=jnp.full((L,), -1.0, f64), as_=jnp.zeros((L,), f64))
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
             jax.tree.map(lambda x: jnp.broadcast_to(x[..., None], (*x.shape, 1)), V.init(f64, vcfg)), jnp.ones((1,), bool)))
@@ -282,7 +294,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 obs = jnp.stack(model.observe(L, lane["t"], lane["y"], model.args_objs(lane["args"])), axis=-1)
                 n_in = K - jnp.maximum(lane["ck"], k_w)
                 ff = jax.vmap(early.fast_forward, in_axes=(-1, 0, 0), out_axes=-1)(ctree, n_in, obs)
-                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp, a, b), ff, ctree)
+                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp == early.HIT_FIXED_POINT, a, b), ff, ctree)
             summ = v_finalize(ctree, status == STATUS_OK)
             summ["fixed_point"] = at_fp.astype(jnp.int32)
             summ["stopped_at"] = lane["t"]
@@ -360,7 +372,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             y = [jnp.where(keep, a, b) for a, b in zip(y_new, y)]
             f = [jnp.where(keep, a, b) for a, b in zip(f7, f1)]
             nt = lane["nt"]
-            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej, nt=nt)
+            lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej, nt=nt,
+                        ak=lane["ak"], as_=lane["as_"])
 
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
@@ -374,15 +387,25 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 escaped = active & stepped & keep & (size > radius)
                 done = done | escaped
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
-            at_fp = jnp.zeros_like(done)
-            if fixed:  # at an accepted step that reached a checkpoint: a stable equilibrium, within tolerance
+            at_fp = jnp.zeros(done.shape, jnp.int32)  # stop code: stabjax.early.HIT_*
+            if fixed or known is not None:  # at an accepted step that reached a checkpoint
                 # asked once per early.TEST_EVERY checkpoints of the lane (its cost: n right-hand sides)
                 test = active & stepped & keep & (n_ck > 0) & ~done & (ck >= nt)
-                at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
-                                 lambda: jnp.zeros_like(done))
+                if fixed:  # a stable equilibrium, within tolerance
+                    at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
+                                     lambda: jnp.zeros_like(done)).astype(jnp.int32) * early.HIT_FIXED_POINT
+                if known is not None:  # the same known attractor at every test over a span of dwell
+                    k = lax.cond(jnp.any(test), lambda: model.near_attractor(L, t_prev, y, args),
+                                 lambda: jnp.full((L,), -1.0, f64))
+                    same = (k >= 0) & (k == lane["ak"])
+                    held = test & same & (t_prev - lane["as_"] >= known.dwell)
+                    lane["as_"] = jnp.where(test & ~same, t_prev, lane["as_"])
+                    lane["ak"] = jnp.where(test, k, lane["ak"])
+                    code = early.HIT_ATTRACTOR0 + jnp.maximum(k, 0.0).astype(jnp.int32)
+                    at_fp = jnp.where((at_fp == 0) & held, code, at_fp)
                 lane["nt"] = jnp.where(test, ck + early.TEST_EVERY, nt).astype(jnp.int32)
-                done = done | at_fp
-                status = jnp.where(at_fp, STATUS_OK, status)
+                done = done | (at_fp != 0)
+                status = jnp.where(at_fp != 0, STATUS_OK, status)
             status = status.astype(jnp.int32)
             carry = (lane, idx, nxt, out)
             return lax.cond(jnp.any(done), lambda c: finish_and_refill(c, done, status, at_fp), lambda c: c, carry)
@@ -506,7 +529,8 @@ class FusedEngine(Engine):
         st, dyn = split_static(params, static)
         shapes = tuple(sorted((k, np.shape(v)[1:]) for k, v in dyn.items()))
         _Model(system, st, dict(shapes), vcfg, V.late_start(vcfg, float(icfg.t0), float(icfg.t1)),
-               (float(icfg.rtol), float(icfg.atol)) if early.active(system, icfg) else None)
+               (float(icfg.rtol), float(icfg.atol)) if early.active(system, icfg) else None,
+               icfg.known_attractors if early.attractor_stop_active(system, icfg) else None)
 
     def default_chunk(self, plan) -> int:
         """Lanes are refilled from a queue: longer chunks waste less at the tail. On a GPU 2^18

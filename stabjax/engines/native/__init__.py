@@ -64,7 +64,8 @@ class _Kernel:
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
         self.fixed = early.active(system, icfg)
         self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late,
-                                 (float(icfg.rtol), float(icfg.atol)) if self.fixed else None)
+                                 (float(icfg.rtol), float(icfg.atol)) if self.fixed else None,
+                                 icfg.known_attractors if early.attractor_stop_active(system, icfg) else None)
         self.k_w = early.window_index(self.ts, vcfg)
         self.width = width
         self.source = kernel_source(self.model, width, escape_radius(system, icfg))
@@ -179,7 +180,7 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     ain, y0 = model.host_inputs(dyn, n)
     raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
     c = model.c_tree_from(raw["c"])
-    fp = raw["fp"] != 0
+    fp = raw["fp"] == early.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
     if fp.any():
         K = len(kern.ts)
         ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
@@ -192,7 +193,7 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     summ["n_rejected"] = raw["nrej"]
     summ["solver_status"] = raw["status"]
     summ["stopped_at"] = raw["t"]
-    summ["fixed_point"] = fp.astype(np.int32)
+    summ["fixed_point"] = raw["fp"].astype(np.int32)
     if with_state:
         summ["state_t1"] = raw["y"]
         summ["t_stop"] = raw["t"]

@@ -344,11 +344,12 @@ class NativeModel:
     """
 
     def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
-                 fixed_point: tuple[float, float] | None = None):
+                 fixed_point: tuple[float, float] | None = None, known=None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.system = system
         self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.early
+        self.known = known  # stabjax.early.KnownAttractors: also emit f_at, the recurrence stop's test
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
         self.dyn_shapes = {k: tuple(dyn_shapes[k]) for k in self.dyn_keys}
@@ -453,6 +454,19 @@ class NativeModel:
             outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
             _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_])
             self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+                                                "const double *restrict a, double *restrict out")
+        if self.known is not None:
+            # -- the recurrence stop's test (stabjax.early.near_attractor) -> out[0] = k or -1.0 --
+            from ... import early
+
+            em = CEmit()
+            y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+            kn = self.known
+            closed = jax.make_jaxpr(lambda t, yy, a: early.near_attractor(
+                jnp.ravel(system.observe(t, yy, a)), kn))(ex_t, ex_y, ex_args)
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
+            self.functions += "\n" + _function("f_at", em.lines, "const double t, const double *restrict y, "
                                                 "const double *restrict a, double *restrict out")
 
     # -- host side ----------------------------------------------------------------------------

@@ -488,15 +488,30 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     f_upd(c, t, o, out, 1);
 }}
 """
-    if model.fixed_point is None:
+    known = getattr(model, "known", None)
+    if model.fixed_point is None and known is None:
         src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
         src = src.replace("/*FP_SCALAR*/", "const int fixedp = 0;").replace("/*FP_OUT*/", "")
-    else:  # the fixed-point stop (stabjax.early): tested after a step that reached a checkpoint
-        from ...early import TEST_EVERY
+    else:  # the stop tests of stabjax.early, after a step that reached a checkpoint: FP[l] = its stop code
+        from ...early import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
 
         src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
-                                         "    for (int l = 0; l < W; l++) NT[l] = 0.0;")
-        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0;")
+                                         "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN;\n"
+                                         "    for (int l = 0; l < W; l++) { NT[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
+        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
+        fp_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);"
+                   if model.fixed_point is not None else "")
+        at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, AKT + l, W);"
+                   if known is not None else "")
+        fp_hit = f"FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
+        # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.early)
+        at_hit = "" if known is None else f"""
+                    const double k = AKT[l], m = FPM[l];
+                    const double same = k >= 0.0 && k == AK[l] ? 1.0 : 0.0;
+                    const double held = same != 0.0 && T[l] - AS[l] >= {known.dwell!r} ? 1.0 : 0.0;
+                    AS[l] = m != 0.0 && same == 0.0 ? T[l] : AS[l];
+                    AK[l] = m != 0.0 ? k : AK[l];
+                    hit = hit != 0.0 ? hit : (held != 0.0 ? {HIT_ATTRACTOR0}.0 + k : 0.0);"""
         # a lane asks when a step reached a checkpoint and TEST_EVERY checkpoints passed since it last asked
         src = src.replace("/*FP_TEST*/", """
         #pragma omp simd
@@ -510,19 +525,20 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
                 anyt = m > anyt ? m : anyt;
             }
             if (anyt != 0.0) {
-                #pragma omp simd
-                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
+                %s
+                %s
                 #pragma omp simd
                 for (int l = 0; l < W; l++) {
-                    FP[l] = FPM[l] != 0.0 ? FPT[l] : 0.0;
+                    double hit = %s;%s
+                    FP[l] = FPM[l] != 0.0 ? hit : 0.0;
                     NT[l] = FPM[l] != 0.0 ? (double)CK[l] + %d.0 : NT[l];
                 }
             }
-        }""" % TEST_EVERY)
+        }""" % (fp_call, at_call, fp_hit, at_hit, TEST_EVERY))
         src = src.replace("/*FP_CAND*/", " + FP[l]")
         esc_guard = " && !escaped" if escape is not None else ""
         src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
-        src = src.replace("/*FP_OUT*/", f"""jb->fp_out[j] = fixedp;
+        src = src.replace("/*FP_OUT*/", f"""jb->fp_out[j] = fixedp ? (int32_t)FP[l] : 0;
             if (fixedp) {{
                 f_obs(T[l], Y + l, A + l, OB0 + l, W);
                 for (int q = 0; q < NO; q++) jb->oout[j * NO + q] = OB0[q * W + l];
