@@ -1,10 +1,12 @@
-"""Benchmark of the fixed-point early stop (:mod:`stabjax.early`): each example with and without it.
+"""Benchmark of the early stops (:mod:`stabjax.early`): each example with and without them.
 
 ``python -m benchmarks.early_bench [EXAMPLE ...] [--n N] [--engine E] [--set key=value ...]``: for each
 example spec (``stabjax/examples/<name>/spec.toml``), the sweep runs with ``[integrate] early_stop =
-false`` and ``true``, each once to compile and once timed; printed: trajectory-steps, wall time of the
-timed run, how many trajectories stopped at a fixed point, and the number of starts whose outcome
-differs (must be 0). ``--set outcomes.discovery.lyapunov=false`` and the like edit the spec.
+false``, ``true``, and ``true`` with ``attractor_stop = true`` (the recurrence stop, where the example
+allows it), each once to compile and once timed; printed: trajectory-steps, wall time of the timed run,
+how many trajectories stopped at a fixed point and near an attractor, and the number of starts whose
+outcome differs from the run without stops (must be 0). ``--set outcomes.discovery.lyapunov=false`` and
+the like edit the spec.
 """
 from __future__ import annotations
 
@@ -27,7 +29,8 @@ def _set(spec: dict, dotted: str, value) -> None:
 
 
 def measure(name: str, n: int | None = None, engine: str = "auto", sets: dict | None = None) -> dict:
-    from stabjax.early import STOP_FIXED_POINT
+    from stabjax.early import STOP_ATTRACTOR, STOP_FIXED_POINT
+    from stabjax.errors import ValidationError
     from stabjax.spec import load_spec, make_plan
     from stabjax.sweep import run_plan
 
@@ -38,28 +41,39 @@ def measure(name: str, n: int | None = None, engine: str = "auto", sets: dict | 
         _set(base, k, v)
     row: dict = {"example": name, "n": None}
     labels = {}
-    for es in (False, True):
+    for key, es, ats in (("off", False, False), ("on", True, False), ("attractor", True, True)):
         spec = json.loads(json.dumps(base))
         spec["integrate"] = {**spec.get("integrate", {}), "engine": engine, "early_stop": es}
-        plan = make_plan(spec)
+        if ats:
+            spec["integrate"]["attractor_stop"] = True
+        try:
+            plan = make_plan(spec)
+        except ValidationError as exc:  # the recurrence stop refused for this example: say why
+            row[f"steps_{key}"] = None
+            row[f"why_no_{key}"] = exc.message
+            continue
         run_plan(plan)  # compile (and warm caches)
         t = time.perf_counter()
         ds = run_plan(plan)
         wall = time.perf_counter() - t
         names = str(ds["outcome"].attrs["flag_meanings"]).split()
-        labels[es] = np.asarray(names)[ds["outcome"].values.ravel()]
-        key = "on" if es else "off"
+        labels[key] = np.asarray(names)[ds["outcome"].values.ravel()]
         row["n"] = int(ds["outcome"].size)
         row["engine"] = ds.attrs.get("engine")
         row[f"steps_{key}"] = int(ds["n_steps"].sum())
         row[f"wall_{key}"] = round(wall, 2)
         row[f"active_{key}"] = bool(plan.icfg.early_stop)
         if es:
-            row["stopped_fixed_point"] = int((ds["stop_reason"].values == STOP_FIXED_POINT).sum())
-            row["outcomes"] = {k: int(v) for k, v in zip(*np.unique(labels[es], return_counts=True))}
-    row["outcome_changes"] = int((labels[False] != labels[True]).sum())
-    row["steps_ratio"] = round(row["steps_off"] / max(row["steps_on"], 1), 2)
-    row["wall_ratio"] = round(row["wall_off"] / max(row["wall_on"], 1e-9), 2)
+            reasons = ds["stop_reason"].values
+            row[f"stopped_fixed_point_{key}"] = int((reasons == STOP_FIXED_POINT).sum())
+            row[f"stopped_attractor_{key}"] = int((reasons == STOP_ATTRACTOR).sum())
+        if key == "off":
+            row["outcomes"] = {k: int(v) for k, v in zip(*np.unique(labels[key], return_counts=True))}
+    for key in ("on", "attractor"):
+        if key in labels:
+            row[f"outcome_changes_{key}"] = int((labels["off"] != labels[key]).sum())
+            row[f"steps_ratio_{key}"] = round(row["steps_off"] / max(row[f"steps_{key}"], 1), 2)
+            row[f"wall_ratio_{key}"] = round(row["wall_off"] / max(row[f"wall_{key}"], 1e-9), 2)
     return row
 
 

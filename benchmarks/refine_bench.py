@@ -26,12 +26,17 @@ BENCH_SPEC = Path(__file__).resolve().parent / "sweeps" / "refine_default.toml" 
 
 
 def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict:
-    """The plain sweep over the refinement's whole final lattice (the full grid of the same resolution)."""
+    """The plain sweep over the refinement's whole final lattice (the full grid of the same resolution): every
+    trajectory to t1, no early stop of any kind (the fixed-horizon baseline), where the model allows stops."""
     plan = plan or make_plan(spec)
     cfg = refine_config(plan)
     grid = {ax.key: fine_values(ax.values, ax.log, L).tolist() for ax, L in zip(plan.grid, cfg.levels)}
     s = {k: v for k, v in spec.items() if k != "refine"}
     s["grid"] = grid
+    integ = {k: v for k, v in s.get("integrate", {}).items() if k not in ("early_stop", "attractor_stop")}
+    if plan.outcomes is not None and not plan.scheme.from_verdicts:
+        integ["early_stop"] = False  # (the attitude verdicts never stop early: nothing to switch off)
+    s["integrate"] = integ
     s["name"] = f"{spec.get('name', 'sweep')}_full"
     return s
 
