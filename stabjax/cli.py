@@ -757,7 +757,8 @@ def bench(
     suite: str = typer.Option("engines", help="engines: the sweep engine vs diffrax, SciPy, numba (paper A); "
                               "models: a user model (examples/duffing) vs the same baselines, and a built-in "
                               "through the user-model door; refine: boundary refinement vs the full grid; "
-                              "dask: 1 and 2 local workers and the per-chunk overhead"),
+                              "dask: 1 and 2 local workers and the per-chunk overhead; peers: pyBasin's damped "
+                              "pendulum case (N = 10^4, t = 1000), traj-steps/s per core"),
     force: bool = ForceOpt,
 ):
     """Benchmark against named baselines in one process (figures in the README and docs/performance.md).
@@ -767,8 +768,8 @@ def bench(
     from . import validate
     from .errors import ValidationError
 
-    if suite not in ("engines", "models", "refine", "dask"):
-        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask")
+    if suite not in ("engines", "models", "refine", "dask", "peers"):
+        raise ValidationError("--suite", f"unknown suite {suite!r}; choose engines, models, refine, dask, peers")
     if suite == "engines":  # every input checked before the checkout is looked for
         n = _int_list(sizes, "--sizes")
         validate.number(t1, "--t1", lo=0.0, lo_open=True)
@@ -779,6 +780,8 @@ def bench(
         _benchmark("bench_models").main(["--n", "256", "--t1", "200", "--rounds", "1"] if quick else [])
     elif suite == "refine":
         raise typer.Exit(_benchmark("refine_bench").main(["--t1", "200", "--full-rows", "8"] if quick else []))
+    elif suite == "peers":
+        raise typer.Exit(_benchmark("peer_bench").main(["--n", "256", "--t1", "100", "--diffrax-n", "32"] if quick else []))
     else:
         _benchmark("dask_bench").main(["workers"])
 
