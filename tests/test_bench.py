@@ -63,7 +63,7 @@ def test_gpu_defaults_and_accelerator_report(monkeypatch):
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("module", ["bench", "bench_models", "refine_bench", "dask_bench"])
+@pytest.mark.parametrize("module", ["bench", "bench_models", "refine_bench", "dask_bench", "peer_bench"])
 def test_every_bench_suite_loads_from_the_checkout(module, monkeypatch):
     """`stabjax bench --suite ...` imports its module from benchmarks/ of the checkout it runs in; each has the
     ``main`` the CLI calls (the dask suite once called ``distributed.main``, which did not exist: ImportError)."""
@@ -88,3 +88,29 @@ def test_bench_outside_a_checkout_says_where_the_benchmarks_are(tmp_path, monkey
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "benchmarks/dask_bench.py" in err and "clone" in err
+
+
+def test_peer_suite_measures_the_pyBasin_pendulum(monkeypatch, capsys):
+    """The peers' case (pyBasin's pendulum) runs from the checkout, every trajectory to t1 (no stop: the
+    throughput the peers report), with the per-core rate; the step count per trajectory follows from the
+    tolerances (a few hundred accepted Tsit5 steps per 100 time units at rtol 1e-8), so a run that stopped
+    early or a rate not divided by the cores would fail."""
+    import json as _json
+
+    monkeypatch.chdir(ROOT)
+    out = Path(ROOT / ".pytest_peer.json")
+    try:
+        from stabjax.cli import _benchmark
+
+        rc = _benchmark("peer_bench").main(["--n", "64", "--t1", "100", "--diffrax-n", "16", "--json", str(out)])
+        assert rc == 0
+        rec = _json.loads(out.read_text())
+    finally:
+        out.unlink(missing_ok=True)
+    s = rec["stabjax"]
+    assert s["n"] == 64 and s["steps"] > 64 * 200
+    assert s["traj_steps_per_s_per_core"] == pytest.approx(s["traj_steps_per_s"] / rec["cores"])
+    assert rec["diffrax_vmap"]["steps"] > 16 * 200
+    # the same starts' step counts agree between stabjax's Tsit5 and diffrax's (same method and controller)
+    assert abs(rec["diffrax_vmap"]["steps"] / 16 - s["steps"] / 64) < 0.5 * s["steps"] / 64
+    assert "pyBasin pendulum" in capsys.readouterr().out
