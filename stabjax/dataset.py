@@ -275,12 +275,9 @@ CONVENTIONS = "CF-1.10"
 def status_flags() -> tuple[np.ndarray, str]:
     """``solver_status``: diffrax's RESULTS codes (0 successful, 1 max_steps_reached, ...), in their
     order, and stabjax's own escaped (:data:`stabjax.status.ESCAPED`)."""
-    try:
-        import diffrax
+    from .status import DIFFRAX_RESULTS
 
-        names = list(diffrax.RESULTS._name_to_item)
-    except (ImportError, AttributeError):  # diffrax without that table: the codes stabjax's engines emit
-        names = ["successful", "max_steps_reached"]
+    names = list(DIFFRAX_RESULTS)
     return np.array([*range(len(names)), STATUS_ESCAPED], np.int32), " ".join([*names, "escaped"])
 
 

@@ -92,6 +92,10 @@ def test_solver_status_flags_cover_the_engines_codes():
     names = meanings.split()
     assert names[0] == "successful" and names[1] == "max_steps_reached"
     assert values[names.index("escaped")] == STATUS_ESCAPED
+    # the names written without importing diffrax are diffrax's own, in its code order
+    import diffrax
+
+    assert names[:-1] == list(diffrax.RESULTS._name_to_item)
 
 
 # t1 = 1000: long enough for the converged region (alpha >= 0.45 here) to be told from flipped (alpha <= 0.4)
