@@ -58,6 +58,10 @@ class VerdictConfig:
     n_horizon_decades  default horizons: t0 + (t1 - t0) 10^-k, k = n_horizon_decades .. 0
     features        also return feat_max/min/mean/std/final of each observable (stabjax.verdict)
     feature_window  features over t >= t0 + (1 - feature_window)(t1 - t0)
+    verdicts        fold the attitude classifier's state (verdicts at every horizon, decay fits); False
+                    where the outcomes are named (rules, templates, discovery): only the features are
+                    folded, so a checkpoint costs a few operations per observable instead of ~160 entries
+                    of state read and written (set by the plan, not by a spec)
     t0, t1, n_obs   bound by :func:`stabjax.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
     """
 
@@ -78,6 +82,7 @@ class VerdictConfig:
     n_horizon_decades: float = 3
     features: bool = False
     feature_window: float = 0.5
+    verdicts: bool = True
     t0: float | None = None
     t1: float | None = None
     n_obs: int = 0
@@ -245,6 +250,9 @@ def verdict_config(system, overrides: Mapping[str, Any] | None = None, section: 
     """The system's thresholds with the spec's ``[verdict]`` overrides, each checked (``verdict.<name>``)."""
     from .validate import check_verdict, record_from_dict
 
+    if overrides and "verdicts" in overrides:  # the plan's decision (named outcomes or the attitude verdicts)
+        raise ValidationError(f"{section}.verdicts", "unknown threshold (the plan decides whether the attitude "
+                                                     "classifier runs: it does for systems judged by verdicts)")
     cfg = record_from_dict(VerdictConfig, overrides, section, base=system.verdict, what="threshold")
     check_verdict(cfg, section)
     return cfg

@@ -120,6 +120,9 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
         label = "outcome" if plan.outcomes is not None else "verdict"
     if label not in ("verdict", "outcome"):
         raise ValidationError("refine.label", f"must be \"verdict\" or \"outcome\", got {label!r}")
+    if label == "verdict" and plan.outcomes is not None and not plan.scheme.from_verdicts:
+        raise ValidationError("refine.label", f"{plan.system.name}'s outcomes are named (rules, templates, discovery): "
+                                              "it has no attitude verdicts; use label = \"outcome\"")
     names = label_names(plan, label)
 
     pair = raw.get("pair")

@@ -529,7 +529,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         decl.check(system, where="outcomes", escape=escape)
         outcomes = scheme(system, decl, escape)
         # the fold also keeps late-window statistics of every observable, for the outcome rules
-        vcfg = vcfg.replace(features=True, feature_window=float(decl.window))
+        # (named outcomes need nothing else: the attitude classifier's state is left out of the fold)
+        vcfg = vcfg.replace(features=True, feature_window=float(decl.window), verdicts=outcomes.from_verdicts)
     # the tangent dynamics only when a rule, a feature, discovery or the user asks for the exponent
     lyap = decl is not None and decl.uses_lyapunov(system)
     n_obs = len(system.observables) + int(lyap)

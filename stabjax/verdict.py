@@ -267,6 +267,10 @@ def init(dtype=jnp.float64, cfg: VerdictConfig | None = None, n_obs: int | None 
     F = MAX_FEATURE_OBS
     if cfg is not None:
         F = min(int(n_obs or cfg.n_obs or MAX_FEATURE_OBS), MAX_FEATURE_OBS) if cfg.features else 0
+    if cfg is not None and not cfg.verdicts:  # named outcomes: the features alone (no attitude state)
+        feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
+                                                     for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
+        return dict(span=jnp.asarray(jnp.nan, dtype), **feat)
 
     def f(v):
         return jnp.full((H,), v, dtype)
@@ -322,6 +326,12 @@ def _put(x, n, head):
 
 def update(c, t, obs_k, cfg: VerdictConfig, t_late):
     """Fold one checkpoint ``(t, obs_k)`` (obs_k: (n_obs,); 0 error, 1 size) into the state ``c``."""
+    if "peak" not in c:  # the features alone (init with cfg.verdicts False)
+        t0, span = _frame(cfg, t_late)[:2]
+        out = {"span": jnp.asarray(span, c["span"].dtype) + jnp.zeros_like(c["span"])}
+        if "feat" in c:
+            out["feat"] = _fold_features(c["feat"], t - t0, obs_k, span, cfg)
+        return out
     t0, span, U, n_h, lo, hi = _frame(cfg, t_late, c["peak"].shape[0])
     dtype = c["peak"].dtype
     u = t - t0
@@ -358,19 +368,24 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
 
     F = c["feat"].shape[1] if "feat" in c else 0
     if cfg.features and F > 0:
-        m = min(int(obs_k.shape[0]), F)
-        o = obs_k[:m].astype(dtype)
-        inw = (u >= span * (1.0 - cfg.feature_window)).astype(dtype)
-        fe = c["feat"]
-        rows = [jnp.where(inw > 0, jnp.maximum(fe[0, :m], o), fe[0, :m]),
-                jnp.where(inw > 0, jnp.minimum(fe[1, :m], o), fe[1, :m]),
-                fe[2, :m] + inw * o, fe[3, :m] + inw * o * o, fe[4, :m] + inw, o]
-        head = jnp.stack(rows)
-        out["feat"] = head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
+        out["feat"] = _fold_features(c["feat"], u, obs_k, span, cfg)
     elif F > 0:
         out["feat"] = c["feat"]
     out["span"] = jnp.asarray(span, dtype) + jnp.zeros_like(c["span"])
     return out
+
+
+def _fold_features(fe, u, obs_k, span, cfg: VerdictConfig):
+    """The late-window feature rows (max, min, sum, sum of squares, count, last) after one checkpoint."""
+    F = fe.shape[1]
+    m = min(int(obs_k.shape[0]), F)
+    o = obs_k[:m].astype(fe.dtype)
+    inw = (u >= span * (1.0 - cfg.feature_window)).astype(fe.dtype)
+    rows = [jnp.where(inw > 0, jnp.maximum(fe[0, :m], o), fe[0, :m]),
+            jnp.where(inw > 0, jnp.minimum(fe[1, :m], o), fe[1, :m]),
+            fe[2, :m] + inw * o, fe[3, :m] + inw * o * o, fe[4, :m] + inw, o]
+    head = jnp.stack(rows)
+    return head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
 
 
 def resolve(verdict, failed, size_max, cfg: VerdictConfig):
@@ -392,6 +407,8 @@ def _lsq(n, sx, sy, sxx, sxy):
 
 def finalize(c, solver_ok, cfg: VerdictConfig):
     """Verdicts and summaries at every horizon (trailing dim ``horizon``) from the running state."""
+    if "peak" not in c:  # the features alone (init with cfg.verdicts False)
+        return _feature_summaries(c, cfg)
     dtype = c["peak"].dtype
     nan = jnp.asarray(jnp.nan, dtype)
     span_c = c["span"]
@@ -477,18 +494,25 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
         decay_reason=reason,
         size_max=g["size_max"],
     )
-    F = c["feat"].shape[1] if "feat" in c else 0
-    if cfg.features and F > 0:
-        m = min(int(cfg.n_obs) if cfg.n_obs else F, F)
-        fe = c["feat"][:, :m]
-        cnt = fe[4]
-        mean = fe[2] / jnp.where(cnt > 0, cnt, 1.0)
-        var = jnp.maximum(fe[3] / jnp.where(cnt > 0, cnt, 1.0) - mean * mean, 0.0)
-        none = cnt == 0
-        out.update(feat_max=jnp.where(none, nan, fe[0]), feat_min=jnp.where(none, nan, fe[1]),
-                   feat_mean=jnp.where(none, nan, mean), feat_std=jnp.where(none, nan, jnp.sqrt(var)),
-                   feat_final=fe[5])
+    out.update(_feature_summaries(c, cfg))
     return out
+
+
+def _feature_summaries(c, cfg: VerdictConfig) -> dict:
+    """feat_max/min/mean/std/final of each observable over the feature window (NaN where it saw none)."""
+    F = c["feat"].shape[1] if "feat" in c else 0
+    if not (cfg.features and F > 0):
+        return {}
+    nan = jnp.asarray(jnp.nan, c["feat"].dtype)
+    m = min(int(cfg.n_obs) if cfg.n_obs else F, F)
+    fe = c["feat"][:, :m]
+    cnt = fe[4]
+    mean = fe[2] / jnp.where(cnt > 0, cnt, 1.0)
+    var = jnp.maximum(fe[3] / jnp.where(cnt > 0, cnt, 1.0) - mean * mean, 0.0)
+    none = cnt == 0
+    return dict(feat_max=jnp.where(none, nan, fe[0]), feat_min=jnp.where(none, nan, fe[1]),
+                feat_mean=jnp.where(none, nan, mean), feat_std=jnp.where(none, nan, jnp.sqrt(var)),
+                feat_final=fe[5])
 
 
 def classify(ts: jnp.ndarray, obs: jnp.ndarray, solver_ok: jnp.ndarray, cfg: VerdictConfig, t0: float = 0.0):
