@@ -203,6 +203,11 @@ def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
                 elif plan.engine == "fused":
                     fused.prepare_call(plan.system, plan.icfg, plan.vcfg, plan.params_for(0, batch),
                                        static=static_params(plan))
+                # libraries a process imports once, on its first sweep: xarray imports dask (and dask scipy,
+                # jinja2, psutil) when it builds its first Variable, ~0.3 s that no later sweep pays
+                import xarray as xr
+
+                xr.Dataset({"x": ("a", np.zeros(2))})
             _reset_peak_rss()
             with _Timer() as tr:
                 ds = run_plan(plan)

@@ -44,7 +44,7 @@ SETTINGS: dict[str, tuple[Setting, ...]] = {
         Setting(THREADS, 0, 4096, "native engine: OS threads (0: $STABJAX_THREADS, else one per core)"),
         # measured: a dense-checkpoint run (t1 = 50, 4000 checkpoints) gives last-bit different
         # summaries at width 4 or 1 than at 16 (vector libm calls of another width): kept in the identity
-        Setting("width", 0, 1024, "native engine: trajectories per SIMD block (0: 16)", changes_results=True),
+        Setting("width", 0, 1024, "native engine: trajectories per SIMD block (0: 16, or 8 for a classifier state above 64 doubles)", changes_results=True),
     ),
     # lanes are independent and each lane runs the same vector code: any lane count gives the same bits
     "fused": (Setting("lanes", 0, 2**24, "fused engine: trajectories stepped side by side per device "

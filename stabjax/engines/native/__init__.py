@@ -42,6 +42,18 @@ from .emit import NativeModel
 from .kernel import Job, eval_only as _eval_only_source, kernel_source
 
 DEFAULT_WIDTH = 16  # trajectories per SIMD block (two AVX-512 vectors of doubles; docs/performance.md)
+# ... for a classifier state above this many doubles per trajectory: 8. The state is read and written at
+# every checkpoint for the whole block; with the attitude classifier's ~160 doubles, 16 lanes put the state
+# and its update (2 x 20 KB) beyond a 32 KB L1 cache, and 8 lanes ran paper A's benchmark faster
+# (docs/performance.md); a small state (named outcomes: the features alone) keeps 16
+WIDE_STATE = 64
+NARROW_WIDTH = 8
+
+
+def default_width(vcfg) -> int:
+    """Lanes per block for a classifier state sized to ``vcfg`` (see :data:`WIDE_STATE`)."""
+    size = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(jax.eval_shape(lambda: V.init(jnp.float64, vcfg))))
+    return DEFAULT_WIDTH if size <= WIDE_STATE else NARROW_WIDTH
 
 
 def _build(source: str) -> ctypes.CDLL:
@@ -159,7 +171,7 @@ def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = N
     shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items()))
     # the kernel does not depend on how many threads run it: one cache entry for any ``threads``
     key_cfg = icfg.replace(settings={}) if icfg.settings else icfg
-    width = int(width or ENGINE.setting(icfg, "width") or DEFAULT_WIDTH)
+    width = int(width or ENGINE.setting(icfg, "width") or default_width(vcfg))
     return _kernel(system, key_cfg, vcfg, StaticParams(st), shapes, width, eval_only), dyn
 
 
@@ -291,4 +303,4 @@ class NativeEngine(Engine):
 ENGINE = NativeEngine()
 
 __all__ = ["ENGINE", "NativeEngine", "solve", "available", "Unsupported", "compiler", "kernel_for", "run_raw", "evaluate",
-           "update", "warm", "clear_cache", "default_threads", "DEFAULT_WIDTH"]
+           "update", "warm", "clear_cache", "default_threads", "DEFAULT_WIDTH", "default_width"]
