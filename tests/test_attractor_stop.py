@@ -191,3 +191,17 @@ def test_refused_where_it_cannot_apply():
     with pytest.raises(ValidationError) as e:  # the attitude verdicts read the run up to t1
         make_plan(mono)
     assert e.value.field == "integrate.attractor_stop"
+
+
+def test_dask_workers_stop_at_the_same_attractors():
+    """The first chunk runs on a worker like any other; the attractors found from it travel with the plan,
+    so a Dask run gives, per start, what the run in this process gives."""
+    from stabjax import distributed as D
+
+    plan = _pendulum("native", True, 512)
+    here = run_plan(plan, batch_size=128)
+    with D.DaskExecutor(workers=1, threads=1) as ex:
+        there = run_plan(plan, batch_size=128, executor=ex)
+    for v in ("outcome", "stop_reason", "n_steps", "feat_mean"):
+        np.testing.assert_array_equal(there[v].values, here[v].values, err_msg=v)
+    assert (there.stop_reason.values == early.STOP_ATTRACTOR).sum() > 128
