@@ -473,10 +473,26 @@ def sweep(
             executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
                   f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})", markup=False)
+    stops = _stops_line(ds)
+    if stops:
+        console.print(stops, markup=False)
     _report(ds, out.with_suffix(".png") if plot else None, result=out)
     status = _run_status(ds, out)  # the last line: how many failed, when any did
     if status:
         raise typer.Exit(status)
+
+
+def _stops_line(ds) -> str:
+    """How many trajectories ended before t1 because their fate was decided (stabjax.early), or ""."""
+    if "stop_reason" not in ds:
+        return ""
+    from .early import STOP_ATTRACTOR, STOP_FIXED_POINT
+
+    codes = ds["stop_reason"].values
+    parts = [f"{int((codes == c).sum()):,} {what}" for c, what in
+             ((STOP_FIXED_POINT, "at a stable fixed point"), (STOP_ATTRACTOR, "near an attractor found earlier"))
+             if (codes == c).any()]
+    return f"stopped early, fate decided: {', '.join(parts)}" if parts else ""
 
 
 def _start_executor(executor, scheduler: str | None, timeout: float) -> None:

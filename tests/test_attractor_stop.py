@@ -205,3 +205,26 @@ def test_dask_workers_stop_at_the_same_attractors():
     for v in ("outcome", "stop_reason", "n_steps", "feat_mean"):
         np.testing.assert_array_equal(there[v].values, here[v].values, err_msg=v)
     assert (there.stop_reason.values == early.STOP_ATTRACTOR).sum() > 128
+
+
+def test_the_sweep_says_how_many_stopped_early(tmp_path):
+    """`stabjax sweep` prints how many trajectories ended before t1 and why, counted from the dataset."""
+    import shutil
+    import subprocess
+    import sys
+
+    import xarray as xr
+
+    for f in ("model.py", "spec.toml"):
+        shutil.copy(EXAMPLES / "pendulum" / f, tmp_path / f)
+    spec = (tmp_path / "spec.toml").read_text().replace("n = 2000", "n = 384")
+    (tmp_path / "spec.toml").write_text(spec.replace("n_checkpoints = 4000", "n_checkpoints = 4000\nattractor_stop = true"))
+    out = tmp_path / "p.nc"
+    r = subprocess.run([sys.executable, "-m", "stabjax", "sweep", str(tmp_path / "spec.toml"), "--out", str(out),
+                        "--no-plot"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    with xr.open_dataset(out) as ds:
+        codes = ds.stop_reason.values
+    n_fp, n_at = int((codes == early.STOP_FIXED_POINT).sum()), int((codes == early.STOP_ATTRACTOR).sum())
+    assert n_at > 0
+    assert f"stopped early, fate decided: {n_fp:,} at a stable fixed point, {n_at:,} near an attractor" in r.stdout
