@@ -180,7 +180,8 @@ def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
                 cs = ax.contour(x, y, m, levels=[0.5], colors=[col], linewidths=1.6, linestyles="--")
                 if not (log.get(xd) or log.get(yd)):
                     _long_paths(cs, 4.0, (np.ptp(x) / (len(x) - 1), np.ptp(y) / (len(y) - 1)))
-                handles.append(Line2D([], [], color=col, lw=1.6, ls="--", label=lab))
+                if any(len(p.vertices) for p in cs.get_paths()):  # no legend entry for an edge left undrawn
+                    handles.append(Line2D([], [], color=col, lw=1.6, ls="--", label=lab))
         elif len(dims) == 1:
             br = horizon_boundaries(full.isel(horizon=[j]), dims[0])[float(T)]
             for i, (a, b) in enumerate(br):
@@ -241,17 +242,14 @@ def cell_edges(x: np.ndarray, log: bool) -> np.ndarray:
     return np.concatenate([[2 * x[0] - mid[0]], mid, [2 * x[-1] - mid[-1]]])
 
 
-def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
-    """Hatch exactly the grid cells where the predicate holds (contour hatching ignores holes)."""
-    from matplotlib.collections import PatchCollection
-    from matplotlib.patches import Rectangle
+def _cell_boundary(ax, xe, ye, ok):
+    """The edge of the guaranteed cells, along the cell borders (a map with a category axis has no contour
+    to interpolate): a segment wherever a guaranteed cell meets one that is not."""
+    from matplotlib.collections import LineCollection
 
-    iy, ix = np.nonzero(ok)
-    if len(iy) == 0 or len(iy) > max_cells:
-        return
-    rects = [Rectangle((xe[j], ye[i]), xe[j + 1] - xe[j], ye[i + 1] - ye[i]) for i, j in zip(iy, ix)]
-    ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="0.2", hatch="///", linewidth=0,
-                                      alpha=0.45))
+    segs = [[(xe[j + 1], ye[i]), (xe[j + 1], ye[i + 1])] for i, j in zip(*np.nonzero(ok[:, :-1] != ok[:, 1:]))]
+    segs += [[(xe[j], ye[i + 1]), (xe[j + 1], ye[i + 1])] for i, j in zip(*np.nonzero(ok[:-1, :] != ok[1:, :]))]
+    ax.add_collection(LineCollection(segs, colors="k", linewidths=2.2))
 
 
 def _label_region(ax, x, y, ok, logx: bool, logy: bool):
@@ -380,10 +378,10 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: st
                 else:
                     handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary: {said}"))
                     _label_region(ax, x, y, ok, log[xd], log[yd])
-            elif ok.any() and not ok.all():  # categories: no line to draw, so the guaranteed cells are hatched
-                _hatch_cells(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
-                handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
-                                     label=f"hatched: theory guarantees stability ({said})"))
+            elif ok.any() and not ok.all():  # categories: the guaranteed cells' edge, along the cell borders
+                _cell_boundary(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
+                handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary: {said}"))
+                _label_region(ax, x, y, ok, log[xd], log[yd])
             elif ok.all():
                 handles.append(Patch(facecolor="none", edgecolor="none", label=f"theory guarantees stability "
                                                                                 f"everywhere here ({said})"))
@@ -435,7 +433,8 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: st
             elif okx.any():  # shade out to the boundary line, not just to the last guaranteed grid point
                 for i, (a, b) in enumerate(_guaranteed_spans(x, okx, crossings)):
                     ax.axvspan(a, b, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
-        _draw_horizons(ax, full, dims, log)
+        if not cats[xd]:  # between categories there is no edge to bracket
+            _draw_horizons(ax, full, dims, log)
         ax.set_xlabel(axis_label(ds, xd))
         if cats[xd]:
             category_axis(ax, "x", cats[xd], axis_label(ds, xd))
