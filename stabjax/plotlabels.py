@@ -10,18 +10,29 @@ import xarray as xr
 
 GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lambda", "omega", "theta", "phi", "psi",
          "xi", "eta", "kappa", "rho", "tau", "zeta", "chi"}
+GREEK_CAPITAL = {"gamma", "delta", "theta", "lambda", "xi", "pi", "sigma", "phi", "psi", "omega"}  # in math text
 
 
 def symbol(name: str) -> str:
-    """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$."""
+    """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$,
+    Omega_r -> $\\Omega_r$ (capital Greek), A[1] -> $A[1]$; a name of several letters that is no Greek letter
+    is set upright (gain -> $\\mathrm{gain}$), not as a product of italic variables."""
+    m = re.fullmatch(r"(\w+)(\[[\d, ]+\])", name)  # an entry of a vector or matrix parameter, as the spec names it
+    if m:
+        return symbol(m[1])[:-1] + m[2].replace(" ", "") + "$"
     base, _, sub = name.partition("_")
     digits = ""
     while base and base[-1].isdigit():
         digits = base[-1] + digits
         base = base[:-1]
     base = {"lam": "lambda", "eps": "epsilon"}.get(base, base)
-    b = "\\" + base if base in GREEK else base
-    subs = ",".join(x for x in (digits, sub.replace("_", ",")) if x)
+    if base in GREEK or (base[:1].isupper() and base.lower() in GREEK_CAPITAL):
+        b = "\\" + base
+    else:
+        b = base if len(base) <= 1 else f"\\mathrm{{{base}}}"
+    sub = ",".join(f"\\mathrm{{{x}}}" if len(x) > 1 and x.isalpha() and x not in GREEK else
+                   ("\\" + x if x in GREEK else x) for x in sub.split("_") if x)
+    subs = ",".join(x for x in (digits, sub) if x)
     return f"${b}_{{{subs}}}$" if subs else f"${b}$"
 
 
@@ -29,7 +40,11 @@ def words(doc: str, name: str, unit: str = "", limit: int = 44) -> str:
     """An axis label a reader knows: the parameter's description in words (its first clause, at
     most ``limit`` characters), its symbol's name and its unit -- "perturbation order (sigma)",
     "initial angle (theta0) [rad]". A bare name when there is no description."""
-    doc = re.split(r";|: | - ", str(doc or ""), maxsplit=1)[0].strip()
+    doc = str(doc or "").strip()
+    # a help text that starts with the setting it applies to ("init = 1: ...") is described by what
+    # follows the condition
+    doc = re.sub(r"^\w+ = [\d.]+: (?=\D)", "", doc)
+    doc = re.split(r";|: | - ", doc, maxsplit=1)[0].strip()
     doc = re.sub(r"\s*\([^()]*\)?$", "", doc).strip().rstrip(",.")  # a trailing remark in parentheses
     doc = re.sub(r"\s+(in|of|for|at)$", "", doc)
     if re.fullmatch(r"[\d\s.,]*", doc):  # a choice list ("0: ..., 1: ...") is no description
@@ -85,9 +100,10 @@ def category_axis(ax, which: str, labels: list[str], name: str):
     (ax.set_xlabel if which == "x" else ax.set_ylabel)(name)
 
 
-def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
+def fixed_note(ds: xr.Dataset, limit: int = 5, exclude=()) -> str:
     """The fixed scalar parameters that matter: those the theorems mention (e.g. mu on the default map),
-    then those the spec sets in [params]; discrete choices by their label ("paper mapping")."""
+    then those the spec sets in [params]; discrete choices by their label ("paper mapping"). ``exclude``:
+    names not to list (the axes of a result whose dimensions are not named after them)."""
 
     try:
         fixed = json.loads(ds.attrs.get("fixed_params_json", "{}"))
@@ -101,7 +117,7 @@ def fixed_note(ds: xr.Dataset, limit: int = 5) -> str:
     names = [k for k in fixed if k in words] + [k for k in chosen if k in fixed and k not in words]
     out = []
     for k in names:
-        if np.size(fixed[k]) != 1 or k in ds.dims:
+        if np.size(fixed[k]) != 1 or k in ds.dims or k in exclude:
             continue
         value = float(np.ravel(fixed[k])[0])
         prm = _param(ds, k)

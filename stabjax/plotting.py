@@ -13,6 +13,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
+from matplotlib import patheffects
 from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
@@ -26,7 +27,9 @@ def axis_label(ds: xr.Dataset, dim: str) -> str:
     from .plotlabels import words
 
     a = ds[dim].attrs if dim in ds.coords else {}
-    return words(str(a.get("long_name", "")), symbol(dim), str(a.get("units", "")))
+    key = str(a.get("spec_key", dim))
+    # an entry of a vector parameter by the spec's name for it (A[1]: entry 1), not the coordinate's (A_1)
+    return words(str(a.get("long_name", "")), symbol(key if "[" in key else dim), str(a.get("units", "")))
 
 
 def theory_words(ds: xr.Dataset, main: str) -> str:
@@ -35,6 +38,63 @@ def theory_words(ds: xr.Dataset, main: str) -> str:
 
     doc = str(ds[f"theory_{main}"].attrs.get("long_name", "")) if f"theory_{main}" in ds else ""
     return words(doc, "", limit=60) or main
+
+
+def error_words(ds: xr.Dataset, metric: str) -> str:
+    """The y axis of a 1-D map in words: which error (the system's error observable, with its unit) and
+    when -- "largest late angle between s and r [rad]" for ``error_max_late``, not the variable name."""
+    import re
+
+    from .models import resolve as get_system
+
+    try:
+        obs = str(get_system(ds.attrs.get("system", "")).observable_doc[0])
+    except Exception:  # noqa: BLE001 -- an unknown system: say "error"
+        obs = "error"
+    m = re.search(r"\s*\[([^\]]+)\]\s*$", obs)
+    unit = f" [{m[1]}]" if m else ""
+    obs = (obs[: m.start()] if m else obs).split(",")[0].strip() or "error"
+    if metric == "error_max_late":
+        return f"largest late {obs}{unit}"
+    return f"{obs} at t1{unit}"
+
+
+def wrap(label: str, width: int = 48) -> str:
+    """A legend entry on lines of at most ``width`` characters (a long one would run off a small figure)."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(label, width)) if len(label) > width else label
+
+
+def legend_below(ax, handles, ncol: int = 2, fontsize: float = 8, width: int = 48, title: str | None = None):
+    """The legend under the axes, out of the data, as wide as the axes at most: the most columns (up to
+    ``ncol``) that fit with the entries whole, else with entries wrapped at ``width`` characters, else one
+    column wrapped to the axes' width."""
+    engine = ax.figure.get_layout_engine()
+    if engine is not None:  # the axes' width once laid out (constrained layout widens it)
+        engine.execute(ax.figure)
+    avail = ax.figure.get_figwidth() * 72 * ax.get_position().width * 1.15  # points; may reach a little past
+    em = 0.55 * fontsize  # a character's mean width in points
+    labels = [h.get_label().replace("\n", " ") for h in handles]
+
+    def span(texts, k):  # width of the legend in points with k columns (filled column by column)
+        rows = -(-len(texts) // k)
+        cols = [texts[j * rows:(j + 1) * rows] for j in range(k)]
+        return sum(max((len(line) for t in c for line in t.split("\n")), default=0) + 5 for c in cols if c) * em
+
+    tries = [(k, None) for k in range(ncol, 0, -1)] + [(k, width) for k in range(ncol, 0, -1)]
+    for k, w in tries + [(1, max(20, int(avail / em) - 5))]:
+        texts = [wrap(t, w) if w else t for t in labels]
+        if span(texts, k) <= avail or (k, w) == (1, max(20, int(avail / em) - 5)):
+            break
+    for h, t in zip(handles, texts):
+        h.set_label(t)
+    from matplotlib.transforms import ScaledTranslation
+
+    # a fixed distance under the axes (tick labels and the axis label), whatever the axes' height
+    below = ax.transAxes + ScaledTranslation(0, -40 / 72, ax.figure.dpi_scale_trans)
+    return ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0), bbox_transform=below, ncol=k,
+                     fontsize=fontsize, frameon=False, title=title, title_fontsize=fontsize)
 
 
 def grid_dims(ds: xr.Dataset) -> list[str]:
@@ -120,7 +180,8 @@ def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
                 cs = ax.contour(x, y, m, levels=[0.5], colors=[col], linewidths=1.6, linestyles="--")
                 if not (log.get(xd) or log.get(yd)):
                     _long_paths(cs, 4.0, (np.ptp(x) / (len(x) - 1), np.ptp(y) / (len(y) - 1)))
-                handles.append(Line2D([], [], color=col, lw=1.6, ls="--", label=lab))
+                if any(len(p.vertices) for p in cs.get_paths()):  # no legend entry for an edge left undrawn
+                    handles.append(Line2D([], [], color=col, lw=1.6, ls="--", label=lab))
         elif len(dims) == 1:
             br = horizon_boundaries(full.isel(horizon=[j]), dims[0])[float(T)]
             for i, (a, b) in enumerate(br):
@@ -181,17 +242,14 @@ def cell_edges(x: np.ndarray, log: bool) -> np.ndarray:
     return np.concatenate([[2 * x[0] - mid[0]], mid, [2 * x[-1] - mid[-1]]])
 
 
-def _hatch_cells(ax, xe, ye, ok, max_cells: int = 20000):
-    """Hatch exactly the grid cells where the predicate holds (contour hatching ignores holes)."""
-    from matplotlib.collections import PatchCollection
-    from matplotlib.patches import Rectangle
+def _cell_boundary(ax, xe, ye, ok):
+    """The edge of the guaranteed cells, along the cell borders (a map with a category axis has no contour
+    to interpolate): a segment wherever a guaranteed cell meets one that is not."""
+    from matplotlib.collections import LineCollection
 
-    iy, ix = np.nonzero(ok)
-    if len(iy) == 0 or len(iy) > max_cells:
-        return
-    rects = [Rectangle((xe[j], ye[i]), xe[j + 1] - xe[j], ye[i + 1] - ye[i]) for i, j in zip(iy, ix)]
-    ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="0.2", hatch="///", linewidth=0,
-                                      alpha=0.45))
+    segs = [[(xe[j + 1], ye[i]), (xe[j + 1], ye[i + 1])] for i, j in zip(*np.nonzero(ok[:, :-1] != ok[:, 1:]))]
+    segs += [[(xe[j], ye[i + 1]), (xe[j + 1], ye[i + 1])] for i, j in zip(*np.nonzero(ok[:-1, :] != ok[1:, :]))]
+    ax.add_collection(LineCollection(segs, colors="k", linewidths=2.2))
 
 
 def _label_region(ax, x, y, ok, logx: bool, logy: bool):
@@ -207,10 +265,36 @@ def _label_region(ax, x, y, ok, logx: bool, logy: bool):
             bbox=dict(boxstyle="round,pad=0.3", facecolor="white", edgecolor="0.3", alpha=0.85))
 
 
-def _title(ds: xr.Dataset) -> str:
+def _thin(ok: np.ndarray) -> bool:
+    """The guaranteed cells form no region, only a line one cell wide (a condition holding on an equality)."""
+    if not ok.any() or ok.all():
+        return False
+    return not (ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]).any()  # no 2 x 2 block of guaranteed cells
+
+
+def _guaranteed_spans(x, ok, crossings) -> list[tuple[float, float]]:
+    """The intervals of a 1-D axis where the theory holds: from the guaranteed grid points out to the
+    interpolated zero crossings of its margin (or to the last grid point where there is no crossing)."""
+    x = np.asarray(x, float)
+    cuts = sorted(set([float(x.min()), float(x.max())] + [float(c) for c in crossings]))
+    spans = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        inside = (x >= a) & (x <= b)
+        if inside.any() and ok[inside].sum() * 2 > inside.sum():
+            if spans and spans[-1][1] == a:
+                spans[-1] = (spans[-1][0], b)
+            else:
+                spans.append((a, b))
+    return spans
+
+
+def _title(ds: xr.Dataset, title: str | None = None) -> str:
+    """Two lines: what the map is (``title``, in words; by default the system and the sweep's name, which
+    name a user's own run) with its horizon, then the fixed parameters that matter and what one cell is."""
     fixed = fixed_note(ds)
     second = "; ".join(x for x in (fixed, cell_note(ds)) if x)
-    return f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}  (t1 = {_t1(ds):g})\n{second}"
+    first = title or f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}"
+    return f"{first}  (t1 = {_t1(ds):g})\n{second}"
 
 
 def _t1(ds):
@@ -233,12 +317,13 @@ def zero_crossings(x, m):
     return out
 
 
-def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
+def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None):
     """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions) at t1,
-    with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's."""
+    with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's.
+    ``title``: what the map shows, in words (default: the system and the sweep's name)."""
     dims = grid_dims(ds)
     if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
-        return _facets(ds, dims, out)
+        return _facets(ds, dims, out, title)
     full, ds = ds, at_t1(ds)
     main = main_predicate(ds)
     sampled = "sample" in ds["verdict"].dims
@@ -275,8 +360,10 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 bad = ok & ((vv == V.FLIPPED) | (vv == V.DIVERGED))
                 if bad.any():
                     yy, xx = np.nonzero(bad)
-                    ax.plot(x[xx], y[yy], "kx", ms=7, mew=1.5)
-                    handles.append(Line2D([], [], color="k", marker="x", ls="", label="theory says stable, simulation not"))
+                    halo = [patheffects.withStroke(linewidth=3.5, foreground="white")]  # legible on dark cells
+                    ax.plot(x[xx], y[yy], "kx", ms=7, mew=1.5, path_effects=halo)
+                    handles.append(Line2D([], [], color="k", marker="x", ls="", mew=1.5, path_effects=halo,
+                                          label="theory says stable, simulation not"))
         if margin is not None and len(x) > 1 and len(y) > 1:
             m = margin.transpose(yd, xd).values
             ok = ds[f"theory_{main}"]
@@ -285,12 +372,16 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             if np.nanmin(m) < 0 < np.nanmax(m) and not (cats[xd] or cats[yd]):  # no contour across categories
                 # the boundary line says where; a label in the region says which side (no hatching over it)
                 ax.contour(x, y, m, levels=[0.0], colors="k", linewidths=2.2)
+                if _thin(ok):  # a knife edge (e.g. lam^2 = nu): the region is the line itself
+                    handles.append(Line2D([], [], color="k", lw=2.2,
+                                          label=f"theory guarantees stability only on this line: {said}"))
+                else:
+                    handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary: {said}"))
+                    _label_region(ax, x, y, ok, log[xd], log[yd])
+            elif ok.any() and not ok.all():  # categories: the guaranteed cells' edge, along the cell borders
+                _cell_boundary(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
                 handles.append(Line2D([], [], color="k", lw=2.2, label=f"theory boundary: {said}"))
                 _label_region(ax, x, y, ok, log[xd], log[yd])
-            elif ok.any() and not ok.all():  # categories: no line to draw, so the guaranteed cells are hatched
-                _hatch_cells(ax, cell_edges(x, log[xd]), cell_edges(y, log[yd]), ok)
-                handles.append(Patch(facecolor="none", edgecolor="0.2", hatch="///",
-                                     label=f"hatched: theory guarantees stability ({said})"))
             elif ok.all():
                 handles.append(Patch(facecolor="none", edgecolor="none", label=f"theory guarantees stability "
                                                                                 f"everywhere here ({said})"))
@@ -298,15 +389,15 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         ax.set_xlabel(axis_label(ds, xd))
         ax.set_ylabel(axis_label(ds, yd))
         if cats[xd]:
-            category_axis(ax, "x", cats[xd], symbol(xd))
+            category_axis(ax, "x", cats[xd], axis_label(ds, xd))
         elif log[xd]:
             ax.set_xscale("log")
         if cats[yd]:
-            category_axis(ax, "y", cats[yd], symbol(yd))
+            category_axis(ax, "y", cats[yd], axis_label(ds, yd))
         elif log[yd]:
             ax.set_yscale("log")
         if handles:
-            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+            legend_below(ax, handles)
     elif len(dims) == 1:
         xd = dims[0]
         x = np.arange(ds.sizes[xd], dtype=float) if cats[xd] else ds[xd].values
@@ -327,9 +418,11 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 if sel.any():
                     ax.scatter(x[sel], np.maximum(yv[sel], 1e-16), color=V.COLORS[i], label=name, s=36, zorder=3)
             ax.set_yscale("log")
-            ax.set_ylabel(f"{metric} at t1" if "horizon" in full.dims else metric)
+            ax.set_ylabel(error_words(ds, metric))
         if margin is not None:
-            for i, xc in enumerate([] if cats[xd] else zero_crossings(x, margin.values)):
+            mv = margin.values.reshape(len(x), -1)[:, 0] if sampled else margin.values
+            crossings = [] if cats[xd] else zero_crossings(x, mv)
+            for i, xc in enumerate(crossings):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary: {theory_words(ds, main)}" if i == 0 else None)
             okx = ds[f"theory_{main}"].values.astype(bool)
             if sampled:
@@ -337,15 +430,17 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             if okx.any() and cats[xd]:  # shade each guaranteed category, not the span between them
                 for i, xi in enumerate(x[okx]):
                     ax.axvspan(xi - 0.5, xi + 0.5, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
-            elif okx.any():
-                ax.axvspan(x[okx].min(), x[okx].max(), color="0.85", zorder=0, label="theory guarantees stability")
-        _draw_horizons(ax, full, dims, log)
+            elif okx.any():  # shade out to the boundary line, not just to the last guaranteed grid point
+                for i, (a, b) in enumerate(_guaranteed_spans(x, okx, crossings)):
+                    ax.axvspan(a, b, color="0.85", zorder=0, label="theory guarantees stability" if i == 0 else None)
+        if not cats[xd]:  # between categories there is no edge to bracket
+            _draw_horizons(ax, full, dims, log)
         ax.set_xlabel(axis_label(ds, xd))
         if cats[xd]:
-            category_axis(ax, "x", cats[xd], symbol(xd))
+            category_axis(ax, "x", cats[xd], axis_label(ds, xd))
         elif log.get(xd):
             ax.set_xscale("log")
-        ax.legend(fontsize=8)
+        legend_below(ax, ax.get_legend_handles_labels()[0])
     else:
         counts = V.counts(ds["verdict"].values)
         n = max(sum(counts.values()), 1)
@@ -353,7 +448,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         se = np.sqrt(fr * (1 - fr) / n)
         ax.bar(V.NAMES, fr, yerr=se, color=V.COLORS, capsize=4)
         ax.set_ylabel(f"fraction of {n} trajectories (± SE)")
-    ax.set_title(_title(ds), fontsize=10)
+    ax.set_title(_title(ds, title), fontsize=10)
     return save(fig, out, own)
 
 
@@ -368,7 +463,7 @@ def save(fig, out, own: bool = True):
     return fig
 
 
-def _facets(ds: xr.Dataset, dims: list[str], out):
+def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None):
     d0 = dims[0]
     n = ds.sizes[d0]
     ncol = 2 if n == 4 else min(n, 3)
@@ -383,13 +478,13 @@ def _facets(ds: xr.Dataset, dims: list[str], out):
         plot_sweep(sub, ax=ax)
         labels = categories(ds, d0)
         value = labels[i] if labels else f"{symbol(d0)} = {sub[d0].values.item():g}"
-        ax.set_title(f"{_title(ds)}\n{value}", fontsize=9)
+        ax.set_title(value, fontsize=10)  # the figure's title says the rest once
         leg = ax.get_legend()
         if leg is not None:  # one legend per panel crowds the grid: keep them short
             handles = leg.legend_handles
             leg.remove()
-            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=7,
-                      frameon=False)
+            legend_below(ax, handles, fontsize=7.5)
+    fig.suptitle(_title(ds, title), fontsize=11)
     if out is not None:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -14,10 +14,67 @@ import xarray as xr
 
 from . import verdict as V
 
+# the bracketed (empirical) boundary: the colour of the converged region's edge on the sweep maps, apart
+# from the theorem's black line
+EDGE = "#CC79A7"
+
+
+def _system(ds: xr.Dataset):
+    from .models import resolve
+
+    try:
+        return resolve(ds.attrs.get("system", ""))
+    except Exception:  # noqa: BLE001 -- a result of an unknown system: labels from the names
+        return None
+
+
+def axis_words(ds: xr.Dataset, name: str) -> str:
+    """A refined axis in words with its symbol and unit, from the system's parameter (as on the sweep map)."""
+    from .plotlabels import symbol, words
+
+    unit = str(ds[name + "_mid"].attrs.get("units", "")) if name + "_mid" in ds else ""
+    S = _system(ds)
+    try:
+        prm = S.params[name.split("[")[0]]
+    except Exception:  # noqa: BLE001 -- no such parameter (another version's result): the symbol alone
+        return words("", symbol(name), unit)
+    return words(prm.doc, symbol(name), unit or prm.unit)
+
+
+def theory_words(ds: xr.Dataset) -> str:
+    """What the theorem's main predicate says, in words (its description at the defaults), not its name."""
+    from .plotlabels import words
+
+    main = ds.attrs.get("theory_main", "")
+    S = _system(ds)
+    try:
+        doc = S.theory(S.check(S.params.resolve({}))).predicates[main].doc
+    except Exception:  # noqa: BLE001 -- a system without this predicate: its name is all there is
+        return main
+    return words(doc, "", limit=60) or main
+
+
+def title(ds: xr.Dataset) -> str:
+    """What was refined, in words, and how much of the lattice it cost; the fixed parameters that matter."""
+    from .plotlabels import fixed_note
+
+    pair = ds.attrs.get("pair", "").split()
+    between = (f"{pair[0]} and not {pair[0]}" if pair[1:] == ["*"] else " and ".join(pair)) if pair else \
+        f"{ds.attrs.get('label', 'label')}s"
+    t1 = json.loads(ds.attrs.get("integrate_json", "{}")).get("t1", float("nan"))
+    hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs.get("horizon")]))
+    when = f"horizons T = {', '.join(f'{h:g}' for h in hs)}" if len(hs) > 1 else f"horizon T = {hs[0]:g}"
+    first = (f"Refined boundary between {between}: {ds.attrs['n_points']:,} of {ds.attrs['full_grid_points']:,} "
+             f"lattice points run")
+    # the spec's fixed parameters (the refinement's own variables name no theorem's parameters)
+    fixed = fixed_note(ds[[]], exclude=ds.attrs["axes"].split())
+    second = "; ".join(x for x in (fixed, f"{when}, t1 = {t1:g}") if x)
+    return f"{first}\n{second}"
+
 
 def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
     """Evaluated points (coloured by label), bracketed boundary midpoints, and the theorem's boundary."""
-    from .plotting import plt, symbol
+    from .plotting import plt
     from matplotlib.lines import Line2D
 
     names = ds.attrs["axes"].split()
@@ -31,8 +88,7 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         fig = ax.figure
     lab = ds["point_label"].values
     handles = []
-    main = ds.attrs.get("theory_main", "")
-    unit = lambda n: f" [{ds[n + '_mid'].attrs['units']}]" if "units" in ds[n + "_mid"].attrs else ""
+    said = theory_words(ds)
     if len(names) == 2:
         xd, yd = names[1], names[0]  # same orientation as plot_sweep: second axis horizontal
         for c in np.unique(lab):
@@ -42,15 +98,16 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
         for h, col, what in _horizon_styles(ds):
             sel = ds["segment_horizon"].values == h if "segment_horizon" in ds else slice(None)
             ax.plot(ds[f"{xd}_mid"].values[sel], ds[f"{yd}_mid"].values[sel], ".", color=col, ms=2.5)
-            handles.append(Line2D([], [], color=col, marker=".", ls="", label=f"bracketed boundary{what} (midpoints)"))
+            handles.append(Line2D([], [], color=col, marker=".", ls="", ms=8,
+                                  label=f"bracketed boundary{what} (midpoints)"))
         if "theory_margin" in ds:
             m = ds["theory_margin"].transpose(f"{yd}_theory", f"{xd}_theory").values
             if np.nanmin(m) < 0 < np.nanmax(m):
                 ax.contour(ds[f"{xd}_theory"].values, ds[f"{yd}_theory"].values, m, levels=[0.0], colors="k",
                            linewidths=2.0)
-                handles.append(Line2D([], [], color="k", lw=2, label=f"theory boundary ({main})"))
-        ax.set_xlabel(symbol(xd) + unit(xd))
-        ax.set_ylabel(symbol(yd) + unit(yd))
+                handles.append(Line2D([], [], color="k", lw=2, label=f"theory boundary: {said}"))
+        ax.set_xlabel(axis_words(ds, xd))
+        ax.set_ylabel(axis_words(ds, yd))
     else:
         xd = names[0]
         x = ds[f"point_{xd}"].values
@@ -66,18 +123,15 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             from .plotting import zero_crossings
 
             for i, xc in enumerate(zero_crossings(ds[f"{xd}_theory"].values, ds["theory_margin"].values)):
-                ax.axvline(xc, color="k", lw=2, label=f"theory boundary ({main})" if i == 0 else None)
+                ax.axvline(xc, color="k", lw=2, label=f"theory boundary: {said}" if i == 0 else None)
         ax.set_yticks(range(len(lnames)), lnames)
-        ax.set_xlabel(symbol(xd) + unit(xd))
-        ax.legend(fontsize=8)
+        ax.set_xlabel(axis_words(ds, xd))
+        handles = ax.get_legend_handles_labels()[0]
+    from .plotting import legend_below, save
+
     if handles:
-        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3, fontsize=8, frameon=False)
-    t1 = json.loads(ds.attrs.get("integrate_json", "{}")).get("t1", float("nan"))
-    hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs["horizon"]]))
-    ax.set_title(f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')} refined (horizon"
-                 f"{'s ' + ', '.join(f'{h:g}' for h in hs) if len(hs) > 1 else ' ' + format(hs[0], 'g')}"
-                 f", t1 = {t1:g}; {ds.attrs['n_points']} of {ds.attrs['full_grid_points']} lattice points)", fontsize=9)
-    from .plotting import save
+        legend_below(ax, handles, ncol=3 if len(names) == 2 else 2, width=60)
+    ax.set_title(title(ds), fontsize=9)
 
     return save(fig, out, own)
 
@@ -88,6 +142,6 @@ def _horizon_styles(ds: xr.Dataset):
 
     hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs.get("horizon")]))
     if len(hs) == 1:
-        return [(hs[0], "k" if len(ds.attrs["axes"].split()) == 2 else "0.6", "")]
+        return [(hs[0], EDGE, "")]
     cmap = plt.get_cmap("viridis")
     return [(h, cmap(i / (len(hs) - 1)), f" at T = {h:g}") for i, h in enumerate(hs)]

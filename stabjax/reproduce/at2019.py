@@ -32,9 +32,10 @@ from ..sweep import run_spec, write
 
 def _cosines(ax, ds, title):
     for i, c in enumerate(("tab:blue", "tab:orange", "tab:green")):
-        ax.plot(ds.t, ds.s.isel(axis=i), color=c, lw=0.8, label=fr"$\gamma_{i + 1}$")
+        ax.plot(ds.t, ds.s.isel(axis=i), color=c, lw=0.8, label=fr"direction cosine $\gamma_{i + 1}$ of s")
     ax.axhline(1 / np.sqrt(3), color="k", lw=0.5, ls=":")
-    ax.set_xlabel("t")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("direction cosines of s")
     ax.set_title(title, fontsize=9)
     ax.set_ylim(-1.05, 1.05)
 
@@ -77,9 +78,9 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     fig, axs = plt.subplots(1, 2, figsize=(11, 3.8), constrained_layout=True)
     _cosines(axs[0], a79s, r"Fig. 2 ($\alpha$ = 7/9): cosines converge to $1/\sqrt{3}$")
     axs[0].legend(fontsize=8)
-    axs[1].loglog(a79l.t, a79l.angle, lw=0.9, label="angle(s, r)")
-    axs[1].loglog(a79l.t, a79l.wnorm, lw=0.9, label=r"$|\omega|$")
-    axs[1].set_xlabel("t")
+    axs[1].loglog(a79l.t, a79l.angle, lw=0.9, label="angle between s and r [rad]")
+    axs[1].loglog(a79l.t, a79l.wnorm, lw=0.9, label=r"angular velocity $|\omega|$ [rad/s]")
+    axs[1].set_xlabel("time t [s]")
     axs[1].set_title(r"$\alpha$ = 7/9: algebraic decay (log-log)", fontsize=9)
     axs[1].legend(fontsize=8)
     p = out_dir / "fig2_alpha_7_9.png"
@@ -131,27 +132,29 @@ def alpha_horizons(out_dir: Path, quick: bool = False) -> list[Path]:
     nc = out_dir / f"{spec['name']}.nc"
     ds = run_spec(spec, nc, progress=False)
     files = [nc]
-    fig, axs = plt.subplots(1, 2, figsize=(12, 4.3), constrained_layout=True,
+    fig, axs = plt.subplots(1, 2, figsize=(12, 5.6), constrained_layout=True,
                             gridspec_kw={"width_ratios": [1.25, 1]})
     plot_sweep(ds, ax=axs[0])
-    axs[0].set_title(r"$\sigma$ = 4/3, $\mu$ = 3/2 (Theorem 1: $\alpha$ > 2/3): verdicts at t1 = "
-                     f"{ds.horizon.values[-1]:.0e}" + "\ndashed: converged boundary at each horizon T", fontsize=9)
-    axs[0].legend(fontsize=7, loc="center right")
-    from ..plotting import verdict_cmap, cell_edges
+    axs[0].set_title(r"verdicts at t1 = " f"{ds.horizon.values[-1]:.0e}" r" ($\sigma$ = 4/3, $\mu$ = 3/2; "
+                     r"Theorem 1 needs $\alpha$ > 2/3)" "\ndashed: edge of the converged region at each horizon T",
+                     fontsize=9)
+    from ..plotting import axis_label, legend_below, verdict_cmap, cell_edges
+
+    legend_below(axs[0], axs[0].get_legend_handles_labels()[0], ncol=2, fontsize=7.5)
 
     cmap, norm = verdict_cmap()
     a, h = ds.alpha.values, ds.horizon.values
     axs[1].pcolormesh(cell_edges(a, False), cell_edges(h, True), ds.verdict.transpose("horizon", "alpha").values,
                       cmap=cmap, norm=norm)
     axs[1].set_yscale("log")
-    axs[1].axvline(2 / 3, color="k", lw=2, label="Theorem 1: alpha = 2/3")
-    axs[1].set_xlabel(r"$\alpha$")
+    axs[1].axvline(2 / 3, color="k", lw=2, label=r"bound of Theorem 1: $\alpha$ = 2/3")
+    axs[1].set_xlabel(axis_label(ds, "alpha"))
     axs[1].set_ylabel("horizon T (prefix of the same run)")
     present = sorted(set(np.unique(ds.verdict.values).tolist()))
     from matplotlib.patches import Patch
 
-    axs[1].legend(handles=[Patch(color=V.COLORS[i], label=V.NAMES[i]) for i in present]
-                  + axs[1].get_legend_handles_labels()[0], fontsize=8, loc="upper left")
+    legend_below(axs[1], [Patch(color=V.COLORS[i], label=V.NAMES[i]) for i in present]
+                 + axs[1].get_legend_handles_labels()[0], ncol=2, fontsize=7.5)
     axs[1].set_title("verdict at each horizon from one integration", fontsize=9)
     p = out_dir / "alpha_sweep.png"
     fig.savefig(p, dpi=110)
@@ -183,6 +186,8 @@ def decay_spec(mu: float, quick: bool = False) -> dict:
 
 
 def decay_laws(out_dir: Path, quick: bool = False) -> list[Path]:
+    from ..plotting import axis_label
+
     files = []
     mus = (1.5, 2.0)
     fig, axs = plt.subplots(1, len(mus), figsize=(11, 4), constrained_layout=True)
@@ -200,14 +205,14 @@ def decay_laws(out_dir: Path, quick: bool = False) -> list[Path]:
                 ax.errorbar(sg[sel], ex[sel], yerr=2 * se[sel], fmt="o", color=V.COLORS[i], capsize=3,
                             label=f"fitted exponent ± 2 SE ({name})")
         ss = np.linspace(sg.min(), sg.max(), 200)
-        ax.axhline(1 / (mu - 1), color="k", ls="--", lw=1.2, label=r"$1/(\mu-1)$")
+        ax.axhline(1 / (mu - 1), color="k", ls="--", lw=1.2, label=r"proof's estimate $1/(\mu-1)$")
         with np.errstate(divide="ignore"):
-            ax.plot(ss, 1 / (2 * ss - 2), color="tab:purple", ls=":", lw=1.5, label=r"$1/(2\sigma-2)$")
-        ax.axvline((mu + 1) / 2, color="k", lw=2, label=r"$2\sigma = \mu + 1$ (Theorem 1, $\alpha$ = 1)")
+            ax.plot(ss, 1 / (2 * ss - 2), color="#CC79A7", ls=":", lw=1.8, label=r"proof's estimate $1/(2\sigma-2)$")
+        ax.axvline((mu + 1) / 2, color="k", lw=2, label=r"bound of Theorem 1 at $\alpha$ = 1: $2\sigma = \mu + 1$")
         top = np.nanmax(np.concatenate([ex[np.isfinite(ex)], [1 / (mu - 1)]])) if np.isfinite(ex).any() else 3
         ax.set_ylim(0, 1.6 * top)
-        ax.set_xlabel(r"$\sigma$")
-        ax.set_ylabel("decay exponent p  (error ~ t^-p)")
+        ax.set_xlabel(axis_label(ds, "sigma"))
+        ax.set_ylabel(r"late decay exponent p (angle ~ $t^{-p}$)")
         ax.set_title(fr"$\alpha$ = 1, $\mu$ = {mu:g}: late decay of angle(s, r), t1 = {spec['integrate']['t1']:.0e}",
                      fontsize=9)
         ax.legend(fontsize=7)

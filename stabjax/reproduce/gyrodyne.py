@@ -17,7 +17,9 @@ The paper gives no numbers (docs/models/gyrodyne.md, "Regression case"). The doc
 Outputs: ``gyrodyne_theory.txt`` (coefficients for the four active sets, printed vs corrected
 vs numerically averaged), ``gyrodyne_growth.png`` (growth rate of a mode-1 disturbance against
 eps: averaged theory with corrected and printed p2, p3 against simulation of models 0, 1, 2),
-and without ``quick`` the (eps, A_2) verdict map with the averaged-theory boundary.
+and without ``quick`` the verdict map of every shipped ``sweeps/gyrodyne_*.toml`` with the averaged-theory
+boundary: (eps, A_2), (eps, damping gain), the four active sets, failover, and the three models along eps
+(``gyrodyne_<name>.png``; about 5 minutes on 2 CPU cores).
 """
 from __future__ import annotations
 
@@ -29,6 +31,17 @@ import numpy as np
 from ..engine import IntegrateConfig, batch_params, solve_batch
 from ..registry import get_system
 from ..systems import gyrodyne_theory as T
+
+# what each shipped sweep's map shows, in words (the figures' titles; a spec without one is an error)
+TITLES = {
+    "gyrodyne_active_sets": "Resonance tongue of each active set of three gyros (quasi-linear model)",
+    "gyrodyne_eps_A2": "Resonance tongue: detuning against the scanning amplitude of slot 2",
+    "gyrodyne_eps_gain": "Resonance tongue: detuning against the damping gain",
+    "gyrodyne_failover": "Failover: which gyro fails and when (the spare takes its slot)",
+    "gyrodyne_full_vs_quasi": "Three models along the detuning: normal coordinates, quasi-linear, full",
+}
+# the grid axis A[1] is entry 1 of the amplitudes, i.e. the paper's A_2 (slot 2)
+A2_LABEL = r"scanning amplitude of slot 2 ($A_2$) [N m]"
 
 
 def theory_table(S) -> str:
@@ -86,19 +99,23 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     pf = batch_params(S, {}, fine.size)
     pf["eps"] = fine
     thf = S.theory(pf)
-    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
-    ax.plot(fine, thf.derived["growth_pred"], "k-", label="averaged (3.3), corrected p2, p3")
-    ax.plot(fine, thf.derived["growth_pred_printed"], "k:", label="averaged, printed (alpha) p2, p3")
-    marks = {0: ("s", "model 0: (1.3), paper mapping"), 1: ("o", "model 1: quasi-linear (1.2)"),
-             2: ("^", "model 2: full nonlinear")}
+    fig, ax = plt.subplots(figsize=(7, 5.6), constrained_layout=True)
+    ax.plot(fine, thf.derived["growth_pred"], "k-", label="averaged theory, eq. (3.3), corrected p2, p3")
+    ax.plot(fine, thf.derived["growth_pred_printed"], "k:", label="averaged theory, eq. (3.3), printed p2, p3")
+    marks = {0: ("s", "#0072B2", "simulated: normal coordinates, eq. (1.3), paper's mapping"),
+             1: ("o", "#D55E00", "simulated: quasi-linear model, eq. (1.2)"),
+             2: ("^", "#009E73", "simulated: full nonlinear model")}
     for m in models:
         sel = p["model"] == m
-        ax.plot(p["eps"][sel], res["growth1"][sel], marks[m][0], mfc="none", label=marks[m][1])
+        ax.plot(p["eps"][sel], res["growth1"][sel], marks[m][0], color=marks[m][1], mfc="none", mew=1.3,
+                label=marks[m][2])
     ax.axhline(0, color="0.6", lw=0.8)
-    ax.set_xlabel(r"$\varepsilon=\omega_{01}-\Omega_2/2$ [rad/s]")
-    ax.set_ylabel(r"growth rate of $E_1$ [1/s]")
+    ax.set_xlabel(r"detuning from resonance, $\varepsilon=\omega_{01}-\Omega_2/2$ [rad/s]")
+    ax.set_ylabel(r"growth rate of the mode-1 amplitude $E_1$ [1/s]")
     ax.set_title("Gyrodyne cluster: parametric resonance tongue (default example)")
-    ax.legend(fontsize=8)
+    from ..plotting import legend_below
+
+    legend_below(ax, ax.get_legend_handles_labels()[0], ncol=1, width=70)
     png = out_dir / "gyrodyne_growth.png"
     fig.savefig(png, dpi=110)
     plt.close(fig)
@@ -111,13 +128,24 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     paths.append(out_dir / "gyrodyne_growth.txt")
 
     if not quick:
-        from ..plotting import plot_sweep
         from ..sweep import run_spec
 
-        from . import load_shipped
+        from . import load_shipped, shipped_specs
 
-        ds = run_spec(load_shipped("gyrodyne_eps_A2"))
-        png = out_dir / "gyrodyne_eps_A2.png"
-        plot_sweep(ds, png)
-        paths.append(png)
+        for stem in shipped_specs("gyrodyne_"):
+            paths.append(plot_map(run_spec(load_shipped(stem)), stem, out_dir))
     return paths
+
+
+def plot_map(ds, stem: str, out_dir: Path) -> Path:
+    """The verdict map of shipped sweep ``stem``, titled in words, the A[1] axis named as the paper does."""
+    from ..plotting import plot_sweep, save
+
+    fig = plot_sweep(ds, title=TITLES[stem])
+    for ax in fig.axes:
+        for get, set_ in ((ax.get_xlabel, ax.set_xlabel), (ax.get_ylabel, ax.set_ylabel)):
+            if "$A[1]$" in get():
+                set_(A2_LABEL)
+    png = out_dir / f"{stem}.png"
+    save(fig, png)
+    return png

@@ -23,8 +23,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .. import verdict as V
 from ..engine import simulate
-from ..plotting import converged_fraction, plot_sweep
+from ..plotlabels import words
+from ..plotting import axis_label, converged_fraction, legend_below, plot_sweep
 from ..sweep import run_spec
 from ..systems import saakyan_theory as T
 from . import load_shipped, shipped_specs
@@ -58,6 +60,24 @@ EXAMPLES = [
      dict(I=(4.0, 3.0, 2.0), Jw=(1.0, 1.0, 1.0), lam=1.0, nu=1.0, h=0.8, H=_H, S0=_S), 400.0),
 ]
 
+# what each shipped sweep's map shows, in words (the figures' titles; a spec without one is an error)
+TITLES = {
+    "saakyan_double_count": "gyrostat (B-3): Theorem 3's torque against (3.9) with (3.21) as printed",
+    "saakyan_gain_max_axis": "fixed direction (Cor. 2): gains, H0 along the axis of largest moment",
+    "saakyan_gain_mid_axis": "fixed direction (Cor. 2): gains, H0 along the axis of middle moment",
+    "saakyan_gain_min_axis": "fixed direction (Cor. 2): gains, H0 along the axis of smallest moment",
+    "saakyan_gravity_ratio": "central gravity field (Theorem 2): gravity parameter against gain",
+    "saakyan_gyrostat_gravity_44": "gyrostat in a gravity field (Theorem 4): gain across the bound (4.4)",
+    "saakyan_gyrostat_h": "gyrostat (Theorem 3): gain h, random starts anywhere",
+    "saakyan_no_mu": "fixed direction (Cor. 2) without and with the stabilising torque mu",
+    "saakyan_region_axis": "fixed direction (Cor. 2): size of the initial perturbation, H0 along a principal axis",
+    "saakyan_region_generic": "fixed direction (Cor. 2): size of the initial perturbation, H0 off the principal axes",
+}
+_AXIS = {0: "smallest", 1: "middle", 2: "largest"}
+# one colour per theorem on every Saakyan figure (Okabe & Ito): Cor. 2 (Theorem 1) black, Cor. 1 vermillion,
+# our exact bound sky blue, the paper's middle-axis condition reddish purple
+C_TH1, C_COR1, C_EXACT, C_MID = "k", "#D55E00", "#56B4E9", "#CC79A7"
+
 QUICK_SWEEPS = ("saakyan_region_generic",)
 QUICK_EXAMPLES = (2, 3, 6, 7)  # one compile per system: fixed with/without mu, B-3 both torques
 
@@ -72,10 +92,11 @@ def _examples(out_dir: Path, quick: bool) -> list[Path]:
         t1 = 30.0 if quick else t1
         ds = simulate(name, over, t1=t1, ts=np.linspace(0, t1, 301), rtol=1e-10, atol=1e-12)
         e = np.maximum(ds["error"].values, 1e-16)
-        ax.semilogy(ds.t, e, lw=1.0, label="error")
-        ax.semilogy(ds.t, np.maximum(ds["angle"].values, 1e-16), lw=0.8, ls="--", label="angle(S0, H0)")
+        ax.semilogy(ds.t, e, lw=1.0, color="#0072B2", label=r"error metric, angle + $|w_1|/\lambda$")
+        ax.semilogy(ds.t, np.maximum(ds["angle"].values, 1e-16), lw=0.8, ls="--", color="#D55E00",
+                    label="angle between S0 and H0 [rad]")
         ax.set_title(label, fontsize=9)
-        ax.set_xlabel("t [s]")
+        ax.set_xlabel("time t [s]")
         ax.set_ylim(1e-13, max(10.0, e.max() * 2))
         ax.grid(alpha=0.3)
         summary.append(dict(label=label, system=name, t1=t1, error_t0=float(e[0]), error_t1=float(e[-1]),
@@ -108,64 +129,117 @@ def _frac_1d(ds, dim):
     return ds[dim].values, p.values, se.values
 
 
+def _fixed(ds) -> dict:
+    return json.loads(ds.attrs["fixed_params_json"])
+
+
+def _where_h0(ds) -> str:
+    """Where H0 lies, in words: along the axis of largest / middle / smallest moment, or off them."""
+    fp = _fixed(ds)
+    k = int(T.principal_axis(np.array(fp["H"], float)))
+    if k < 0:
+        return "H0 off the principal axes"
+    rank = int(np.argsort(np.argsort(np.array(fp["I"], float)))[k])
+    return f"H0 along the axis of {_AXIS[rank]} moment"
+
+
+def _n(ds) -> str:
+    return f"n = {ds.sizes['sample']} random starts per point"
+
+
+def _halo(lw: float):
+    from matplotlib import patheffects
+
+    return [patheffects.withStroke(linewidth=lw + 2.5, foreground="white")]
+
+
 def _plot_region(ds, png: Path):
     x, p, se = _frac_1d(ds, "rho")
     l = float(np.nanmin(ds["derived_l_spurious"].values))
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
-    ax.errorbar(x, p, yerr=se, marker="o", capsize=3, label="converged fraction (+- s.e.)")
-    ax.axvline(l, color="tab:red", ls="--", label=f"l of (1.18) = {l:.3f}")
-    ax.axvline(2.0, color="k", ls=":", label="(1.22): 2")
-    ax.set_xlabel(r"$|\delta_0|$ = rho   ($|w_1(0)| = \lambda\,$rho)")
+    fp = _fixed(ds)
+    fig, ax = plt.subplots(figsize=(6.5, 4.8), constrained_layout=True)
+    ax.errorbar(x, p, yerr=se, marker="o", capsize=3, color=V.COLORS[V.CONVERGED], label="fraction converged ± SE")
+    ax.axvline(l, color=C_TH1, ls="--", lw=1.8,
+               label=fr"guaranteed radius of Cor. 2 (Theorem 1), region (1.18): $\rho$ = l = {l:.3f}")
+    cor1 = bool(np.asarray(ds["theory_c121"].values).any()) if "theory_c121" in ds else True
+    why = "" if cor1 else (" (not claimed here: H0 is not principal)" if "off" in _where_h0(ds) else
+                           " (not claimed here: (1.21) fails)")
+    ax.axvline(2.0, color=C_COR1, ls=":", lw=2, label=fr"radius of Cor. 1, region (1.22): $\rho$ = 2{why}")
+    ax.set_xlabel(r"initial distance of S0 from H0, $|\delta(0)| = \rho$   (and $|w_1(0)| = \lambda\rho$)")
     ax.set_ylabel("fraction converged")
     ax.set_ylim(-0.05, 1.05)
-    ax.set_title(ds.attrs.get("sweep_name", ""), fontsize=9)
-    ax.legend(fontsize=8)
-    fig.savefig(png, dpi=90)
+    ax.set_title(f"Region of attraction, fixed direction (Cor. 2): {_where_h0(ds)}\n"
+                 fr"$\lambda$ = {fp['lam']:g} rad/s, K = {fp['K']:g} N m s; {_n(ds)}", fontsize=9)
+    legend_below(ax, ax.get_legend_handles_labels()[0], ncol=1, width=70)
+    fig.savefig(png, dpi=100)
     plt.close(fig)
 
 
 def _plot_gain(ds, png: Path):
     p, _ = converged_fraction(ds)
     lam, K = ds["lam"].values, ds["K"].values
-    fig, ax = plt.subplots(figsize=(6.5, 4.6), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(6.5, 5.6), constrained_layout=True)
     m = ax.pcolormesh(lam, K, p.transpose("K", "lam").values, vmin=0, vmax=1, cmap="viridis", shading="nearest")
-    fig.colorbar(m, ax=ax, label="fraction converged (initial states in (1.22))")
-    spec = json.loads(ds.attrs["fixed_params_json"])
+    fig.colorbar(m, ax=ax, label="fraction converged (starts inside region (1.22))")
+    spec = _fixed(ds)
     I, H = np.array(spec["I"]), np.array(spec["H"])
     lg = np.linspace(lam.min(), lam.max(), 50)
-    ax.plot(lg, T.axis_roles(I)[0] * lg, "w-", label="(1.10) K = lam m1")
-    ax.plot(lg, T.c121(I, H, 1.0, 1.0).margin * 0 + (3 * I.max() - 2 * I.min()) * lg, "r--", label="(1.21)")
+    m1, _, m2 = (float(v) for v in T.axis_roles(I))
+    ax.plot(lg, m1 * lg, color=C_TH1, ls="-", lw=2, path_effects=_halo(2),
+            label=r"gain bound of Cor. 2 (Theorem 1), eq. (1.10): K = $\lambda m_1$" + f" = {m1:g} " + r"$\lambda$")
+    ax.plot(lg, (3 * m1 - 2 * m2) * lg, color=C_COR1, ls="--", lw=2, path_effects=_halo(2),
+            label=r"gain bound of Cor. 1, eq. (1.21): K = $\lambda(3 m_1 - 2 m_2)$" + f" = {3 * m1 - 2 * m2:g} "
+                  r"$\lambda$")
     ex = T.exact_axis_bound(I, H, 1.0)
     if np.isfinite(ex):
-        ax.plot(lg, ex * lg, "c:", lw=2, label="exact, no spurious spins [D]")
+        ax.plot(lg, ex * lg, color=C_EXACT, ls=":", lw=2.5, path_effects=_halo(2.5),
+                label=f"exact bound for no off-target steady spin (ours): K = {float(ex):g} " + r"$\lambda$")
     if T.principal_axis(H) == np.argsort(I)[1]:
-        ax.plot(lg, T.middle_axis_bound(I, 1.0) * lg, "m-.", label="middle-axis condition")
-    ax.set_xlabel(r"$\lambda$")
-    ax.set_ylabel("K")
+        mb = float(T.middle_axis_bound(I, 1.0))
+        ax.plot(lg, mb * lg, color=C_MID, ls="-.", lw=2, path_effects=_halo(2),
+                label=f"the paper's middle-axis condition: K = {mb:g} " + r"$\lambda$")
+    ax.set_xlabel(axis_label(ds, "lam"))
+    ax.set_ylabel(axis_label(ds, "K"))
     ax.set_ylim(K.min(), K.max())
-    ax.legend(fontsize=7, loc="upper left")
-    ax.set_title(ds.attrs.get("sweep_name", ""), fontsize=9)
-    fig.savefig(png, dpi=90)
+    legend_below(ax, ax.get_legend_handles_labels()[0], ncol=1, width=80)
+    ax.set_title(f"Gains of the fixed-direction loop (Cor. 2): {_where_h0(ds)}\n"
+                 f"I = {', '.join(f'{v:g}' for v in I)} kg m^2; {_n(ds)}", fontsize=9)
+    fig.savefig(png, dpi=100)
     plt.close(fig)
 
 
-def _plot_ratio(ds, png: Path, dim: str, xvals, xlabel: str):
+_SERIES = (("#0072B2", "o"), ("#D55E00", "s"), ("#009E73", "^"), ("#CC79A7", "D"), ("#E69F00", "v"))
+
+
+def _plot_ratio(ds, png: Path, dim: str, xvals, xlabel: str, title: str, bound: str):
+    """Converged fraction against a ratio whose bound is 1 (the line ``bound`` says which), one series
+    per value of the other grid axis (set a little apart, so that equal fractions do not hide each other)."""
     p, se = converged_fraction(ds)
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(6.5, 4.8), constrained_layout=True)
     other = [d for d in p.dims if d != dim]
+    xvals = np.asarray(xvals, float)
     if other:
-        for v in ds[other[0]].values:
-            ax.errorbar(xvals, p.sel({other[0]: v}).values, yerr=se.sel({other[0]: v}).values, marker="o",
-                        capsize=2, label=f"{other[0]} = {v:g}")
+        vals = ds[other[0]].values
+        step = 0.012 * np.ptp(xvals)
+        unit = str(ds[other[0]].attrs.get("units", ""))
+        unit = "" if unit in ("", "1", "-") else unit
+        # "potential gain K = alpha/lam" -> "potential gain K = 2 N m s"
+        name = words(str(ds[other[0]].attrs.get("long_name", "")), "").split(" = ")[0] or other[0]
+        for i, v in enumerate(vals):
+            col, mk = _SERIES[i % len(_SERIES)]
+            ax.errorbar(xvals + (i - (len(vals) - 1) / 2) * step, p.sel({other[0]: v}).values,
+                        yerr=se.sel({other[0]: v}).values, marker=mk, color=col, capsize=2, ms=5,
+                        label=f"{name} = {v:g} {unit}".rstrip())
     else:
-        ax.errorbar(xvals, p.values, yerr=se.values, marker="o", capsize=3, label="converged fraction")
-    ax.axvline(1.0, color="k", ls=":")
+        ax.errorbar(xvals, p.values, yerr=se.values, marker="o", capsize=3, color=V.COLORS[V.CONVERGED],
+                    label="fraction converged ± SE")
+    ax.axvline(1.0, color="k", ls=":", lw=1.8, label=bound)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("fraction converged")
     ax.set_ylim(-0.05, 1.05)
-    ax.legend(fontsize=8)
-    ax.set_title(ds.attrs.get("sweep_name", ""), fontsize=9)
-    fig.savefig(png, dpi=90)
+    legend_below(ax, ax.get_legend_handles_labels()[0], ncol=2, width=60)
+    ax.set_title(f"{title}\n{_n(ds)}", fontsize=9)
+    fig.savefig(png, dpi=100)
     plt.close(fig)
 
 
@@ -179,27 +253,42 @@ def _sweeps(out_dir: Path, quick: bool) -> list[Path]:
         if quick:
             spec = _shrink(spec)
         ds = run_spec(spec)
-        png = out_dir / f"{stem}.png"
-        plot_sweep(ds, png)
-        files.append(png)
-        extra = out_dir / f"{stem}_fraction.png"
-        if stem.startswith("saakyan_region"):
-            _plot_region(ds, extra)
-        elif stem.startswith("saakyan_gain") and "lam" in ds.dims and "K" in ds.dims:
-            _plot_gain(ds, extra)
-        elif stem == "saakyan_gravity_ratio":
-            lam = float(json.loads(ds.attrs["fixed_params_json"])["lam"])
-            _plot_ratio(ds, extra, "nu", lam**2 / ds["nu"].values, r"$\lambda^2/\nu$ (Theorem 2: = 1)")
-        elif stem == "saakyan_gyrostat_h":
-            fp = json.loads(ds.attrs["fixed_params_json"])
-            _plot_ratio(ds, extra, "h", ds["h"].values / (fp["lam"] * max(fp["I"])), r"$h/(\lambda m_1)$ (Theorem 3: > 1)")
-        elif stem == "saakyan_gyrostat_gravity_44":
-            hp = float(np.nanmax(ds["derived_h44_printed"].values))
-            _plot_ratio(ds, extra, "h", ds["h"].values / hp, "h / printed (4.4) bound (exact bound <= 0)")
-        else:
-            continue
-        files.append(extra)
+        files += plot_sweep_figures(ds, stem, out_dir)
     return files
+
+
+def plot_sweep_figures(ds, stem: str, out_dir: Path) -> list[Path]:
+    """The verdict map of shipped sweep ``stem`` and, for the region, gain and ratio sweeps, the
+    converged-fraction figure with the paper's bounds (``<stem>_fraction.png``)."""
+    png = out_dir / f"{stem}.png"
+    plot_sweep(ds, png, title=TITLES[stem])
+    files = [png]
+    extra = out_dir / f"{stem}_fraction.png"
+    fp = _fixed(ds)
+    if stem.startswith("saakyan_region"):
+        _plot_region(ds, extra)
+    elif stem.startswith("saakyan_gain") and "lam" in ds.dims and "K" in ds.dims:
+        _plot_gain(ds, extra)
+    elif stem == "saakyan_gravity_ratio":
+        lam = float(fp["lam"])
+        _plot_ratio(ds, extra, "nu", lam**2 / ds["nu"].values, r"spin rate squared over gravity parameter, "
+                    r"$\lambda^2/\nu$", f"Central gravity field: Theorem 2 needs " r"$\lambda^2 = \nu$ exactly"
+                    f" (λ = {lam:g} rad/s)", r"Theorem 2's knife edge $\lambda^2 = \nu$")
+    elif stem == "saakyan_gyrostat_h":
+        _plot_ratio(ds, extra, "h", ds["h"].values / (fp["lam"] * max(fp["I"])),
+                    r"gyrostat gain over the bound of Theorem 3, $h/(\lambda m_1)$",
+                    "Gyrostat: Theorem 3 claims convergence from anywhere for " r"$h > \lambda m_1$",
+                    r"bound of Theorem 3: $h = \lambda m_1$")
+    elif stem == "saakyan_gyrostat_gravity_44":
+        hp = float(np.nanmax(ds["derived_h44_printed"].values))
+        he = float(np.nanmax(ds["derived_h44_exact"].values))
+        _plot_ratio(ds, extra, "h", ds["h"].values / hp,
+                    f"gyrostat gain h over the printed bound of eq. (4.4), h = {hp:.3g}",
+                    "Gyrostat in a gravity field (Theorem 4): the bound of eq. (4.4), printed and exact",
+                    f"printed bound of eq. (4.4): h = {hp:.3g} (the exact one: h > {max(he, 0.0):.3g})")
+    else:
+        return files
+    return files + [extra]
 
 
 def run(out_dir: Path, quick: bool = False) -> list[Path]:

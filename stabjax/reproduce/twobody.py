@@ -57,7 +57,7 @@ def _examples(out_dir: Path, quick: bool) -> Path:
             ax.semilogy(ds.t, np.maximum(ds[sys_.observables[1]], 1e-16), ls=ls, color="tab:orange", lw=1.0,
                         label=f"|{'x' if sys_.rotating else 'w'}|, {label}")
         ax.set_title(title, fontsize=9)
-        ax.set_xlabel("t [s]")
+        ax.set_xlabel("time t [s]")
         ax.set_ylim(1e-13, 10)
         ax.legend(fontsize=6.5, loc="lower left")
     fig.suptitle("Bezglasnyi & Mysina controls on the test-case carrier + unbalanced rotor", fontsize=10)
@@ -91,19 +91,27 @@ def _map(out_dir: Path, quick: bool, fname, key, ylabel, lo, hi, base, title) ->
     ny, nb, n = (4, 4, 3) if quick else (7, 8, 6)
     t1 = 150.0 if quick else 300.0
     grid = {key: {"start": lo, "stop": hi, "num": ny}, "b": {"start": 0.25, "stop": 8.0, "num": nb}}
-    fig, axs = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
+    from matplotlib import patheffects
+
+    from ..plotting import legend_below
+
+    fig, axs = plt.subplots(1, 2, figsize=(12, 6), constrained_layout=True)
     yy = np.linspace(lo, hi, 201)
     bphys, bpaper = _bstar_curves("twobody_uniaxial", key, yy, base)
+    halo = [patheffects.withStroke(linewidth=3.8, foreground="k")]  # the white line shows on the legend's white too
     for ax, variant in zip(axs, (0, 1)):
         ds = run_spec(_spec("twobody_uniaxial", f"{fname}_v{variant}", grid, {**base, "variant": variant}, n, t1))
         plot_sweep(ds, ax=ax)
-        ax.plot(bphys, yy, color="w", lw=1.8, ls="-", label="b* physical (exact)")
-        ax.plot(bpaper, yy, color="m", lw=1.8, ls="--", label="b* paper's equations")
+        handles = list(ax.get_legend().legend_handles) if ax.get_legend() else []
+        handles.append(ax.plot(bphys, yy, color="w", lw=1.8, ls="-", path_effects=halo,
+                               label="bound b* of the physically correct equations (exact)")[0])
+        handles.append(ax.plot(bpaper, yy, color="#CC79A7", lw=1.8, ls="--",
+                               label="bound b* of the paper's printed equations")[0])
         ax.set_xlim(0, 8.2)
         ax.set_ylabel(ylabel)
-        ax.set_title(f"{title}, variant {variant} ({'physical' if variant == 0 else 'paper'} equations)\n"
-                     f"{cell_note(ds)}", fontsize=9)
-        ax.legend(fontsize=7, loc="upper right")
+        simulated = "physically correct equations" if variant == 0 else "the paper's printed equations"
+        ax.set_title(f"{title}\n{simulated} simulated; {cell_note(ds)}", fontsize=9)
+        legend_below(ax, handles, ncol=1, width=80)
     p = out_dir / f"{fname}.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
@@ -203,11 +211,12 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
                        f"{d['b_star_paper'][0]:.4f}, formula as printed {d['b_star_printed'][0]:.4f}")
     if not quick:
         files.append(_examples(out_dir, quick))
-    files.append(_map(out_dir, quick, "b_rate_map", "Omega_r", "rotor rate delta' [rad/s]", -6.0, 6.0, {},
-                      "Theorem 1: (b, delta')"))
+    files.append(_map(out_dir, quick, "b_rate_map", "Omega_r", r"rotor rate relative to the carrier, $\delta'$ [rad/s]",
+                      -6.0, 6.0, {}, "Theorem 1, damping gain against rotor rate"))
     if not quick:
-        files.append(_map(out_dir, quick, "b_asym_map", "I2[0,0]", "I2xx [kg m^2] (I2yy = 1.5)", 1.0, 3.0,
-                          {"Omega_r": 3.0}, "Theorem 1: (b, rotor asymmetry)"))
+        files.append(_map(out_dir, quick, "b_asym_map", "I2[0,0]",
+                          r"rotor moment of inertia $I_{2xx}$ [kg m^2] ($I_{2yy}$ = 1.5)", 1.0, 3.0,
+                          {"Omega_r": 3.0}, "Theorem 1, damping gain against rotor asymmetry"))
     p, lines = _random_starts(out_dir, quick)
     files.append(p)
     summary += [""] + lines

@@ -85,7 +85,8 @@ class Gyrodyne(System):
     paper = "Khoroshilov (1983); eqs. (1.1)-(1.3), (2.1), (2.2), (3.1), (3.3)"
     params = ParamSet(
         (
-            Param("model", 1.0, "0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); 2: full nonlinear 3-axis",
+            Param("model", 1.0, "model of the dynamics; 0: normal coordinates (1.3); 1: two-channel quasi-linear (1.2); "
+                  "2: full nonlinear 3-axis",
                   choices=(0.0, 1.0, 2.0)),
             Param("mapping", 1.0, "model 0 and theory, physical source: 0: paper mapping; 1: consistent projection "
                   "(docs/models/gyrodyne.md, misprint 8)",
@@ -100,15 +101,16 @@ class Gyrodyne(System):
                   parse=_mat),
             Param("Kd", KD_DEFAULT, "desired rate-gain matrix (the K gains; N_2 = -Kd[1,1], N_1 = -Kd[1,2], N^0 = -Kd[2,1], "
                   "N_0 = -Kd[2,2])", (3, 3), "N m s/rad", parse=_mat),
-            Param("gain", 1.0, "multiplier on Kd (and nc_q): the 'damping gain' axis of the tongue maps"),
-            Param("A", (0.0, 1.0, 0.0), "scanning amplitudes A_j of slots 1..3 (slot 2 drives the resonance)", (3,), "N m"),
+            Param("gain", 1.0, "damping-gain multiplier on Kd (and nc_q): the 'damping gain' axis of the tongue maps"),
+            Param("A", (0.0, 1.0, 0.0), "scanning amplitudes of slots 1, 2, 3; entry j - 1 is A_j of slot j "
+                  "(slot 2 drives the resonance)", (3,), "N m"),
             Param("Omega", (1.0, 2.0, 0.7), "scanning frequencies Omega_1..3 (Omega_2 replaced when tune = 1)", (3,), "rad/s"),
             Param("tune", 1.0, "1: Omega_2 = 2 (omega_01 - eps) of the nominal set; 0: Omega_2 = Omega[1]", choices=(0.0, 1.0)),
-            Param("eps", 0.0, "detuning eps = omega_01 - Omega_2/2 used when tune = 1", (), "rad/s"),
+            Param("eps", 0.0, "detuning from resonance; eps = omega_01 - Omega_2/2, used when tune = 1", (), "rad/s"),
             Param("spare", 4.0, "the cold spare gyro; the other three are active, in slots by index "
                   "(1: active set 2-3-4; 2: active set 1-3-4; 3: active set 1-2-4; 4: active set 1-2-3)",
                   choices=(1.0, 2.0, 3.0, 4.0)),
-            Param("fail", 0.0, "gyro that fails at t_fail, must be active; the spare takes its slot "
+            Param("fail", 0.0, "failing gyro; it fails at t_fail (it must be active) and the spare takes its slot "
                   "(0: no failure; 1: gyro 1 fails; 2: gyro 2 fails; 3: gyro 3 fails; 4: gyro 4 fails)",
                   choices=(0.0, 1.0, 2.0, 3.0, 4.0)),
             Param("t_fail", 0.0, "failure time", (), "s"),

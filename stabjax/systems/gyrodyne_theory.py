@@ -493,7 +493,8 @@ def evaluate(p: Mapping[str, np.ndarray]) -> Theory:
     growth = growth_rate(co["p0"], co["p1"], co["p2"], co["p3"], eps, np)
     P = {}
     docs = {
-        "mode1_exact": "p1 < 0 and Delta_1 = p1^2 + (p0+eps)^2 - p2^2 - p3^2 > 0 (Routh-Hurwitz of (3.3))",
+        "mode1_exact": "averaged equations (3.3) say mode 1 decays; p1 < 0 and Delta_1 = p1^2 + (p0+eps)^2 - p2^2 - p3^2 > 0 "
+                       "(Routh-Hurwitz of (3.3))",
         "mode1_paper": "paper: p1 + p3 < 0 and p1^2 - p3^2 - (p0+p2+eps)(p2-p0-eps) > 0",
         "mode2_exact": "g1 < 0 (mode 2, exact; g1^2 + g2^2 > 0 always)",
         "mode2_paper": "paper: g1 < 0 and g1 g2 > 0 (g1 g2 > 0 probably a misprint)",

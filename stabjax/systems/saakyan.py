@@ -79,7 +79,7 @@ def _unit_or_error(p, name):
 
 def _common_params(gain: str):
     if gain == "K":
-        g = Param("K", 6.0, "gain K = alpha/lam of the potential U = alpha |S0 - H0|^2 ((1.10): K > lam max(I))",
+        g = Param("K", 6.0, "potential gain K = alpha/lam; U = alpha |S0 - H0|^2 ((1.10): K > lam max(I))",
                   (), "N m s")
     else:
         g = Param("h", 6.0, "gyrostat gain h: alpha = lam h and the target z = h H0 ((3.14)); Theorem 3: h > lam max(I)",
@@ -88,9 +88,10 @@ def _common_params(gain: str):
         Param("I", I_DEFAULT, "principal moments (A, B, C)" + (" of the body" if gain == "K" else
               ": reduced moments A = C1 - J1, B = C2 - J2, C = C3 - J3 (docs/models/saakyan.md, misprint 16)"), (3,), "kg m^2"),
         Param("H", H_DEFAULT, "body axis H0 (beta); normalised on input", (3,)),
-        Param("lam", 0.5, "commanded spin rate lambda about the target axis (> 0)", (), "rad/s"),
+        Param("lam", 0.5, "commanded spin rate lambda about H0 (> 0)", (), "rad/s"),
         g,
-        Param("use_mu", 1.0, "1: stabilising torque mu ((1.11)/(2.8)/(3.21)/(4.5)) on; 0: mu dropped", choices=(0.0, 1.0)),
+        Param("use_mu", 1.0, "stabilising torque mu; 1: stabilising torque mu ((1.11)/(2.8)/(3.21)/(4.5)) on; "
+              "0: mu dropped", choices=(0.0, 1.0)),
     )
 
 
@@ -99,9 +100,10 @@ _INITIAL = (
           "with init = 1 only its direction away from H0 is used", (3,), kind="initial"),
     Param("dw0", DW0_DEFAULT, "initial w1(0) = omega(0) - omega0(0) - lam H0 (init = 0), or its direction (init = 1)",
           (3,), "rad/s", kind="initial"),
-    Param("init", 0.0, "0: as given, S0 and dw0; 1: shell of size rho (|delta0| = rho, |w1(0)| = w_ratio lam rho)",
+    Param("init", 0.0, "0: as given, S0 and dw0; 1: initial states on a shell "
+          "(|delta0| = rho, |w1(0)| = w_ratio lam rho)",
           choices=(0.0, 1.0), kind="initial"),
-    Param("rho", 0.5, "init = 1: |delta(0)| = |S0(0) - H0| in [0, 2]", kind="initial"),
+    Param("rho", 0.5, "init = 1: initial distance of S0 from H0; |delta(0)| = |S0(0) - H0| in [0, 2]", kind="initial"),
     Param("w_ratio", 1.0, "init = 1: |w1(0)| = w_ratio lam rho (1 matches the proportions of (1.18))", kind="initial"),
 )
 
@@ -346,7 +348,7 @@ class SaakyanGravity(SaakyanBase):
     name = "saakyan_gravity"
     title = "Saakyan B-2: fixed local vertical in a central Newtonian field (Theorem 2, lam^2 = nu)"
     params = ParamSet(_common_params("K") + (
-        Param("nu", 0.25, "nu = 3 g0/R (Theorem 2 needs lam^2 = nu)", (), "1/s^2"),) + _INITIAL)
+        Param("nu", 0.25, "gravity parameter nu = 3 g0/R; Theorem 2 needs lam^2 = nu", (), "1/s^2"),) + _INITIAL)
     has_gravity = True
 
     def theory(self, p):
@@ -400,7 +402,8 @@ class SaakyanGravity(SaakyanBase):
 _GYRO = (
     Param("Jw", (0.3, 0.2, 0.4), "axial moments J_i of the three flywheels (gyrostat moments C_i = I_i + J_i)",
           (3,), "kg m^2"),
-    Param("torque", 0.0, "0: Theorem-3/4 torque, M = mu(3.21) + grad U/2 [R]; 1: as printed, (3.9) combined with (3.21) "
+    Param("torque", 0.0, "control torque; 0: Theorem-3/4 torque, M = mu(3.21) + grad U/2 [R]; "
+          "1: as printed, (3.9) combined with (3.21) "
           "(-lam z x H0 counted twice); 2: equivalent form, (3.9) with mu' = mu + lam eta x H0 (same as 0)",
           choices=(0.0, 1.0, 2.0)),
 )
