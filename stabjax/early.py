@@ -56,8 +56,7 @@ cloud's largest nearest-neighbour gap, so a trajectory on the attractor is alway
 point, and at most a quarter of the distance to any other attractor's cloud, so no state is near two).
 Observables are scaled by their spread over all clouds, as discovery scales its features.
 
-The engines test at the fixed point's moments (a step that reached a checkpoint, every
-:data:`TEST_EVERY` checkpoints): the nearest attractor of the current observation (or none); a lane
+The engines test at a step that reached a checkpoint, every :data:`TEST_EVERY` checkpoints: the nearest attractor of the current observation (or none); a lane
 stops once the same attractor was found at every test over a span of ``dwell`` (the feature window's
 length). The stopped trajectory's late-window features are replaced by those of the attractor's
 representative (a trajectory of the cloud; :func:`substitute`), so every rule, template or discovery step
@@ -84,10 +83,19 @@ from .errors import ValidationError
 # stop within this many tolerance units (atol + rtol |x_i|, RMS) of the equilibrium (module docstring)
 DISTANCE_TOL = 1000.0
 
-# the lane engines ask at most once per TEST_EVERY checkpoints of a lane: the test costs about n
-# right-hand sides (n JVPs) and was measured at +9 % wall on the pendulum when asked at every step that
-# reached a checkpoint (native engine, 4000 checkpoints); a stop comes at most 8 checkpoint intervals later
+# the lane engines ask for a known attractor at most once per TEST_EVERY checkpoints of a lane (the test is
+# a few hundred flops against constant clouds), and for a fixed point at most once per fixed_point_every(K):
+# that test costs about n + 1 right-hand sides plus the characteristic polynomial, and once the classifier's
+# per-checkpoint cost fell (named outcomes fold the features alone) asking every 8 checkpoints cost +31 %
+# wall on the pendulum (4096 starts, 4000 checkpoints, native engine; +6.6 % every 32, none measurable every
+# 128), so it is asked about FIXED_POINT_TESTS times over a run, a stop coming at most that late
 TEST_EVERY = 8
+FIXED_POINT_TESTS = 48
+
+
+def fixed_point_every(n_checkpoints: int) -> int:
+    """Checkpoints between two fixed-point tests of a lane (at least :data:`TEST_EVERY`)."""
+    return max(TEST_EVERY, int(n_checkpoints) // FIXED_POINT_TESTS)
 
 STOP_NONE, STOP_ESCAPED, STOP_FIXED_POINT, STOP_FAILED, STOP_ATTRACTOR = 0, 1, 2, 3, 4
 REASONS = ("none", "escaped", "fixed_point", "failed", "attractor")
@@ -458,4 +466,5 @@ def attractor_stop_active(system, icfg) -> bool:
 __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAILED", "is_autonomous", "resolve",
            "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "window_index", "fast_forward",
            "stop_reasons", "KnownAttractors", "known_attractors", "known_for", "with_known", "near_attractor", "substitute", "attractor_stop_active",
-           "STOP_ATTRACTOR", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS"]
+           "STOP_ATTRACTOR", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS", "TEST_EVERY",
+           "fixed_point_every"]

@@ -270,7 +270,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             c0 = V.init(f64, vcfg)
             vc = [jnp.full((L,), x[i]) for x in jax.tree.leaves(c0) for i in np.ndindex(x.shape)]
             zi = jnp.zeros((L,), jnp.int32)
-            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi,
+            return dict(args=args, y=y, f=f, t=tt, tn=tn, ck=zi, vc=vc, nacc=zi, nrej=zi, nt=zi, na=zi,
                         ak=jnp.full((L,), -1.0, f64), as_=jnp.zeros((L,), f64))
 
         summ_shape = jax.eval_shape(lambda: v_finalize(
@@ -373,7 +373,7 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
             f = [jnp.where(keep, a, b) for a, b in zip(f7, f1)]
             nt = lane["nt"]
             lane = dict(args=lane["args"], y=y, f=f, t=t_prev, tn=t_next, ck=ck, vc=vc, nacc=nacc, nrej=nrej, nt=nt,
-                        ak=lane["ak"], as_=lane["as_"])
+                        na=lane["na"], ak=lane["ak"], as_=lane["as_"])
 
             reached = active & (t_prev >= t1) & (ck >= K)
             finite = functools.reduce(jnp.logical_and, [jnp.isfinite(v) for v in f])
@@ -389,21 +389,23 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
             at_fp = jnp.zeros(done.shape, jnp.int32)  # stop code: stabjax.early.HIT_*
             if fixed or known is not None:  # at an accepted step that reached a checkpoint
-                # asked once per early.TEST_EVERY checkpoints of the lane (its cost: n right-hand sides)
-                test = active & stepped & keep & (n_ck > 0) & ~done & (ck >= nt)
-                if fixed:  # a stable equilibrium, within tolerance
+                can = active & stepped & keep & (n_ck > 0) & ~done
+                if fixed:  # a stable equilibrium, within tolerance; asked every fixed_point_every(K) checkpoints
+                    test = can & (ck >= nt)
                     at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
                                      lambda: jnp.zeros_like(done)).astype(jnp.int32) * early.HIT_FIXED_POINT
+                    lane["nt"] = jnp.where(test, ck + early.fixed_point_every(K), nt).astype(jnp.int32)
                 if known is not None:  # the same known attractor at every test over a span of dwell
+                    test = can & (ck >= lane["na"])
                     k = lax.cond(jnp.any(test), lambda: model.near_attractor(L, t_prev, y, args),
                                  lambda: jnp.full((L,), -1.0, f64))
                     same = (k >= 0) & (k == lane["ak"])
                     held = test & same & (t_prev - lane["as_"] >= known.dwell)
                     lane["as_"] = jnp.where(test & ~same, t_prev, lane["as_"])
                     lane["ak"] = jnp.where(test, k, lane["ak"])
+                    lane["na"] = jnp.where(test, ck + early.TEST_EVERY, lane["na"]).astype(jnp.int32)
                     code = early.HIT_ATTRACTOR0 + jnp.maximum(k, 0.0).astype(jnp.int32)
                     at_fp = jnp.where((at_fp == 0) & held, code, at_fp)
-                lane["nt"] = jnp.where(test, ck + early.TEST_EVERY, nt).astype(jnp.int32)
                 done = done | (at_fp != 0)
                 status = jnp.where(at_fp != 0, STATUS_OK, status)
             status = status.astype(jnp.int32)

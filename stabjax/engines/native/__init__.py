@@ -80,7 +80,8 @@ class _Kernel:
                                  icfg.known_attractors if early.attractor_stop_active(system, icfg) else None)
         self.k_w = early.window_index(self.ts, vcfg)
         self.width = width
-        self.source = kernel_source(self.model, width, escape_radius(system, icfg))
+        self.source = kernel_source(self.model, width, escape_radius(system, icfg),
+                                    fp_every=early.fixed_point_every(len(self.ts)))
         if eval_only:
             self.source = _eval_only_source(self.source)
         self.lib = _build(self.source)

@@ -72,7 +72,7 @@ def _unrolled(n: int, line: Callable[[int], str]) -> str:
     return "\n            ".join(line(q) for q in range(n))
 
 
-def kernel_source(model: NativeModel, W: int, escape: float | None = None) -> str:
+def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_every: int = 8) -> str:
     """C source of the integration loop for ``model`` with blocks of ``W`` lanes; ``escape``: the
     escape radius (None: no escape test, and the source is that of a kernel without one)."""
     NS, NA, NC, NO = model.n_state, max(model.n_args, 1), model.n_c, max(model.n_obs, 1)
@@ -496,45 +496,54 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
         from ...early import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
 
         src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
-                                         "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN;\n"
-                                         "    for (int l = 0; l < W; l++) { NT[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
-        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
+                                         "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN, ATM[W] ALIGN, NXA[W] ALIGN;\n"
+                                         "    for (int l = 0; l < W; l++) { NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
+        src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
+        every_fp = int(fp_every)  # checkpoints between fixed-point tests (stabjax.early.fixed_point_every)
         fp_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);"
                    if model.fixed_point is not None else "")
         at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, AKT + l, W);"
                    if known is not None else "")
-        fp_hit = f"FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
+        fp_mask = "R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0" if model.fixed_point is not None else "0.0"
+        at_mask = "R0[l] != 0.0 && (double)CK[l] >= NXA[l] ? 1.0 : 0.0" if known is not None else "0.0"
+        fp_hit = f"FPM[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
         # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.early)
         at_hit = "" if known is None else f"""
-                    const double k = AKT[l], m = FPM[l];
+                    const double k = AKT[l], m = ATM[l];
                     const double same = k >= 0.0 && k == AK[l] ? 1.0 : 0.0;
-                    const double held = same != 0.0 && T[l] - AS[l] >= {known.dwell!r} ? 1.0 : 0.0;
+                    const double held = m != 0.0 && same != 0.0 && T[l] - AS[l] >= {known.dwell!r} ? 1.0 : 0.0;
                     AS[l] = m != 0.0 && same == 0.0 ? T[l] : AS[l];
                     AK[l] = m != 0.0 ? k : AK[l];
                     hit = hit != 0.0 ? hit : (held != 0.0 ? {HIT_ATTRACTOR0}.0 + k : 0.0);"""
-        # a lane asks when a step reached a checkpoint and TEST_EVERY checkpoints passed since it last asked
+        # a lane asks when a step reached a checkpoint and enough checkpoints passed since it last asked
         src = src.replace("/*FP_TEST*/", """
         #pragma omp simd
         for (int l = 0; l < W; l++) FP[l] = 0.0;
         if (any0 != 0.0) {
-            double anyt = 0.0;
-            #pragma omp simd reduction(max:anyt)
+            double anyf = 0.0, anya = 0.0;
+            #pragma omp simd reduction(max:anyf) reduction(max:anya)
             for (int l = 0; l < W; l++) {
-                const double m = R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0;
-                FPM[l] = m;
-                anyt = m > anyt ? m : anyt;
+                const double mf = %s, ma = %s;
+                FPM[l] = mf; ATM[l] = ma;
+                anyf = mf > anyf ? mf : anyf;
+                anya = ma > anya ? ma : anya;
             }
-            if (anyt != 0.0) {
+            if (anyf != 0.0) {
                 %s
+            }
+            if (anya != 0.0) {
                 %s
+            }
+            if (anyf != 0.0 || anya != 0.0) {
                 #pragma omp simd
                 for (int l = 0; l < W; l++) {
                     double hit = %s;%s
-                    FP[l] = FPM[l] != 0.0 ? hit : 0.0;
+                    FP[l] = hit;
                     NT[l] = FPM[l] != 0.0 ? (double)CK[l] + %d.0 : NT[l];
+                    NXA[l] = ATM[l] != 0.0 ? (double)CK[l] + %d.0 : NXA[l];
                 }
             }
-        }""" % (fp_call, at_call, fp_hit, at_hit, TEST_EVERY))
+        }""" % (fp_mask, at_mask, fp_call, at_call, fp_hit, at_hit, every_fp, TEST_EVERY))
         src = src.replace("/*FP_CAND*/", " + FP[l]")
         esc_guard = " && !escaped" if escape is not None else ""
         src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
