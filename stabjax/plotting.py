@@ -289,12 +289,24 @@ def _guaranteed_spans(x, ok, crossings) -> list[tuple[float, float]]:
 
 
 def _title(ds: xr.Dataset, title: str | None = None) -> str:
-    """Two lines: what the map is (``title``, in words; by default the system and the sweep's name, which
-    name a user's own run) with its horizon, then the fixed parameters that matter and what one cell is."""
+    """Two lines: what the map is (``title``, in words; by default the spec's ``description``, else the system
+    and the sweep's name, which name a user's own run) with its horizon, then the fixed parameters that matter and what one cell is."""
     fixed = fixed_note(ds)
     second = "; ".join(x for x in (fixed, cell_note(ds)) if x)
-    first = title or f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}"
+    first = title or _described(ds) or f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}"
     return f"{first}  (t1 = {_t1(ds):g})\n{second}"
+
+
+def _described(ds: xr.Dataset) -> str:
+    """The spec's ``description`` (the user's own words for the run), or ""."""
+    import json
+
+    try:
+        d = json.loads(ds.attrs.get("spec_json", "{}")).get("description", "")
+    except ValueError:
+        return ""
+    d = str(d or "").strip()
+    return d[:1].upper() + d[1:] if d else ""
 
 
 def _t1(ds):
@@ -320,7 +332,8 @@ def zero_crossings(x, m):
 def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None):
     """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions) at t1,
     with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's.
-    ``title``: what the map shows, in words (default: the system and the sweep's name)."""
+    ``title``: what the map shows, in words (default: the spec's description, else the system and the
+    sweep's name)."""
     dims = grid_dims(ds)
     if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
         return _facets(ds, dims, out, title)
