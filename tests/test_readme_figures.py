@@ -32,3 +32,24 @@ def test_refine_alpha_bracket_matches_the_readme():
     # distance from the bracket's midpoint up to the theorem's boundary alpha = 2/3 (monoaxial Theorem 1)
     np.testing.assert_allclose(float(ds["theory_distance_alpha"][0]), 2 / 3 - 0.5 * (a + b), atol=1e-9)
     assert shown(2 / 3 - 0.5 * (a + b), below) == below.rstrip("0")
+
+
+def test_gyrostat_gravity_counts_match_the_readme():
+    """`saakyan_gyrostat_gravity_44` (random starts up to 1.5 rad): the README's converged counts at h = 0.8
+    and h = 1 and the first gain at which all 12 converge are what the sweep gives. Fails on a drift of the
+    model, engine or classifier that moves one start's verdict, or on a README edit."""
+    from stabjax.sweep import run_spec
+
+    text = " ".join((ROOT / "README.md").read_text().split())
+    m = re.search(r"\(`saakyan_gyrostat_gravity_44`\) (\d+) of (\d+) converge at h = 0\.8, (\d+) of \d+ at h = 1, "
+                  r"all from h = ([\d.]+)\.", text)
+    assert m, "the README's saakyan_gyrostat_gravity_44 sentence was not found"
+    at08, n, at1, h_all = int(m[1]), int(m[2]), int(m[3]), float(m[4])
+    ds = run_spec(ROOT / "sweeps" / "saakyan_gyrostat_gravity_44.toml")
+    v = ds["verdict"].isel(horizon=-1) if "horizon" in ds["verdict"].dims else ds["verdict"]
+    conv = (v == 0).sum("sample").values
+    h = ds["h"].values
+    assert ds.sizes["sample"] == n
+    assert conv[np.isclose(h, 0.8)][0] == at08 and conv[np.isclose(h, 1.0)][0] == at1
+    full = h[conv == n]
+    assert np.isclose(full.min(), h_all) and (conv[h >= h_all - 1e-9] == n).all()
