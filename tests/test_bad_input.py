@@ -12,20 +12,11 @@ from pathlib import Path
 import pytest
 
 import stabjax  # noqa: F401  (float64)
-from stabjax.cli import main
+from clirun import TINY, captured  # noqa: E402
 from stabjax.errors import ValidationError
 from stabjax.params import eval_number
 from stabjax.spec import make_plan
 
-TINY = """
-system = "monoaxial"
-name = "tiny"
-[grid]
-alpha = [0.5, 0.7]
-[integrate]
-t1 = 50.0
-n_checkpoints = 16
-"""
 
 
 @contextlib.contextmanager
@@ -46,14 +37,8 @@ def time_limit(seconds: float):
 
 def cli(capsys, *args) -> tuple[int, str, str]:
     """Run the CLI in-process; returns (exit status, stdout, stderr) with line wrapping undone."""
-    try:
-        with time_limit(120):
-            main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    cap = capsys.readouterr()
-    return code, " ".join(cap.out.split()), " ".join(cap.err.split())
+    with time_limit(120):
+        return captured(capsys, *args)
 
 
 def assert_clean(out: str, err: str):

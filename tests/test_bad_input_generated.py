@@ -23,6 +23,7 @@ from hypothesis import strategies as st
 
 import stabjax  # noqa: F401
 from stabjax.cli import main
+from clirun import captured  # noqa: E402
 
 SETTINGS = settings(derandomize=True, database=None, deadline=None, print_blob=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -80,13 +81,7 @@ def snapshot(root: Path) -> dict[str, str]:
 
 
 def run_cli(capsys, args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    cap = capsys.readouterr()
-    return code, " ".join(cap.out.split()), " ".join(cap.err.split())
+    return captured(capsys, *args)
 
 
 def refused(capsys, root: Path, args, says: str, *, status: int = 2, also: str = "", env: dict | None = None):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from stabjax.cli import main
+from clirun import status  # noqa: E402
 from stabjax.sweep import open_result
 
 SMALL = """
@@ -26,11 +26,7 @@ n_checkpoints = 128
 
 
 def run_cli(*args, capsys=None):
-    try:
-        main(list(args))
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+    return status(*args)
 
 
 def test_sweep_4x4_end_to_end(tmp_path, capsys):

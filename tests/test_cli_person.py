@@ -10,18 +10,14 @@ from pathlib import Path
 
 
 import stabjax
-from stabjax.cli import main
+from clirun import status  # noqa: E402
 from stabjax.registry import all_names
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run_cli(*args):
-    try:
-        main(list(args))
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+    return status(*args)
 
 
 def test_version_prints_the_package_version(capsys):

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from stabjax.cli import main  # noqa: E402
+from clirun import status  # noqa: E402
 from stabjax.plotlabels import words  # noqa: E402
 from stabjax.plotting import _HCOLORS, _long_paths, plot_sweep  # noqa: E402
 from stabjax.sweep import open_result, run_spec  # noqa: E402
@@ -24,11 +24,7 @@ def result(tmp_path_factory):
 
 
 def run_cli(*args):
-    try:
-        main(list(args))
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+    return status(*args)
 
 
 def test_words_give_a_description_a_reader_knows():

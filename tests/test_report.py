@@ -8,7 +8,7 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from stabjax.cli import main
+from clirun import status  # noqa: E402
 from stabjax.outcomes import basin_stats
 from stabjax.report import kind, warnings
 from stabjax.sweep import open_result
@@ -22,11 +22,7 @@ def results(tmp_path_factory):
 
 
 def run_cli(*args):
-    try:
-        main(list(args))
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+    return status(*args)
 
 
 class _Page(HTMLParser):

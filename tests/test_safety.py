@@ -23,28 +23,14 @@ import pytest
 import xarray as xr
 
 import stabjax
-from stabjax.cli import main
+from clirun import TINY, captured, status  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "tests" / "models" / "oscillator.py"
-TINY = """system = "monoaxial"
-name = "tiny"
-[grid]
-alpha = [0.5, 0.7]
-[integrate]
-t1 = 50.0
-n_checkpoints = 16
-"""
 
 
 def cli(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    cap = capsys.readouterr()
-    return code, " ".join(cap.out.split()), " ".join(cap.err.split())
+    return captured(capsys, *args)
 
 
 def clean(out: str, err: str) -> None:

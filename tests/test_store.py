@@ -15,7 +15,7 @@ import xarray as xr
 
 from stabjax.sweep import export_store
 from stabjax import store as S
-from stabjax.cli import main
+from clirun import status  # noqa: E402
 from stabjax.spec import load_spec, make_plan
 from stabjax.sweep import open_result, run_plan, run_spec
 
@@ -36,11 +36,7 @@ n_checkpoints = 32
 
 
 def cli(*args) -> int:
-    try:
-        main([str(a) for a in args])
-    except SystemExit as exc:
-        return exc.code or 0
-    return 0
+    return status(*args)
 
 
 @pytest.fixture(scope="module")
