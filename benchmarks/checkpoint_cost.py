@@ -11,7 +11,9 @@ example (``benchmarks.bench``: alpha axis, rtol 1e-8, atol 1e-10), varying one t
 * the SIMD width (8 and 16 trajectories per block): the classifier state (about 160 doubles per
   trajectory) is read and written at every checkpoint for the whole block;
 * a model with named outcomes (the pendulum example, pyBasin's case): the features-only fold against
-  the attitude classifier's state (``VerdictConfig.verdicts``), 4000 checkpoints.
+  the attitude classifier's state (``VerdictConfig.verdicts``), 4000 checkpoints; and the same with the
+  fixed-point stop's test on (asked every ``stabjax.early.fixed_point_every(K)`` checkpoints) and on but
+  asked every ``TEST_EVERY`` = 8, as it was before.
 
 Printed: wall seconds and accepted traj-steps/s per variant. Figures: docs/performance.md.
 """
@@ -41,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reps", type=int, default=3)
     a = ap.parse_args(argv)
     setup_jax()
+    from stabjax import early
     from stabjax.engines import native
     from stabjax.spec import make_plan
     from stabjax.sweep import static_params
@@ -84,6 +87,32 @@ def main(argv: list[str] | None = None) -> int:
     old = dataclasses.replace(pend, vcfg=pend.vcfg.replace(verdicts=True))  # the fold before: attitude state too
     for w in (16, 8):
         run(old, width=w, label=f"pendulum with the attitude classifier's state, width {w}")
+    # the fixed-point test's cost is a few per cent at most: off and on are timed interleaved, best of 2 x reps
+    fp = dataclasses.replace(pend, icfg=pend.icfg.replace(early_stop=True))
+    p = pend.params_for(0, a.n)
+    st = static_params(pend)
+
+    def pair(label):
+        best = {}
+        for q in (pend, fp):
+            native.solve(q.system, p, q.icfg, q.vcfg, static=st)  # compile
+        for _ in range(2 * a.reps):
+            for name, q in (("off", pend), ("on", fp)):
+                t = time.perf_counter()
+                native.solve(q.system, p, q.icfg, q.vcfg, static=st)
+                best[name] = min(best.get(name, float("inf")), time.perf_counter() - t)
+        print(f"pendulum, fixed-point test {label}: off {best['off']:.3f} s, on {best['on']:.3f} s "
+              f"({best['on'] / best['off'] - 1:+.0%})", flush=True)
+
+    pair(f"every {early.fixed_point_every(4000)} checkpoints")
+    every = early.fixed_point_every
+    try:  # the test's interval as before: every TEST_EVERY checkpoints (a kernel of its own)
+        early.fixed_point_every = lambda k: early.TEST_EVERY
+        native.clear_cache()
+        pair(f"every {early.TEST_EVERY} checkpoints (before)")
+    finally:
+        early.fixed_point_every = every
+        native.clear_cache()
     return 0
 
 

@@ -86,9 +86,10 @@ DISTANCE_TOL = 1000.0
 # the lane engines ask for a known attractor at most once per TEST_EVERY checkpoints of a lane (the test is
 # a few hundred flops against constant clouds), and for a fixed point at most once per fixed_point_every(K):
 # that test costs about n + 1 right-hand sides plus the characteristic polynomial, and once the classifier's
-# per-checkpoint cost fell (named outcomes fold the features alone) asking every 8 checkpoints cost +31 %
-# wall on the pendulum (4096 starts, 4000 checkpoints, native engine; +6.6 % every 32, none measurable every
-# 128), so it is asked about FIXED_POINT_TESTS times over a run, a stop coming at most that late
+# per-checkpoint cost fell (named outcomes fold the features alone) asking every 8 checkpoints cost +38 %
+# wall on the pendulum (4096 starts, 4000 checkpoints, native engine; every 83: no measurable cost;
+# `python -m benchmarks.checkpoint_cost`), so it is asked about FIXED_POINT_TESTS times over a run, a stop
+# coming at most that late
 TEST_EVERY = 8
 FIXED_POINT_TESTS = 48
 
@@ -334,9 +335,6 @@ class KnownAttractors:
     def reps(self) -> np.ndarray:
         return np.asarray(self.features, np.float64).reshape(self.fshape)
 
-    def __len__(self):
-        return len(self.labels)
-
 
 def _farthest(x: np.ndarray, m: int) -> tuple[np.ndarray, float]:
     """Indices of ``m`` points of ``x`` (n, d) by farthest-point sampling from the point nearest the
@@ -392,8 +390,8 @@ def known_attractors(labels, results: dict, eligible, dwell: float) -> KnownAttr
     clouds = np.stack(clouds)
     K = len(codes)
     eps = np.asarray(gaps)
+    floor = 1e-6  # a fixed point's cloud is one point (no gap): a radius above the solver's rtol-scale spread
     for i in range(K):
-        floor = 1e-6  # a fixed point's cloud is one point: a radius of 1e-6 spreads (rtol-scale)
         near = min((float(np.sqrt(((clouds[i][:, None] - clouds[j][None]) ** 2).sum(-1)).min())
                     for j in range(K) if j != i), default=np.inf)
         eps[i] = min(max(eps[i], floor), near / 4)
@@ -460,7 +458,7 @@ def substitute(res: dict, known: KnownAttractors) -> dict:
 
 def attractor_stop_active(system, icfg) -> bool:
     """Whether the engines test for a known attractor: a set is known, an autonomous model, the generic fold."""
-    return getattr(icfg, "known_attractors", None) is not None and system.classify is None and is_autonomous(system)
+    return icfg.known_attractors is not None and system.classify is None and is_autonomous(system)
 
 
 __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAILED", "is_autonomous", "resolve",

@@ -569,7 +569,7 @@ def _check_attractor_stop(integrated, decl, grid, sample) -> None:
     if not is_autonomous(integrated):
         raise ValidationError(field, "the model (or the Lyapunov exponent's tangent dynamics) reads t: an attractor "
                                      "of a non-autonomous system is not a set of observable values")
-    kinds = {p.name: p.kind for p in integrated.params.params} if hasattr(integrated.params, "params") else {}
+    kinds = {p.name: p.kind for p in integrated.params.params}
     varied = [ax.param.name for ax in grid] + list(sample)
     moving = [k for k in varied if kinds.get(k, "model") != "initial"]
     if moving:

@@ -31,8 +31,8 @@ ESCAPED = 100
 NAMES = {OK: "ok", MAX_STEPS: "max_steps", ESCAPED: "escaped"}  # other codes: "solver failure (diffrax code)"
 
 # diffrax's RESULTS names in code order (diffrax 0.7; tests/test_cf.py compares them with the installed
-# diffrax): written here so that labelling a dataset's solver_status does not import diffrax (about a
-# second of every run on an engine that never uses it)
+# diffrax): written here so that labelling a dataset's solver_status does not import diffrax, and its
+# dependencies, in every run on an engine that never uses it
 DIFFRAX_RESULTS = ("successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim",
                    "nonfinite_input", "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite",
                    "dt_min_reached", "event_occurred", "max_steps_rejected", "internal_error")

@@ -267,18 +267,16 @@ def init(dtype=jnp.float64, cfg: VerdictConfig | None = None, n_obs: int | None 
     F = MAX_FEATURE_OBS
     if cfg is not None:
         F = min(int(n_obs or cfg.n_obs or MAX_FEATURE_OBS), MAX_FEATURE_OBS) if cfg.features else 0
+    # no zero-size leaves (the fused engine's row layout has no room for them): no features, no entry
+    feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
+                                                 for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
     if cfg is not None and not cfg.verdicts:  # named outcomes: the features alone (no attitude state)
-        feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
-                                                     for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
         return dict(span=jnp.asarray(jnp.nan, dtype), **feat)
 
     def f(v):
         return jnp.full((H,), v, dtype)
 
     false, zero = jnp.zeros((H,), bool), jnp.zeros((H,), jnp.int32)
-    # no zero-size leaves (the fused engine's row layout has no room for them): no features, no entry
-    feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
-                                                 for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
     return dict(
         settled=false, t_settle=f(jnp.nan), in_exc=false, peak=f(0.0), peak_prev=f(jnp.nan), peak_last=f(jnp.nan),
         n_exc=zero, exc_flipped=false, n_flips=zero, t_first_flip=f(jnp.nan), t_last_flip=f(jnp.nan),

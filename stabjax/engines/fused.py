@@ -118,7 +118,6 @@ class _Model:
             self.fp = None if fixed_point is None else LaneFn(
                 lambda t, y, a: early.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
             # the recurrence stop's test: the known attractor near the observation (stabjax.early)
-            self.known = known
             self.at = None if known is None else LaneFn(
                 lambda t, y, a: early.near_attractor(jnp.ravel(system.observe(t, y, a)), known), ex_t, ex_y, ex_args)
             # dry run of every function on abstract lanes: an unsupported primitive shows up now

@@ -50,6 +50,7 @@ WIDE_STATE = 64
 NARROW_WIDTH = 8
 
 
+@functools.lru_cache(maxsize=64)
 def default_width(vcfg) -> int:
     """Lanes per block for a classifier state sized to ``vcfg`` (see :data:`WIDE_STATE`)."""
     size = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(jax.eval_shape(lambda: V.init(jnp.float64, vcfg))))

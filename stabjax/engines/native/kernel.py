@@ -488,7 +488,7 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     f_upd(c, t, o, out, 1);
 }}
 """
-    known = getattr(model, "known", None)
+    known = model.known
     if model.fixed_point is None and known is None:
         src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
         src = src.replace("/*FP_SCALAR*/", "const int fixedp = 0;").replace("/*FP_OUT*/", "")
