@@ -7,7 +7,7 @@ Model: the monoaxial paper example (docs/models) with an alpha axis (alpha evenl
 [0.3, 1.0]; every other parameter the paper's), rtol 1e-8, atol 1e-10, float64, horizon t1.
 Contenders (all on the same trajectories):
 
-1. ``stabjax``: the engine as a user calls it -- :func:`stabjax.sweep.run_spec` on a spec
+1. ``stabjax``: the engine as a user calls it -- :func:`stabjax.run.sweep.run_spec` on a spec
    (default engine "auto": the native C engine on CPU), including theory evaluation and dataset
    assembly; ``stabjax_fused``: the same with the fused XLA engine;
 2. ``diffrax_vmap``: the plain baseline a user would write -- ``jax.jit(jax.vmap(diffeqsolve))``
@@ -144,7 +144,7 @@ def spec(n: int, t1: float) -> dict:
 
 
 def paper_constants() -> dict:
-    from stabjax.registry import get_system
+    from stabjax.model.registry import get_system
 
     s = get_system(SYSTEM)
     p = s.check(s.params.resolve(None))
@@ -184,8 +184,8 @@ def run_stabjax(n: int, t1: float, engine: str = "auto") -> dict:
 
     from stabjax import engines
     from stabjax.engines import fused, native
-    from stabjax.spec import make_plan
-    from stabjax.sweep import choose_batch_size, run_plan, static_params
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import choose_batch_size, run_plan, static_params
 
     sp = spec(n, t1)
     sp["integrate"]["engine"] = engine
@@ -339,7 +339,7 @@ def agreement(n: int, t1: float, stab: dict, dfx: dict | None, sp: dict | None, 
     run_spec and of the fused engine) vs the diffrax engine path."""
     from stabjax.config import IntegrateConfig
     from stabjax.engines import diffrax_engine, fused as fused_engine, native
-    from stabjax.registry import get_system
+    from stabjax.model.registry import get_system
 
     s = get_system(SYSTEM)
     out = {}

@@ -43,8 +43,8 @@ def _timed(fn):
 
 def door_cost(n: int = 4096, t1: float = 1e3, rounds: int = 3) -> dict:
     """Built-in monoaxial by name vs the same class loaded from its file (interleaved rounds)."""
-    from stabjax.spec import make_plan
-    from stabjax.sweep import run_plan
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import run_plan
 
     grid = {"alpha": {"start": 0.3, "stop": 1.0, "num": n}}
     plans = {"builtin": make_plan({"system": "monoaxial", "grid": grid, "integrate": {"t1": t1}}),
@@ -74,8 +74,8 @@ def baselines(n: int = 4096, t1: float = 1e3, k_scipy: int = 8, model: Path = MO
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
 
-    from stabjax.spec import make_plan
-    from stabjax.sweep import run_plan
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import run_plan
 
     plan = make_plan(_spec(n, t1, model))
     run_plan(make_plan(_spec(min(n, 256), t1, model)))  # compile (same kernel: the chunk size is not compiled in)

@@ -12,7 +12,7 @@ example (``benchmarks.bench``: alpha axis, rtol 1e-8, atol 1e-10), varying one t
   trajectory) is read and written at every checkpoint for the whole block;
 * a model with named outcomes (the pendulum example, pyBasin's case): the features-only fold against
   the attitude classifier's state (``VerdictConfig.verdicts``), 4000 checkpoints; and the same with the
-  fixed-point stop's test on (asked every ``stabjax.early.fixed_point_every(K)`` checkpoints) and on but
+  fixed-point stop's test on (asked every ``stabjax.fold.stops.fixed_point_every(K)`` checkpoints) and on but
   asked every ``TEST_EVERY`` = 8, as it was before.
 
 Printed: wall seconds and accepted traj-steps/s per variant. Figures: docs/performance.md.
@@ -43,10 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reps", type=int, default=3)
     a = ap.parse_args(argv)
     setup_jax()
-    from stabjax import early
+    from stabjax.fold import stops
     from stabjax.engines import native
-    from stabjax.spec import make_plan
-    from stabjax.sweep import static_params
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import static_params
 
     from .bench import spec
     from .peer_bench import _plan as pendulum_plan
@@ -104,14 +104,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pendulum, fixed-point test {label}: off {best['off']:.3f} s, on {best['on']:.3f} s "
               f"({best['on'] / best['off'] - 1:+.0%})", flush=True)
 
-    pair(f"every {early.fixed_point_every(4000)} checkpoints")
-    every = early.fixed_point_every
+    pair(f"every {stops.fixed_point_every(4000)} checkpoints")
+    every = stops.fixed_point_every
     try:  # the test's interval as before: every TEST_EVERY checkpoints (a kernel of its own)
-        early.fixed_point_every = lambda k: early.TEST_EVERY
+        stops.fixed_point_every = lambda k: stops.TEST_EVERY
         native.clear_cache()
-        pair(f"every {early.TEST_EVERY} checkpoints (before)")
+        pair(f"every {stops.TEST_EVERY} checkpoints (before)")
     finally:
-        early.fixed_point_every = every
+        stops.fixed_point_every = every
         native.clear_cache()
     return 0
 

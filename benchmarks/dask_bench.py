@@ -15,7 +15,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from stabjax.distributed import DaskExecutor, cores
+from stabjax.run.distributed import DaskExecutor, cores
 
 
 BENCH_SPEC = {
@@ -33,8 +33,8 @@ def benchmark(workers: Iterable[int] = (1, 2), *, spec: Mapping[str, Any] | None
     Dask workers (each cluster runs the sweep once first: worker imports and compilation), whether
     the datasets are identical, and the per-chunk overhead: the round trip of a one-trajectory chunk
     through the scheduler and back against the same chunk solved in this process (medians)."""
-    from stabjax.spec import make_plan
-    from stabjax.sweep import run_plan, solve_chunk
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import run_plan, solve_chunk
 
     spec = dict(spec or BENCH_SPEC)
     plan = make_plan(spec)
@@ -85,8 +85,8 @@ def benchmark_big(n_traj: int = 10_000_000, *, out: str | Path = "/tmp/stabjax_b
     netCDF file, with the client's peak resident memory (``ru_maxrss``)."""
     import resource
 
-    from stabjax.spec import make_plan
-    from stabjax.sweep import run_plan
+    from stabjax.plan.spec import make_plan
+    from stabjax.run.sweep import run_plan
 
     n_alpha = 1000
     spec = {"system": "monoaxial", "name": "big", "params": {"mu": 1.5, "sigma": 1.3333333333333333},

@@ -1,7 +1,7 @@
 """Discovery settings measured on the examples (docs/performance.md): python -m benchmarks.discovery_eps"""
 import numpy as np, tomllib
-from stabjax.sweep import run_spec
-from stabjax.discover import discover, DiscoveryConfig
+from stabjax.run.sweep import run_spec
+from stabjax.mapping.discover import discover, DiscoveryConfig
 for ex in ["pendulum", "duffing", "lorenz", "lorenz63"]:
     spec = tomllib.load(open(f"examples/{ex}/spec.toml","rb"))
     spec["system"] = f"examples/{ex}/" + spec["system"]

@@ -1,4 +1,4 @@
-"""Benchmark of the early stops (:mod:`stabjax.early`): each example with and without them.
+"""Benchmark of the early stops (:mod:`stabjax.fold.stops`): each example with and without them.
 
 ``python -m benchmarks.early_bench [EXAMPLE ...] [--n N] [--engine E] [--set key=value ...]``: for each
 example spec (``stabjax/examples/<name>/spec.toml``), the sweep runs with ``[integrate] early_stop =
@@ -29,10 +29,10 @@ def _set(spec: dict, dotted: str, value) -> None:
 
 
 def measure(name: str, n: int | None = None, engine: str = "auto", sets: dict | None = None) -> dict:
-    from stabjax.early import STOP_ATTRACTOR, STOP_FIXED_POINT
+    from stabjax.fold.stops import STOP_ATTRACTOR, STOP_FIXED_POINT
     from stabjax.errors import ValidationError
-    from stabjax.spec import load_spec, make_plan
-    from stabjax.sweep import run_plan
+    from stabjax.plan.spec import load_spec, make_plan
+    from stabjax.run.sweep import run_plan
 
     base = load_spec(EXAMPLES / name / "spec.toml")
     if n is not None and "sample" in base:

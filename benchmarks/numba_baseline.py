@@ -22,7 +22,7 @@ err / (atol + rtol max(|y0|, |y1|)); I-controller, safety 0.9, factor in [0.2, 1
 order 5 (exponent -1/5), accepted steps never shrink (factor >= 1), rejected ones shrink by at
 least the safety factor; Hairer's initial step (diffrax ``_select_initial_step``); a step
 ending within 100 ulp of t1 is clipped to t1. Accepted step counts equal diffrax's Dopri5 on
-the same problem (``tests/test_numba_baseline.py``).
+the same problem (``tests/bench/test_numba_baseline.py``).
 Compiled with ``fastmath=False`` (IEEE semantics, no reassociation).
 """
 from __future__ import annotations

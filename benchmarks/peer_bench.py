@@ -7,7 +7,7 @@ t in [0, 1000]; rtol 1e-8, atol 1e-6 (the same system and region as ``stabjax/ex
 trajectory runs to t1 (no early stop of any kind: the figure is integration throughput, as the peers report
 it), with the example's 4000 checkpoints (``--checkpoints``: the classifier's share of the time). Contenders, in this process, on the same starts:
 
-1. ``stabjax``: :func:`stabjax.sweep.run_plan` as a user calls it (engine "auto": native on a CPU with a C
+1. ``stabjax``: :func:`stabjax.run.sweep.run_plan` as a user calls it (engine "auto": native on a CPU with a C
    compiler), one thread per core; the run after a first one that compiles;
 2. ``diffrax_vmap``: ``jax.jit(jax.vmap(diffeqsolve))`` with Tsit5 and the same controller on the first
    ``--diffrax-n`` starts (a subset: it is ~10x slower), reported per trajectory-step.
@@ -48,7 +48,7 @@ def spec(n: int, t1: float, checkpoints: int = 4000) -> dict:
 def _plan(n: int, t1: float, checkpoints: int = 4000):
     from pathlib import Path
 
-    from stabjax.spec import make_plan
+    from stabjax.plan.spec import make_plan
 
     s = spec(n, t1, checkpoints)
     s["system"] = str(Path(__file__).resolve().parents[1] / "stabjax" / "examples" / "pendulum" / "model.py") + ":Pendulum"
@@ -63,7 +63,7 @@ def cores() -> int:
 
 
 def run_stabjax(n: int, t1: float, checkpoints: int = 4000) -> dict:
-    from stabjax.sweep import run_plan
+    from stabjax.run.sweep import run_plan
 
     plan = _plan(n, t1, checkpoints)
     run_plan(_plan(64, t1, checkpoints))  # compile

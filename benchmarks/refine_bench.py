@@ -1,7 +1,7 @@
 """Benchmark of the adaptive boundary refinement against the full lattice of the same resolution.
 
 ``python -m benchmarks.refine_bench`` (or ``stabjax bench --suite refine``): trajectories and
-trajectory-steps of :mod:`stabjax.refine` on a spec with a ``[refine]`` section (default: paper A's
+trajectory-steps of :mod:`stabjax.explore.refine` on a spec with a ``[refine]`` section (default: paper A's
 (alpha, sigma) map, ``sweeps/refine_default.toml``) against the plain sweep over the refinement's
 whole final lattice; with the full lattice run whole, also the boundary edges the refinement missed.
 """
@@ -16,8 +16,9 @@ import numpy as np
 import xarray as xr
 
 from stabjax.errors import ValidationError
-from stabjax.refine import RefineConfig, classes, fine_values, horizon_times, refine_config, refine_plan
-from stabjax.spec import Plan, load_spec, make_plan
+from stabjax.explore.refine import refine_plan
+from stabjax.explore.refine_config import RefineConfig, classes, fine_values, horizon_times, refine_config
+from stabjax.plan.spec import Plan, load_spec, make_plan
 
 
 # ---- benchmark ----------------------------------------------------------------------------------
@@ -53,7 +54,7 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
     full lattice's dataset there; ``full_from``: compare with such a dataset instead of integrating the full
     lattice again (same lattice and fingerprint required; its recorded steps and wall time are reported).
     """
-    from stabjax.sweep import run_plan
+    from stabjax.run.sweep import run_plan
 
     if isinstance(spec, (str, Path)):
         spec = load_spec(spec)
@@ -86,7 +87,7 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
             pick = np.arange(rows)
         fplan = make_plan(fspec)
         if full_from is not None:
-            from stabjax.sweep import open_result
+            from stabjax.run.sweep import open_result
 
             fds = open_result(full_from)
             # the same computation up to the last bits of the lattice (coarse grids of 9 and 17 values halved

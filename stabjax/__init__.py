@@ -1,21 +1,80 @@
-"""stabjax: batch stability explorer for rigid-body attitude control.
+"""stabjax: a batch stability explorer -- many trajectories at once, an outcome for each from its whole
+history, and the empirical region held against a theorem's bound.
 
-Importing stabjax changes no global setting of JAX. The command line and the documented entry
-points (:func:`stabjax.sweep.run_spec`, :func:`stabjax.sweep.run_plan`,
-:func:`stabjax.engine.simulate`, :func:`stabjax.engine.solve_batch`) call
-:func:`stabjax.config.setup_jax` first, which switches float64 on (the monoaxial instability of
-paper A is algebraic and invisible in float32; float64 is the only precision, and ``STABJAX_X64=0``
-is refused). Code that builds JAX arrays for stabjax itself calls it first too.
+Everything a user runs or writes is here, under one flat namespace; the subpackages are the implementation
+and may change between versions:
+
+* **run**: :func:`run_spec`, :func:`run_plan`, :func:`make_plan`, :func:`load_spec`, :func:`open_result`,
+  :func:`simulate`, :func:`solve_batch`, :func:`refine_spec`, :func:`refine_plan`, :func:`horizon_check`;
+* **see**: :func:`plot`, :func:`write_report`, :func:`serve` (the browser explorer);
+* **write a model**: :class:`System`, :class:`Param`, :class:`ParamSet`, :class:`Outcomes`,
+  :data:`VERDICTS`, :class:`Predicate`, :class:`Theory`, :func:`register`, :func:`get_system`,
+  :func:`list_systems`;
+* **settings and errors**: :class:`IntegrateConfig`, :class:`VerdictConfig`, :func:`setup_jax`,
+  :class:`StabjaxError`, :class:`ValidationError`.
+
+Names are loaded on first use (PEP 562), so ``import stabjax`` -- and the command line's ``--help`` --
+imports neither JAX nor xarray. Importing stabjax changes no global setting of JAX: the entry points
+above call :func:`setup_jax` first, which switches float64 on (the monoaxial instability of paper A is
+algebraic and invisible in float32; float64 is the only precision, and ``STABJAX_X64=0`` is refused).
 """
-__version__ = "0.1.0"
+from __future__ import annotations
 
-from .config import setup_jax  # noqa: E402
-from .errors import StabjaxError, ValidationError  # noqa: E402
-from .registry import list_systems  # noqa: E402
-from .models import register, resolve as get_system  # noqa: E402  (names, files, modules, entry points)
-from .params import Param, ParamSet  # noqa: E402
-from .system import System  # noqa: E402
-from .outcomes import VERDICTS, Outcomes  # noqa: E402
+import importlib
+from typing import TYPE_CHECKING
 
-__all__ = ["StabjaxError", "ValidationError", "get_system", "list_systems", "register", "setup_jax", "Param", "ParamSet",
-           "System", "Outcomes", "VERDICTS", "__version__"]
+from .version import __version__
+
+# public name -> the module that defines it
+_API = {
+    # run
+    "run_spec": "run.sweep", "run_plan": "run.sweep", "open_result": "run.sweep",
+    "make_plan": "plan.spec", "load_spec": "plan.spec",
+    "simulate": "engines.simulate", "solve_batch": "engines.simulate",
+    "refine_spec": "explore.refine", "refine_plan": "explore.refine",
+    "horizon_check": "run.horizon",
+    # see
+    "write_report": "present.report", "serve": "present.view",
+    # write a model
+    "System": "model.system", "Predicate": "model.system", "Theory": "model.system",
+    "Param": "model.params", "ParamSet": "model.params",
+    "Outcomes": "model.outcomes", "VERDICTS": "model.outcomes",
+    "register": "model.loading", "get_system": "model.loading", "list_systems": "model.registry",
+    # settings and errors
+    "IntegrateConfig": "config", "VerdictConfig": "config", "setup_jax": "config",
+    "StabjaxError": "errors", "ValidationError": "errors",
+}
+_RENAMED = {"get_system": "resolve"}  # the public name of a function whose module calls it otherwise
+
+__all__ = sorted([*_API, "__version__"])
+
+
+def __getattr__(name: str):
+    mod = _API.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'stabjax' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{mod}", __name__), _RENAMED.get(name, name))
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__():
+    return __all__
+
+
+if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eagerly
+    from .config import IntegrateConfig, VerdictConfig, setup_jax
+    from .engines.simulate import simulate, solve_batch
+    from .errors import StabjaxError, ValidationError
+    from .explore.refine import refine_plan, refine_spec
+    from .model.loading import register
+    from .model.loading import resolve as get_system
+    from .model.outcomes import VERDICTS, Outcomes
+    from .model.params import Param, ParamSet
+    from .model.registry import list_systems
+    from .model.system import Predicate, System, Theory
+    from .plan.spec import load_spec, make_plan
+    from .present.report import write_report
+    from .present.view import serve
+    from .run.horizon import horizon_check
+    from .run.sweep import open_result, run_plan, run_spec

@@ -1,6 +1,6 @@
-"""Settings as immutable values: the ``[integrate]`` and ``[verdict]`` tables, JAX setup (solver status codes: :mod:`stabjax.status`).
+"""Settings as immutable values: the ``[integrate]`` and ``[verdict]`` tables, JAX setup (solver status codes: :mod:`stabjax.fold.status`).
 
-Nothing here imports an engine (or diffrax): the spec loader (:mod:`stabjax.spec`) validates a
+Nothing here imports an engine (or diffrax): the spec loader (:mod:`stabjax.plan.spec`) validates a
 spec with this module alone. The solver names are plain strings; the diffrax engine
 (:mod:`stabjax.engines.diffrax_engine`) maps them to diffrax classes.
 
@@ -22,14 +22,14 @@ from .errors import ValidationError
 # runs on the native and fused engines, the others on the diffrax engine
 SOLVERS = ("tsit5", "dopri5", "dopri8", "heun", "bosh3", "kvaerno5", "kvaerno3")
 
-# per-trajectory ``solver_status`` codes and what they mean: stabjax.status (one definition)
-# the verdicts' names, code = index (stabjax.verdict holds the rules)
+# per-trajectory ``solver_status`` codes and what they mean: stabjax.fold.status (one definition)
+# the verdicts' names, code = index (stabjax.fold.verdict holds the rules)
 VERDICT_NAMES = ("converged", "flipped", "diverged", "undecided", "failed")
 
 
 @dataclass(frozen=True)
 class VerdictConfig:
-    """Thresholds and windows of the excursion classifier (:mod:`stabjax.verdict`). Angles in radians.
+    """Thresholds and windows of the excursion classifier (:mod:`stabjax.fold.verdict`). Angles in radians.
 
     settle_tol      error below which the trajectory counts as settled near the target
     excursion_tol   after settling, a run of checkpoints with error above this is an excursion
@@ -53,16 +53,16 @@ class VerdictConfig:
                     1/2) ending at the last checkpoint above floor_tol
     fit_min_points  fewer points above the noise floor in that tail -> decay exponent NaN
     horizons        times at which verdicts are also given (prefixes of the same run); () = t1 and
-                    the ``n_horizon_decades`` decades below it. :func:`stabjax.verdict.bind` fixes
+                    the ``n_horizon_decades`` decades below it. :func:`stabjax.fold.verdict.bind` fixes
                     them (with t0, t1) when a plan is made; the last horizon is always t1
     n_horizon_decades  default horizons: t0 + (t1 - t0) 10^-k, k = n_horizon_decades .. 0
-    features        also return feat_max/min/mean/std/final of each observable (stabjax.verdict)
+    features        also return feat_max/min/mean/std/final of each observable (stabjax.fold.verdict)
     feature_window  features over t >= t0 + (1 - feature_window)(t1 - t0)
     verdicts        fold the attitude classifier's state (verdicts at every horizon, decay fits); False
                     where the outcomes are named (rules, templates, discovery): only the features are
                     folded, so a checkpoint costs a few operations per observable instead of ~160 entries
                     of state read and written (set by the plan, not by a spec)
-    t0, t1, n_obs   bound by :func:`stabjax.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
+    t0, t1, n_obs   bound by :func:`stabjax.fold.verdict.bind` (None/0: unbound; the fold assumes t0 = 0)
     """
 
     settle_tol: float = 0.1
@@ -139,16 +139,16 @@ class IntegrateConfig:
     (:data:`stabjax.engines.SETTINGS`), read by none of the layers between.
 
     ``escape_radius``: stop a trajectory as soon as an accepted state has max_i |y_i| above it
-    (status :data:`stabjax.status.ESCAPED`); None: the system's :attr:`stabjax.system.System.escape_radius`.
+    (status :data:`stabjax.fold.status.ESCAPED`); None: the system's :attr:`stabjax.model.system.System.escape_radius`.
 
-    ``early_stop``: stop a trajectory once it sits at a stable equilibrium (:mod:`stabjax.early`;
+    ``early_stop``: stop a trajectory once it sits at a stable equilibrium (:mod:`stabjax.fold.stops`;
     autonomous models only). None: decided per plan -- on where it cannot change an outcome (named
     outcomes or discovery on an autonomous model), off elsewhere and for a config used without a
     plan; true where the attitude verdicts are the outcomes is refused (their decay laws need the run
     up to t1).
 
     ``attractor_stop``: also stop a trajectory once it has stayed near an attractor this run has already
-    found, for a feature window's length (:mod:`stabjax.early`, the recurrence stop; off by default: a
+    found, for a feature window's length (:mod:`stabjax.fold.stops`, the recurrence stop; off by default: a
     heuristic, refused where it cannot apply). ``known_attractors``: the set the engines test (set by the
     runner from the run's own first trajectories, never by a spec).
     """
@@ -267,7 +267,7 @@ def versions() -> dict[str, str]:
     import jax
     import xarray as xr
 
-    from . import __version__
+    from .version import __version__
 
     try:
         dfx = version("diffrax")

@@ -38,14 +38,106 @@ def kind_of(value: Any) -> str:
     return type(value).__name__
 
 
+MAX_EXPRESSION_LENGTH = 200  # characters of one arithmetic expression
+MAX_EXPONENT = 1024.0  # |b| in a ** b: beyond it a double over/underflows whatever a is
+_CONSTANTS = {"pi": math.pi, "e": math.e, "tau": math.tau}
+_FUNCTIONS = {
+    "sqrt": math.sqrt, "sin": math.sin, "cos": math.cos, "tan": math.tan, "asin": math.asin, "acos": math.acos,
+    "atan": math.atan, "exp": math.exp, "log": math.log, "log10": math.log10, "abs": abs,
+    "radians": math.radians, "degrees": math.degrees,
+}
+
+
+def eval_number(text: str, name: str) -> float:
+    """Numbers, or small arithmetic such as ``7/9``, ``1/sqrt(3)``, ``2*pi``, ``1e-3*cos(pi/7)``.
+
+    Evaluated by walking the syntax tree (no ``eval``): number literals (as doubles, so no unbounded
+    integer arithmetic), ``+ - * / **``, unary signs, parentheses, the constants pi, e, tau and the
+    one-argument functions in ``_FUNCTIONS``. Bounded in size (``MAX_EXPRESSION_LENGTH`` characters)
+    and in every intermediate (finite doubles, exponents ``|b| <= MAX_EXPONENT``), hence in time:
+    ``9**9**9`` is refused at once instead of computed.
+    """
+    import ast
+
+    text = text.strip()
+    shown = text if len(text) <= 40 else text[:37] + "..."
+    if len(text) > MAX_EXPRESSION_LENGTH:
+        raise ValueError(f"expression longer than {MAX_EXPRESSION_LENGTH} characters")
+    try:
+        x = float(text)
+    except ValueError:
+        pass
+    else:
+        if not math.isfinite(x):
+            raise ValueError(f"{shown!r} is not finite")
+        return x
+    if not text:
+        raise ValueError("empty value")
+    try:
+        tree = ast.parse(text, mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        raise ValueError(f"{shown!r} is not a number or an arithmetic expression") from None
+
+    def finite(x: float) -> float:
+        if not math.isfinite(x):
+            raise ValueError(f"{shown!r} overflows")
+        return x
+
+    def walk(node) -> float:
+        if isinstance(node, ast.Expression):
+            return walk(node.body)
+        if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+            try:
+                return finite(float(node.value))
+            except OverflowError:
+                raise ValueError(f"{shown!r}: literal too large") from None
+        if isinstance(node, ast.Name) and node.id in _CONSTANTS:
+            return _CONSTANTS[node.id]
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.UAdd, ast.USub)):
+            v = walk(node.operand)
+            return v if isinstance(node.op, ast.UAdd) else -v
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)):
+            a, b = walk(node.left), walk(node.right)
+            if isinstance(node.op, ast.Add):
+                return finite(a + b)
+            if isinstance(node.op, ast.Sub):
+                return finite(a - b)
+            if isinstance(node.op, ast.Mult):
+                return finite(a * b)
+            if isinstance(node.op, ast.Div):
+                if b == 0:
+                    raise ValueError(f"{shown!r}: division by zero")
+                return finite(a / b)
+            if abs(b) > MAX_EXPONENT:
+                raise ValueError(f"{shown!r}: exponent {b:g} too large (|exponent| <= {MAX_EXPONENT:g})")
+            try:
+                r = a**b
+            except (OverflowError, ZeroDivisionError):
+                raise ValueError(f"{shown!r} overflows") from None
+            if isinstance(r, complex):
+                raise ValueError(f"{shown!r} is not real")
+            return finite(r)
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCTIONS
+                and len(node.args) == 1 and not node.keywords):
+            try:
+                return finite(float(_FUNCTIONS[node.func.id](walk(node.args[0]))))
+            except (OverflowError, ValueError) as exc:
+                raise ValueError(f"{shown!r}: {node.func.id}: {exc}") from None
+        raise ValueError(f"{shown!r}: only numbers, + - * / **, parentheses, {', '.join(_CONSTANTS)} and "
+                         f"{', '.join(_FUNCTIONS)}(x) are allowed")
+
+    try:
+        return walk(tree)
+    except RecursionError:
+        raise ValueError(f"{shown!r} is nested too deeply") from None
+
+
 def number(value: Any, field: str, *, lo: float | None = None, hi: float | None = None,
            lo_open: bool = False, hi_open: bool = False, finite: bool = True) -> float:
     """A real number (int or float, or an arithmetic string such as ``"7/9"``); never a boolean."""
     if isinstance(value, (bool, np.bool_)):
         raise ValidationError(field, f"must be a number, got a boolean ({value!r})")
     if isinstance(value, str):
-        from .params import eval_number
-
         try:
             x = eval_number(value, field)
         except ValueError as exc:
@@ -188,7 +280,7 @@ def check_allocation(field: str, nbytes: int, what: str) -> None:
 
 
 def check_verdict(cfg, section: str = "verdict") -> None:
-    """Ranges of the classifier thresholds (:class:`stabjax.system.VerdictConfig`), named ``section.<name>``.
+    """Ranges of the classifier thresholds (:class:`stabjax.model.system.VerdictConfig`), named ``section.<name>``.
 
     Every float threshold is finite; tolerances and sizes are positive (a zero or negative one makes a
     verdict impossible or certain); fractions of the horizon lie in (0, 1]. Fields added later are

@@ -1,7 +1,7 @@
 """Running the command line in-process, for the tests (one definition; tests import it like references.py)."""
 from __future__ import annotations
 
-from stabjax.cli import main
+from stabjax.app.cli import main
 
 # a sweep of two trajectories of a built-in model, for tests of what the command line refuses or writes
 TINY = """system = "monoaxial"

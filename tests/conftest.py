@@ -14,7 +14,7 @@ def kill_after_chunks(proc, store, n: int, timeout: float) -> None:
 
     import pytest
 
-    from stabjax import store as S
+    from stabjax.run import store as S
 
     try:
         deadline = time.time() + timeout

@@ -33,8 +33,8 @@ REFINE = {
 
 def build(folder: Path, along: bool = False) -> dict[str, Path]:
     """Write the three results (and with ``along`` a sampled 1-D sweep) into ``folder``; {kind: path}."""
-    from stabjax.refine import refine_spec
-    from stabjax.sweep import run_spec
+    from stabjax.explore.refine import refine_spec
+    from stabjax.run.sweep import run_spec
 
     out = {"verdicts": folder / "tiny_map.nc", "basin": folder / "tiny_pendulum.nc", "refine": folder / "tiny_refine.nc"}
     run_spec(VERDICT_MAP, out["verdicts"])

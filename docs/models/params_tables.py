@@ -1,7 +1,7 @@
 """Regenerate the parameter tables of docs/models/*.md from the registry: python docs/models/params_tables.py (repository root)."""
 import sys
 import numpy as np
-from stabjax.registry import SYSTEMS, get_system
+from stabjax.model.registry import SYSTEMS, get_system
 
 def fmt(v):
     a = np.asarray(v, float).ravel()

@@ -194,7 +194,7 @@ def resolve_plan(plan, static: Iterable[str] | None = None):
 
 def trajectory_fn(system, icfg):
     """``f(ts, params) -> {"ys", "obs", "status", "n_steps"}``: one trajectory with its full state at
-    ``ts`` (:func:`stabjax.engine.simulate`). The diffrax engine, which saves states, runs it (imported here,
+    ``ts`` (:func:`stabjax.engines.simulate.simulate`). The diffrax engine, which saves states, runs it (imported here,
     on first use)."""
     from .diffrax_engine import simulate_fn
 
@@ -203,14 +203,14 @@ def trajectory_fn(system, icfg):
 
 def solve(name: str, system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Iterable[str] | None = None,
           progress: Progress | None = None) -> Result:
-    """Run engine ``name`` on one chunk. A :class:`stabjax.lyapunov.TangentSystem` (the model with its
+    """Run engine ``name`` on one chunk. A :class:`stabjax.model.tangent.TangentSystem` (the model with its
     tangent dynamics) comes back in the model's own layout plus the exponent (``lyapunov``)."""
-    from ..lyapunov import TangentSystem, split
+    from ..model.tangent import TangentSystem, split
 
-    from ..early import stop_reasons, substitute
+    from ..fold.stops import stop_reasons, substitute
 
     res = get(name).solve(system, params, icfg, vcfg, static=static, progress=progress)
-    if "fixed_point" in res:  # why each integration ended (stabjax.early.REASONS)
+    if "fixed_point" in res:  # why each integration ended (stabjax.fold.stops.REASONS)
         if icfg.known_attractors is not None:  # stopped near attractor k: its representative's features
             res = substitute(res, icfg.known_attractors)
         res = dict(res)

@@ -7,7 +7,7 @@ from typing import Any, Callable, Iterable, Mapping
 import numpy as np
 
 # per-trajectory results: ``verdict``, the classifier summaries, ``n_steps``, ``n_rejected``,
-# ``solver_status`` (codes: :mod:`stabjax.status`), each with leading dim N
+# ``solver_status`` (codes: :mod:`stabjax.fold.status`), each with leading dim N
 Result = dict[str, np.ndarray]
 Progress = Callable[[int, int], None]
 
@@ -22,7 +22,7 @@ class Setting:
     """One tuning setting an engine declares (``[engine]`` table of a spec, or ``[integrate]``).
 
     An integer in [lo, hi]; ``default`` (0) means "the engine chooses". ``changes_results``: False
-    when no value changes any result in any bit (the identity of a run, :mod:`stabjax.identity`,
+    when no value changes any result in any bit (the identity of a run, :mod:`stabjax.plan.identity`,
     then ignores it: a resume with another value continues the same run); True when it may.
     Declarations are plain data kept in :mod:`stabjax.engines` (importing them imports no engine).
     """

@@ -2,7 +2,7 @@
 
 Every solver of :data:`stabjax.config.SOLVERS` runs here (implicit ones included), and systems
 with their own ``classify``. Nothing is stored per solver step: each trajectory saves only its
-observables at the checkpoint times, which the classifier (:mod:`stabjax.verdict`) reduces to
+observables at the checkpoint times, which the classifier (:mod:`stabjax.fold.verdict`) reduces to
 per-trajectory scalars inside the same compiled function, so a chunk of B trajectories costs
 O(B * n_checkpoints) memory whatever the number of steps.
 
@@ -11,7 +11,7 @@ derivative turned non-finite, or a finite-time blow-up -- has its step size coll
 below ~10 ulp of the horizon (``PIDController(dtmin=...)``) stops it with status 1 after a few
 rejected steps (each shrinks the step by 5; ~20 from a NaN at t0), where diffrax would otherwise
 reject steps until ``max_steps``. With an escape radius, a ``diffrax.Event`` stops a state outside
-the ball at once with :data:`stabjax.status.ESCAPED`. (An event testing the derivative for
+the ball at once with :data:`stabjax.fold.status.ESCAPED`. (An event testing the derivative for
 NaN would stop a NaN trajectory after one step instead of ~20, but costs an evaluation of the
 right-hand side per step and misses the blow-up: measured +55% time on the monoaxial model, against
 +40% for ``dtmin``, which catches both.)
@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import early
-from .. import verdict as V
+from ..fold import stops
+from ..fold import verdict as V
 from ..config import IntegrateConfig, escape_radius
-from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS
+from ..fold.status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS
 from .base import Engine
 from .tsit5 import MIN_STEP_REL
 
@@ -51,7 +51,7 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
     """One trajectory: ``(diffrax solution, solver_status)``; the status is diffrax's code, or
     :data:`STATUS_MAX_STEPS` for a collapsed step size, :data:`STATUS_ESCAPED` for an escape.
     ``final``: also save the state where the solve ended (``sol.ys = (saved, y_end)``,
-    ``sol.ts = (ts, t_end)``), needed to tell a fixed-point stop (:mod:`stabjax.early`) from an escape."""
+    ``sol.ts = (ts, t_end)``), needed to tell a fixed-point stop (:mod:`stabjax.fold.stops`) from an escape."""
     args = system.prepare(p)
     y0 = system.initial_state(p)
     term = diffrax.ODETerm(system.rhs)
@@ -63,7 +63,7 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
     # default I controller Kvaerno5 rejected about half its steps on the gyrodyne model
     pi = dict(pcoeff=0.3, icoeff=0.4) if isinstance(solver, diffrax.AbstractImplicitSolver) else {}
     radius = escape_radius(system, icfg)
-    fixed = early.active(system, icfg)
+    fixed = stops.active(system, icfg)
     # step-size collapse (as in the other engines, but absolute: diffrax's dtmin is a constant):
     # a step below ~10 ulp of the horizon's largest time stops the solve (dt_min_reached)
     dtmin = MIN_STEP_REL * max(abs(float(icfg.t0)), abs(float(icfg.t1)))
@@ -73,7 +73,7 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
         if radius is not None:
             out = out | (jnp.max(jnp.abs(y)) > radius)
         if fixed:
-            out = out | early.at_fixed_point(system.rhs, t, y, a, float(icfg.rtol), float(icfg.atol))
+            out = out | stops.at_fixed_point(system.rhs, t, y, a, float(icfg.rtol), float(icfg.atol))
         return out
 
     sol = diffrax.diffeqsolve(
@@ -103,11 +103,11 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
 def _batch_fn(system, icfg: IntegrateConfig, vcfg):
     """Compiled ``params(B, ...) -> summaries(B)``; cached so each spec compiles once, not per chunk.
 
-    After a fixed-point stop (:mod:`stabjax.early`) the checkpoints past the stop observe the frozen
-    state, exactly what the lane engines' :func:`stabjax.early.fast_forward` folds in."""
+    After a fixed-point stop (:mod:`stabjax.fold.stops`) the checkpoints past the stop observe the frozen
+    state, exactly what the lane engines' :func:`stabjax.fold.stops.fast_forward` folds in."""
     ts = jnp.asarray(V.checkpoint_times(icfg.checkpoints(), vcfg))  # every horizon exactly
     classify = system.classify or V.classify
-    fixed = early.active(system, icfg)
+    fixed = stops.active(system, icfg)
 
     def one(p):
         sol, status = solve_one(system, icfg, ts, lambda t, y, a: system.observe(t, y, a), p, final=True)
@@ -121,7 +121,7 @@ def _batch_fn(system, icfg: IntegrateConfig, vcfg):
         out = dict(classify(ts, obs, status == 0, vcfg, icfg.t0))
         out["n_steps"] = sol.stats["num_accepted_steps"]
         out["n_rejected"] = sol.stats["num_rejected_steps"]
-        out["solver_status"] = status  # 0 success, else the failure reason (stabjax.status)
+        out["solver_status"] = status  # 0 success, else the failure reason (stabjax.fold.status)
         out["stopped_at"] = t_end
         out["fixed_point"] = at_fp
         return out

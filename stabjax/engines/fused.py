@@ -14,12 +14,12 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
   of ``err / (atol + rtol max(|y0|, |y1|))``), the same I-controller as ``diffrax.PIDController``
   defaults (safety 0.9, factor in [0.2, 10], accepted steps never shrink, rejected ones shrink
   by at least 0.9), the same initial step (Hairer's rule), the same clipping of the last step to
-  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/test_fused.py``).
+  ``t1``. Final states agree with diffrax and SciPy to the tolerance (``tests/engines/test_fused.py``).
 * **Checkpoints without storage.** A step handles at most ``CHECKPOINT_SLOTS`` checkpoints and
   ends on the next one if it would cross more (the controller's own proposal is kept for the
   step after); the state at a checkpoint comes from Tsit5's dense output (the interpolant
   diffrax uses for ``SaveAt(ts=...)``) and goes straight into the running classifier
-  (:func:`stabjax.verdict.update`, the very rules of :func:`stabjax.verdict.classify`).
+  (:func:`stabjax.fold.verdict.update`, the very rules of :func:`stabjax.fold.verdict.classify`).
 * **Lane-wise evaluation of the model.** The system's ``prepare/initial_state/rhs/observe``
   and the classifier are traced once per trajectory (jaxprs) and evaluated with every array
   element held separately as a (lanes,) vector or a constant (:mod:`stabjax.engines.lanes`): slices,
@@ -38,7 +38,7 @@ transposes that XLA fuses badly. Here (measurements in ``docs/performance.md``):
 A trajectory that cannot progress (its right-hand side is not finite at an accepted state, or
 its step size collapsed below ~10 ulp of t: diffrax would reject steps until ``max_steps``) is stopped at once with the status code
 diffrax would end with (``max_steps_reached`` = 1); with an escape radius, one whose accepted
-state leaves the ball is stopped at once with :data:`stabjax.status.ESCAPED`. For FAILED
+state leaves the ball is stopped at once with :data:`stabjax.fold.status.ESCAPED`. For FAILED
 trajectories only ``verdict``, ``solver_status`` and the step counts are meaningful.
 """
 from __future__ import annotations
@@ -51,10 +51,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .. import early
-from .. import verdict as V
+from ..fold import stops
+from ..fold import verdict as V
 from ..config import escape_radius
-from ..status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
+from ..fold.status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from .base import Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from .lanes import (LaneFn, Lanes, NoRule, RowSpec, flat_rows, is_const, materialize, materializing, obj, obj0,
                     obj1, rows_to_objs)
@@ -114,12 +114,12 @@ class _Model:
             self.rhs = LaneFn(system.rhs, ex_t, ex_y, ex_args)
             self.obs = LaneFn(system.observe, ex_t, ex_y, ex_args)
             self.upd = LaneFn(lambda c, t, o: V.update(c, t, o, vcfg, t_late), ex_c, ex_t, ex_obs)
-            # the stop test at a stable fixed point (stabjax.early), fixed_point = (rtol, atol)
+            # the stop test at a stable fixed point (stabjax.fold.stops), fixed_point = (rtol, atol)
             self.fp = None if fixed_point is None else LaneFn(
-                lambda t, y, a: early.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
-            # the recurrence stop's test: the known attractor near the observation (stabjax.early)
+                lambda t, y, a: stops.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
+            # the recurrence stop's test: the known attractor near the observation (stabjax.fold.stops)
             self.at = None if known is None else LaneFn(
-                lambda t, y, a: early.near_attractor(jnp.ravel(system.observe(t, y, a)), known), ex_t, ex_y, ex_args)
+                lambda t, y, a: stops.near_attractor(jnp.ravel(system.observe(t, y, a)), known), ex_t, ex_y, ex_args)
             # dry run of every function on abstract lanes: an unsupported primitive shows up now
             L = 8
             jax.eval_shape(self._dry, *[sds((L,), f64) for _ in range(sum(int(np.prod(s)) for s in self.dyn_shapes.values()))])
@@ -217,12 +217,12 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
     max_steps = int(icfg.max_steps)
     t_late = V.late_start(vcfg, t0, float(ts_np[-1]))
     f64 = jnp.float64
-    fixed = early.active(system, icfg)
-    known = icfg.known_attractors if early.attractor_stop_active(system, icfg) else None
+    fixed = stops.active(system, icfg)
+    known = icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None
     model = _Model(system, static, dyn_shapes, vcfg, t_late, (rtol, atol) if fixed else None, known)
     n_state = model.n_state
     radius = escape_radius(system, icfg)
-    k_w = early.window_index(ts_np, vcfg)  # first checkpoint of the feature window
+    k_w = stops.window_index(ts_np, vcfg)  # first checkpoint of the feature window
 
     def run(p: Mapping[str, jnp.ndarray], one):
         with materializing(one.reshape(())):
@@ -289,11 +289,11 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
         def finish_and_refill(carry, done, status, at_fp):
             lane, idx, nxt, out = carry
             ctree = model.c_spec.tree(lane["vc"], L)
-            if fixed:  # the remaining checkpoints observe the frozen state (stabjax.early.fast_forward)
+            if fixed:  # the remaining checkpoints observe the frozen state (stabjax.fold.stops.fast_forward)
                 obs = jnp.stack(model.observe(L, lane["t"], lane["y"], model.args_objs(lane["args"])), axis=-1)
                 n_in = K - jnp.maximum(lane["ck"], k_w)
-                ff = jax.vmap(early.fast_forward, in_axes=(-1, 0, 0), out_axes=-1)(ctree, n_in, obs)
-                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp == early.HIT_FIXED_POINT, a, b), ff, ctree)
+                ff = jax.vmap(stops.fast_forward, in_axes=(-1, 0, 0), out_axes=-1)(ctree, n_in, obs)
+                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp == stops.HIT_FIXED_POINT, a, b), ff, ctree)
             summ = v_finalize(ctree, status == STATUS_OK)
             summ["fixed_point"] = at_fp.astype(jnp.int32)
             summ["stopped_at"] = lane["t"]
@@ -386,14 +386,14 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 escaped = active & stepped & keep & (size > radius)
                 done = done | escaped
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
-            at_fp = jnp.zeros(done.shape, jnp.int32)  # stop code: stabjax.early.HIT_*
+            at_fp = jnp.zeros(done.shape, jnp.int32)  # stop code: stabjax.fold.stops.HIT_*
             if fixed or known is not None:  # at an accepted step that reached a checkpoint
                 can = active & stepped & keep & (n_ck > 0) & ~done
                 if fixed:  # a stable equilibrium, within tolerance; asked every fixed_point_every(K) checkpoints
                     test = can & (ck >= nt)
                     at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
-                                     lambda: jnp.zeros_like(done)).astype(jnp.int32) * early.HIT_FIXED_POINT
-                    lane["nt"] = jnp.where(test, ck + early.fixed_point_every(K), nt).astype(jnp.int32)
+                                     lambda: jnp.zeros_like(done)).astype(jnp.int32) * stops.HIT_FIXED_POINT
+                    lane["nt"] = jnp.where(test, ck + stops.fixed_point_every(K), nt).astype(jnp.int32)
                 if known is not None:  # the same known attractor at every test over a span of dwell
                     test = can & (ck >= lane["na"])
                     k = lax.cond(jnp.any(test), lambda: model.near_attractor(L, t_prev, y, args),
@@ -402,8 +402,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                     held = test & same & (t_prev - lane["as_"] >= known.dwell)
                     lane["as_"] = jnp.where(test & ~same, t_prev, lane["as_"])
                     lane["ak"] = jnp.where(test, k, lane["ak"])
-                    lane["na"] = jnp.where(test, ck + early.TEST_EVERY, lane["na"]).astype(jnp.int32)
-                    code = early.HIT_ATTRACTOR0 + jnp.maximum(k, 0.0).astype(jnp.int32)
+                    lane["na"] = jnp.where(test, ck + stops.TEST_EVERY, lane["na"]).astype(jnp.int32)
+                    code = stops.HIT_ATTRACTOR0 + jnp.maximum(k, 0.0).astype(jnp.int32)
                     at_fp = jnp.where((at_fp == 0) & held, code, at_fp)
                 done = done | (at_fp != 0)
                 status = jnp.where(at_fp != 0, STATUS_OK, status)
@@ -530,8 +530,8 @@ class FusedEngine(Engine):
         st, dyn = split_static(params, static)
         shapes = tuple(sorted((k, np.shape(v)[1:]) for k, v in dyn.items()))
         _Model(system, st, dict(shapes), vcfg, V.late_start(vcfg, float(icfg.t0), float(icfg.t1)),
-               (float(icfg.rtol), float(icfg.atol)) if early.active(system, icfg) else None,
-               icfg.known_attractors if early.attractor_stop_active(system, icfg) else None)
+               (float(icfg.rtol), float(icfg.atol)) if stops.active(system, icfg) else None,
+               icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None)
 
     def default_chunk(self, plan) -> int:
         """Lanes are refilled from a queue: longer chunks waste less at the tail. On a GPU 2^18

@@ -11,7 +11,7 @@ SIMD loops. ``pow`` with a lane-varying exponent goes through exp/log (XLA's vec
 kernels) instead of scalar libm calls. Any primitive without a rule raises :class:`NoRule`.
 
 What a model may use (each rule is written once here, so the fused and the native engine take
-the same constructs; tests/test_constructs.py runs a one-line model of each):
+the same constructs; tests/engines/test_constructs.py runs a one-line model of each):
 
 * elementwise math, comparisons, ``where``/``select``, ``clip``, reductions, ``dot_general``
   (``@``, ``einsum``, ``cross``, ``norm``), slicing, reshapes, ``concatenate``/``stack``, ``pad``
@@ -161,7 +161,7 @@ class Lanes:
         return e
 
     def bind_elem(self, prim, params, es, in_dtypes):
-        if prim.name == "add_any":  # the sum of two tangents (JVPs, e.g. stabjax.lyapunov): an add
+        if prim.name == "add_any":  # the sum of two tangents (JVPs, e.g. stabjax.model.tangent): an add
             prim = lax.add_p
         if all(is_const(e) for e in es):
             with jax.ensure_compile_time_eval():

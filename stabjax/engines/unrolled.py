@@ -205,7 +205,7 @@ def jacobi_sweeps(n: int) -> int:
     rounding (< 1e-14; 4e-16..1e-15) after 4 sweeps for n = 3, 5 for n = 4, 6 for n = 5 and 6,
     7 for n = 7 and 8 for n = 8 (graded spectra are the slowest). The count is that plus one sweep
     of margin: a sweep after convergence changes only rounding, and by the quadratic rate one more
-    sweep turns a residual of 1e-8 into 1e-16. tests/test_constructs.py checks n = 2..6.
+    sweep turns a residual of 1e-8 into 1e-16. tests/engines/test_constructs.py checks n = 2..6.
     """
     if n <= 1:
         return 0

@@ -3,7 +3,7 @@
 XLA:CPU calls scalar libm for log, sin, cos and pow (measured 9-25 ns per element against ~2 ns
 for its vectorised exp); the lane-wise evaluator (:mod:`stabjax.engines.lanes`) routes float64
 log, sin, cos and pow through these branch-free versions instead (log: 2 ulp, sin/cos: 0.5 ulp of
-1 in absolute terms; tests/test_fused.py). fdlibm's polynomials, Cody & Waite's reduction.
+1 in absolute terms; tests/engines/test_fused.py). fdlibm's polynomials, Cody & Waite's reduction.
 """
 from __future__ import annotations
 

@@ -25,9 +25,9 @@ def shipped_specs(prefix: str = "") -> list[str]:
 
 
 def load_shipped(name: str) -> dict:
-    """The shipped spec ``name`` (stem, e.g. ``"saakyan_no_mu"``) as a dict, via :func:`stabjax.spec.load_spec`
+    """The shipped spec ``name`` (stem, e.g. ``"saakyan_no_mu"``) as a dict, via :func:`stabjax.plan.spec.load_spec`
     (so ``name`` defaults to the stem and a missing spec is a ``ValidationError`` naming it)."""
-    from ..spec import load_spec
+    from ..plan.spec import load_spec
 
     with as_file(sweeps_dir() / f"{name}{SPEC_SUFFIX}") as path:
         return load_spec(path)

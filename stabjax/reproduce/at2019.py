@@ -8,7 +8,7 @@
   log-log axes, showing the algebraic (not exponential) decay.
 * The alpha-sweep at sigma = 4/3, mu = 3/2 with the Theorem 1 bound alpha > 2/3 drawn: ONE run to
   t1 = 1e6 classified at the horizons 1e3, 1e4, 1e5, 1e6 (prefixes of the same trajectories,
-  :mod:`stabjax.verdict`), the empirical alpha-boundary bracketed at each horizon
+  :mod:`stabjax.fold.verdict`), the empirical alpha-boundary bracketed at each horizon
   (``alpha_boundary.md``, the README's table) and the verdict map over (alpha, horizon).
 * Decay laws (issue 16, item 3): the late decay exponent of the error, fitted above the noise floor
   with its standard error, against sigma at alpha = 1 (where Theorem 1 reads 2 sigma > mu + 1) for
@@ -24,10 +24,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..engine import simulate
-from .. import verdict as V
-from ..plotting import horizon_boundaries, plot_sweep
-from ..sweep import run_spec, write
+from ..engines.simulate import simulate
+from ..fold import verdict as V
+from ..present.maps import horizon_boundaries, plot_sweep
+from ..run.sweep import run_spec, write
 
 
 def _cosines(ax, ds, title):
@@ -138,7 +138,7 @@ def alpha_horizons(out_dir: Path, quick: bool = False) -> list[Path]:
     axs[0].set_title(r"verdicts at t1 = " f"{ds.horizon.values[-1]:.0e}" r" ($\sigma$ = 4/3, $\mu$ = 3/2; "
                      r"Theorem 1 needs $\alpha$ > 2/3)" "\ndashed: edge of the converged region at each horizon T",
                      fontsize=9)
-    from ..plotting import axis_label, legend_below, verdict_cmap, cell_edges
+    from ..present.maps import axis_label, legend_below, verdict_cmap, cell_edges
 
     legend_below(axs[0], axs[0].get_legend_handles_labels()[0], ncol=2, fontsize=7.5)
 
@@ -186,7 +186,7 @@ def decay_spec(mu: float, quick: bool = False) -> dict:
 
 
 def decay_laws(out_dir: Path, quick: bool = False) -> list[Path]:
-    from ..plotting import axis_label
+    from ..present.maps import axis_label
 
     files = []
     mus = (1.5, 2.0)

@@ -28,8 +28,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..engine import IntegrateConfig, batch_params, solve_batch
-from ..registry import get_system
+from ..config import IntegrateConfig
+
+from ..engines.simulate import batch_params, solve_batch
+from ..model.registry import get_system
 from ..systems import gyrodyne_theory as T
 
 # what each shipped sweep's map shows, in words (the figures' titles; a spec without one is an error)
@@ -113,7 +115,7 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     ax.set_xlabel(r"detuning from resonance, $\varepsilon=\omega_{01}-\Omega_2/2$ [rad/s]")
     ax.set_ylabel(r"growth rate of the mode-1 amplitude $E_1$ [1/s]")
     ax.set_title("Gyrodyne cluster: parametric resonance tongue (default example)")
-    from ..plotting import legend_below
+    from ..present.maps import legend_below
 
     legend_below(ax, ax.get_legend_handles_labels()[0], ncol=1, width=70)
     png = out_dir / "gyrodyne_growth.png"
@@ -128,7 +130,7 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
     paths.append(out_dir / "gyrodyne_growth.txt")
 
     if not quick:
-        from ..sweep import run_spec
+        from ..run.sweep import run_spec
 
         from . import load_shipped, shipped_specs
 
@@ -139,7 +141,7 @@ def run(out_dir: Path, quick: bool = False) -> list[Path]:
 
 def plot_map(ds, stem: str, out_dir: Path) -> Path:
     """The verdict map of shipped sweep ``stem``, titled in words, the A[1] axis named as the paper does."""
-    from ..plotting import plot_sweep, save
+    from ..present.maps import plot_sweep, save
 
     fig = plot_sweep(ds, title=TITLES[stem])
     for ax in fig.axes:

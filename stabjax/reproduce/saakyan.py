@@ -23,11 +23,11 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import verdict as V
-from ..engine import simulate
-from ..plotlabels import words
-from ..plotting import axis_label, converged_fraction, legend_below, plot_sweep
-from ..sweep import run_spec
+from ..fold import verdict as V
+from ..engines.simulate import simulate
+from ..present.labels import words
+from ..present.maps import axis_label, converged_fraction, legend_below, plot_sweep
+from ..run.sweep import run_spec
 from ..systems import saakyan_theory as T
 from . import load_shipped, shipped_specs
 

@@ -25,11 +25,13 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import verdict as V
-from ..engine import IntegrateConfig, batch_params, simulate, solve_batch
-from ..plotting import cell_note, converged_fraction, plot_sweep
-from ..registry import get_system
-from ..sweep import run_spec
+from ..fold import verdict as V
+from ..config import IntegrateConfig
+from ..engines.simulate import batch_params, simulate, solve_batch
+from ..present.labels import cell_note
+from ..present.maps import converged_fraction, plot_sweep
+from ..model.registry import get_system
+from ..run.sweep import run_spec
 from ..systems import twobody_theory as tt
 
 ICFG = dict(rtol=1e-8, atol=1e-10, n_checkpoints=400)
@@ -93,7 +95,7 @@ def _map(out_dir: Path, quick: bool, fname, key, ylabel, lo, hi, base, title) ->
     grid = {key: {"start": lo, "stop": hi, "num": ny}, "b": {"start": 0.25, "stop": 8.0, "num": nb}}
     from matplotlib import patheffects
 
-    from ..plotting import legend_below
+    from ..present.maps import legend_below
 
     fig, axs = plt.subplots(1, 2, figsize=(12, 6), constrained_layout=True)
     yy = np.linspace(lo, hi, 201)

@@ -56,12 +56,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..params import Param, ParamSet, check_positive, require
-from ..system import System, VerdictConfig
-from ..outcomes import VERDICTS
+from ..model.params import Param, ParamSet, check_positive, require
+from ..config import VerdictConfig
+from ..model.system import System
+from ..model.outcomes import VERDICTS
 from ..errors import ValidationError
 from . import gyrodyne_theory as th
-from .. import verdict as V
+from ..fold import verdict as V
 
 CONVERGED, FLIPPED, DIVERGED, UNDECIDED, FAILED = 0, 1, 2, 3, 4
 
@@ -79,7 +80,7 @@ def _mat(arr):
 
 
 class Gyrodyne(System):
-    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.fold.verdict)
     name = "gyrodyne"
     title = "Tetrahedral CMG cluster: forced oscillations and resonance 2 omega_01 ~ Omega_2"
     paper = "Khoroshilov (1983); eqs. (1.1)-(1.3), (2.1), (2.2), (3.1), (3.3)"
@@ -336,7 +337,7 @@ class Gyrodyne(System):
         DIVERGED: growth1 > growth_tol or the perturbed copy's angles exceed diverge_size;
         UNDECIDED: |growth1| <= growth_tol (neutral within resolution); FAILED: solver/NaN (or
         too few late points for growth1). The failed/size precedence is the generic one
-        (:func:`stabjax.verdict.resolve`): angles above diverge_size at a finite checkpoint make
+        (:func:`stabjax.fold.verdict.resolve`): angles above diverge_size at a finite checkpoint make
         the run DIVERGED even if the solver failed or the state went non-finite later (the full
         model's attitude runaways, whose spun-up gimbals exhaust max_steps); ``size_max`` is the
         largest finite size.

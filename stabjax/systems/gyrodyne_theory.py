@@ -39,7 +39,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..system import Predicate, Theory
+from ..model.system import Predicate, Theory
 
 # ---- geometry --------------------------------------------------------------------------------
 

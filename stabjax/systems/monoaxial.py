@@ -23,10 +23,11 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .. import linalg as la
-from ..params import Param, ParamSet, check_positive, check_spd, check_unit, diag_or_matrix, require
-from ..system import System, VerdictConfig
-from ..outcomes import VERDICTS
+from ..model import linalg as la
+from ..model.params import Param, ParamSet, check_positive, check_spd, check_unit, diag_or_matrix, require
+from ..config import VerdictConfig
+from ..model.system import System
+from ..model.outcomes import VERDICTS
 from . import monoaxial_theory
 
 _PHI, _THETA = 0.5, 0.8  # paper's roll and pitch at t = 0 (A.5); yaw does not enter
@@ -35,7 +36,7 @@ R_DEFAULT = tuple([1 / math.sqrt(3)] * 3)
 
 
 class Monoaxial(System):
-    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.fold.verdict)
     name = "monoaxial"
     title = "Monoaxial stabilisation under zero-mean time-varying perturbations"
     paper = "Aleksandrov & Tikhonov (2019), Vestnik SPbU 6(64):2, 270-280; eqs. (2), (4), (7), (14)"

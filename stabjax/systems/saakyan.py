@@ -37,7 +37,7 @@ set E of (1.13)) has |w1|/lam = |delta| <= 2, so a body spinning more than ``SPI
 (10) lam away from the target spin is running away (e.g. without mu), not "flipped": the
 verdict threshold ``diverge_size`` is 10 (not the generic 1e6 on |omega|); consequently a
 start with |w1(0)| > 10 lam is diverged from the first checkpoint on. The generic classifier
-(:mod:`stabjax.verdict`, noise floor ``floor_tol`` = 1e-6) does the rest, so these systems
+(:mod:`stabjax.fold.verdict`, noise floor ``floor_tol`` = 1e-6) does the rest, so these systems
 run on the fused engine.
 Numerical note: torques use S0/|S0| (cf. docs/models/monoaxial.md, "Numerical notes"), so solver drift of |S0| cannot
 add a spurious restoring term.
@@ -52,10 +52,11 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .. import linalg as la
-from ..params import Param, ParamSet, check_positive, require
-from ..system import System, VerdictConfig
-from ..outcomes import VERDICTS
+from ..model import linalg as la
+from ..model.params import Param, ParamSet, check_positive, require
+from ..config import VerdictConfig
+from ..model.system import System
+from ..model.outcomes import VERDICTS
 from . import saakyan_theory as theory
 
 I_DEFAULT = (5.0, 6.0, 4.0)
@@ -123,7 +124,7 @@ _PROGRAM = (
 
 class SaakyanBase(System):
     """Common machinery: parameters, checks, initial state, observables, verdict thresholds."""
-    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.fold.verdict)
 
     paper = "L. S. Saakyan, Active stabilisation of the rotational motion of a rigid body, 1974"
     state = (("w", (3,)), ("S", (3,)))

@@ -2,7 +2,7 @@
 
 Saakyan (1974), documented in ``docs/models/saakyan.md``. Every function takes NumPy arrays
 whose leading dimensions are batch dimensions (vectors carry a trailing axis of 3) and
-returns arrays; predicates come back as :class:`stabjax.system.Predicate` with a signed
+returns arrays; predicates come back as :class:`stabjax.model.system.Predicate` with a signed
 margin (> 0: the hypothesis holds).
 
 Notation: ``I = (A, B, C)`` principal moments (in B-3/B-4 the reduced moments C_i - J_i),
@@ -26,7 +26,7 @@ grid of starts, docs/models/saakyan.md, "The l of (1.18)"); :func:`l_spurious` t
 |delta| over the nonzero ones; :func:`l_116` solves the paper's scalar equation (1.16).
 
 Size (~615 lines): the theorems of one paper (predicates, steady spins, the radius l of (1.18)) over
-shared notation; each predicate is tested against the paper's statements in tests/test_saakyan_theory.py.
+shared notation; each predicate is tested against the paper's statements in tests/systems/test_saakyan_theory.py.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..system import Predicate, Theory
+from ..model.system import Predicate, Theory
 
 AXIS_TOL = 1e-9  # |H_k| > 1 - AXIS_TOL: H0 counts as lying along principal axis k
 LAM2NU_TOL = 1e-9  # |lam^2/nu - 1| below this: Theorem 2's knife edge lam^2 = nu holds

@@ -49,11 +49,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .. import linalg as la
+from ..model import linalg as la
 from ..errors import ValidationError
-from ..params import Param, ParamSet, check_positive, check_spd, check_unit, diag_or_matrix, require
-from ..system import System, VerdictConfig
-from ..outcomes import VERDICTS
+from ..model.params import Param, ParamSet, check_positive, check_spd, check_unit, diag_or_matrix, require
+from ..config import VerdictConfig
+from ..model.system import System
+from ..model.outcomes import VERDICTS
 from . import twobody_theory
 from .twobody_programs import delta_program, omega0_program
 
@@ -111,7 +112,7 @@ def _rotating_params():
 
 class _TwoBody(System):
     """Shared dynamics of the four closed loops; subclasses fix the frame and the task."""
-    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.verdict)
+    outcomes = VERDICTS  # the attitude verdicts are this system's outcomes (stabjax.fold.verdict)
 
     paper = "Bezglasnyi & Mysina (2011); eqs. (5), (6), (8)-(10), (12)-(16), (18)-(21), (24)-(26)"
     rotating = False

@@ -47,7 +47,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..system import Predicate, Theory
+from ..model.system import Predicate, Theory
 from .twobody_programs import delta_is_periodic, delta_program, omega0_program
 
 N_PERIOD = 240  # delta samples over one period (constant rate, König frame)

@@ -9,7 +9,7 @@ viscous damping c at both joints:
              m2 l1 l2 sin(th1 - th2) w1^2 - m2 g l2 sin th2 - c w2]
 
 ``rhs`` solves for q'' with ``jnp.linalg.solve`` (the construct the lane engines used to refuse;
-tests/test_constructs.py). The energy E = T + V decreases at the rate -c (w1^2 + w2^2).
+tests/engines/test_constructs.py). The energy E = T + V decreases at the rate -c (w1^2 + w2^2).
 """
 import jax.numpy as jnp
 

@@ -30,10 +30,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ... import early
-from ... import verdict as V
+from ...fold import stops
+from ...fold import verdict as V
 from ...config import escape_radius
-from ...status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
+from ...fold.status import MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from ..base import THREADS, Engine, Unsupported, lane_engine_declines, queued_bytes_per_trajectory
 from ..static import StaticParams, split_static
 from ..tsit5 import SOLVER, t1_clip_floor
@@ -75,14 +75,14 @@ class _Kernel:
         ts = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
         self.ts = np.ascontiguousarray(ts, np.float64)
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
-        self.fixed = early.active(system, icfg)
+        self.fixed = stops.active(system, icfg)
         self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late,
                                  (float(icfg.rtol), float(icfg.atol)) if self.fixed else None,
-                                 icfg.known_attractors if early.attractor_stop_active(system, icfg) else None)
-        self.k_w = early.window_index(self.ts, vcfg)
+                                 icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None)
+        self.k_w = stops.window_index(self.ts, vcfg)
         self.width = width
         self.source = kernel_source(self.model, width, escape_radius(system, icfg),
-                                    fp_every=early.fixed_point_every(len(self.ts)))
+                                    fp_every=stops.fixed_point_every(len(self.ts)))
         if eval_only:
             self.source = _eval_only_source(self.source)
         self.lib = _build(self.source)
@@ -194,13 +194,13 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     ain, y0 = model.host_inputs(dyn, n)
     raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
     c = model.c_tree_from(raw["c"])
-    fp = raw["fp"] == early.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
+    fp = raw["fp"] == stops.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
     if fp.any():
         K = len(kern.ts)
         ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
         n_in = np.where(fp, K - np.maximum(ck, kern.k_w), 0).astype(np.float64)
         # the remaining checkpoints observe the frozen state (NumPy, batched: no compile per batch size)
-        ff = early.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
+        ff = stops.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
         c = {k: np.where(fp.reshape((-1,) + (1,) * (np.ndim(v) - 1)), ff[k], v) for k, v in c.items()}
     summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
     summ["n_steps"] = raw["nacc"]

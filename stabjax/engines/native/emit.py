@@ -1,6 +1,6 @@
 """Native engine, code generation: a system's jaxprs as C (one line per scalar operation).
 
-``system.rhs``, ``system.observe`` and the classifier fold :func:`stabjax.verdict.update` are
+``system.rhs``, ``system.observe`` and the classifier fold :func:`stabjax.fold.verdict.update` are
 traced once and evaluated by the lane-wise evaluator (:class:`stabjax.engines.lanes.Lanes`) with
 every array element a C variable (:class:`CEmit`): slices, stacks and 3x3 products become
 bookkeeping, each scalar operation one line of C. Parameters equal across the sweep are folded in
@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ... import verdict as V
+from ...fold import verdict as V
 from ..base import Unsupported
 from ..lanes import Lanes, NoRule, is_const, obj, obj0
 
@@ -317,7 +317,7 @@ def split_t(lines: list[str]):
         # GCC contracts a product (or a negated one) into the FMA of the sum that consumes it; a
         # product stored between the two parts would be rounded once more. Such values are
         # computed in the second part from their factors instead, so both forms are the same
-        # arithmetic, bit for bit (tests/test_native.py).
+        # arithmetic, bit for bit (tests/engines/test_native.py).
         fused = [v for v in frontier if re.fullmatch(r"-?\S+ \* \S+|-\S+", exprs[v])]
         if not fused:
             break
@@ -348,8 +348,8 @@ class NativeModel:
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.system = system
-        self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.early
-        self.known = known  # stabjax.early.KnownAttractors: also emit f_at, the recurrence stop's test
+        self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.fold.stops
+        self.known = known  # stabjax.fold.stops.KnownAttractors: also emit f_at, the recurrence stop's test
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
         self.dyn_shapes = {k: tuple(dyn_shapes[k]) for k in self.dyn_keys}
@@ -443,26 +443,26 @@ class NativeModel:
                                            "double *restrict out")
         self.functions = rhs + "\n" + obs + "\n" + upd
         if self.fixed_point is not None:
-            # -- the fixed-point stop test (stabjax.early.at_fixed_point) -> out[0] = 1.0 / 0.0 --
-            from ... import early
+            # -- the fixed-point stop test (stabjax.fold.stops.at_fixed_point) -> out[0] = 1.0 / 0.0 --
+            from ...fold import stops
 
             em = CEmit()
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
             rt, at = self.fixed_point
-            closed = jax.make_jaxpr(lambda t, yy, a: early.at_fixed_point(system.rhs, t, yy, a, rt, at))(
+            closed = jax.make_jaxpr(lambda t, yy, a: stops.at_fixed_point(system.rhs, t, yy, a, rt, at))(
                 ex_t, ex_y, ex_args)
             outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
             _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_])
             self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
                                                 "const double *restrict a, double *restrict out")
         if self.known is not None:
-            # -- the recurrence stop's test (stabjax.early.near_attractor) -> out[0] = k or -1.0 --
-            from ... import early
+            # -- the recurrence stop's test (stabjax.fold.stops.near_attractor) -> out[0] = k or -1.0 --
+            from ...fold import stops
 
             em = CEmit()
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
             kn = self.known
-            closed = jax.make_jaxpr(lambda t, yy, a: early.near_attractor(
+            closed = jax.make_jaxpr(lambda t, yy, a: stops.near_attractor(
                 jnp.ravel(system.observe(t, yy, a)), kn))(ex_t, ex_y, ex_args)
             outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
             _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])

@@ -22,14 +22,14 @@ one piece. Why each part is written the way it is: the comments in the C, and do
   observables wait in per-lane FIFOs for vectorised classifier passes.
 * **Stops.** A lane stops at t1, at ``max_steps``, at once when its derivative is not finite or
   its step size collapses (status 1, what diffrax would end with; :data:`..tsit5.MIN_STEP_REL`), and, with an escape radius, at once when an accepted
-  state leaves the ball (status :data:`stabjax.status.ESCAPED`).
+  state leaves the ball (status :data:`stabjax.fold.status.ESCAPED`).
 """
 from __future__ import annotations
 
 import ctypes
 from typing import Callable
 
-from ...status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
+from ...fold.status import ESCAPED as STATUS_ESCAPED, MAX_STEPS as STATUS_MAX_STEPS, OK as STATUS_OK
 from ..tsit5 import A, C, E, FACTORMAX, FACTORMIN, MIN_STEP_REL, SAFETY
 from .emit import NativeModel, flit
 
@@ -492,14 +492,14 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     if model.fixed_point is None and known is None:
         src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
         src = src.replace("/*FP_SCALAR*/", "const int fixedp = 0;").replace("/*FP_OUT*/", "")
-    else:  # the stop tests of stabjax.early, after a step that reached a checkpoint: FP[l] = its stop code
-        from ...early import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
+    else:  # the stop tests of stabjax.fold.stops, after a step that reached a checkpoint: FP[l] = its stop code
+        from ...fold.stops import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
 
         src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
                                          "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN, ATM[W] ALIGN, NXA[W] ALIGN;\n"
                                          "    for (int l = 0; l < W; l++) { NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
         src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
-        every_fp = int(fp_every)  # checkpoints between fixed-point tests (stabjax.early.fixed_point_every)
+        every_fp = int(fp_every)  # checkpoints between fixed-point tests (stabjax.fold.stops.fixed_point_every)
         fp_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);"
                    if model.fixed_point is not None else "")
         at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, AKT + l, W);"
@@ -507,7 +507,7 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
         fp_mask = "R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0" if model.fixed_point is not None else "0.0"
         at_mask = "R0[l] != 0.0 && (double)CK[l] >= NXA[l] ? 1.0 : 0.0" if known is not None else "0.0"
         fp_hit = f"FPM[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
-        # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.early)
+        # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.fold.stops)
         at_hit = "" if known is None else f"""
                     const double k = AKT[l], m = ATM[l];
                     const double same = k >= 0.0 && k == AK[l] ? 1.0 : 0.0;

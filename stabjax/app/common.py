@@ -1,0 +1,189 @@
+"""What the commands share: option declarations, usage checks (``--set``, integer lists), the output-path
+check that refuses to lose a file, the stamps and readers that tell a previous result of ours from a user's file,
+and the consoles. What a command may write over is decided in :mod:`stabjax.run.outputs`."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import typer
+
+from rich.console import Console
+
+from ..run.outputs import same_file_as_any
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
+
+
+SetOpt = typer.Option(None, "--set", "-s", help="parameter override NAME=VALUE (vectors as comma lists); repeatable")
+
+
+def parse_sets(sets: Optional[list[str]]) -> dict[str, str]:
+    from ..errors import ValidationError
+
+    out = {}
+    for item in sets or []:
+        if "=" not in item:
+            raise ValidationError("--set", f"expected NAME=VALUE, got {item!r}")
+        k, v = (x.strip() for x in item.split("=", 1))
+        if not k:
+            raise ValidationError("--set", f"expected NAME=VALUE, got {item!r} (no name)")
+        if k in out:
+            raise ValidationError("--set", f"{k} is given twice ({out[k]!r} and {v!r})")
+        out[k] = v
+    return out
+
+
+def int_list(text: str, field: str, lo: int = 1) -> list[int]:
+    """A comma list of integers >= lo (``--sizes``)."""
+    from .. import validate
+    from ..errors import ValidationError
+
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}")
+    try:
+        values = [int(x) for x in items]
+    except ValueError:
+        raise ValidationError(field, f"expected a comma list of integers, got {text!r}") from None
+    return [validate.integer(v, field, lo=lo) for v in values]
+
+
+ForceOpt = typer.Option(False, "--force", help="replace an existing output file that is not a previous result of "
+                                                 "the same command (a result of the same spec is replaced anyway)")
+
+
+RESULT_SUFFIXES = (".nc",)
+
+
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: tuple[Path, ...] = (),
+                  force: bool = False, same=None, what: str = "a previous result of this command") -> bool:
+    """Refuse an output path that would lose something; True when an existing file will be replaced.
+
+    Never the command's input (a spec, a result being plotted), never a directory, only the
+    extensions the command writes. An existing file is replaced when ``same(out)`` says it is a
+    previous result of the same computation (re-running a command is normal) or with ``--force``;
+    anything else is refused with the way to allow it.
+    """
+    from ..errors import ValidationError
+
+    if out.is_dir():
+        raise ValidationError(field, f"{out} is a directory; give a file name ending in {suffixes[0]}")
+    if out.suffix.lower() not in suffixes:
+        raise ValidationError(field, f"{out}: this command writes {' or '.join(suffixes)} files; "
+                                     f"got {out.suffix or 'no extension'!r}")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ValidationError(field, f"{out.parent} is not a directory")
+    if out.exists() and same_file_as_any(out, inputs):
+        raise ValidationError(field, f"{out} is this command's input (the spec, the model or a module it imports, "
+                                     "or the file read); it is never overwritten")
+    if not out.exists():
+        return False
+    if force or (same is not None and same(out)):
+        return True
+    raise ValidationError(field, f"{out} exists and is not {what}; pass --force to replace it, "
+                                 "or choose another --out")
+
+
+def result_spec(path: Path):
+    """The spec (parsed ``spec_json``) stored in a stabjax sweep result, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
+    except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
+        return None
+
+
+PNG_KEY = "stabjax-spec"  # PNG text chunk: digest of the spec a map was drawn from
+
+
+def spec_hash(spec_dict) -> str:
+    from ..plan.identity import spec_digest
+
+    return spec_digest(spec_dict)
+
+
+def png_spec(path: Path) -> str | None:
+    """The spec digest stamped into a map by :func:`stamp_png` (None for any other image)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return im.info.get(PNG_KEY)
+    except Exception:  # noqa: BLE001 - not a readable PNG: not a map of ours
+        return None
+
+
+def stamp_png(path: Path, ds) -> None:
+    """Record in the map which spec it shows, so a re-run of the same sweep may replace it (a shipped
+    map of the same spec too) while any other image at that path needs --force."""
+    if path.suffix.lower() != ".png" or "spec_json" not in ds.attrs:
+        return
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(PNG_KEY, spec_hash(json.loads(ds.attrs["spec_json"])))
+    with Image.open(path) as im:
+        im.load()
+        im.save(path, pnginfo=info)
+
+
+def trajectory_system(path: Path) -> str | None:
+    """The system of a trajectory written by ``stabjax simulate``, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return str(ds.attrs["system"]) if "solver_ok" in ds.attrs and "system" in ds.attrs else None
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def open_result_file(file: Path):
+    from ..errors import ValidationError
+    from ..run.sweep import open_result
+
+    if file.is_dir():
+        raise ValidationError("file", f"{file} is a directory, not a sweep result")
+    if file.exists() and not file.is_file():  # a FIFO would block the open forever
+        raise ValidationError("file", f"{file} is not a regular file (a pipe, device or socket)")
+    try:
+        return open_result(file)
+    except ValidationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - netCDF/HDF5 raise several types for a foreign file
+        raise ValidationError("file", f"{file} is not a netCDF sweep result ({type(exc).__name__})") from None
+
+
+def jsonable(x: Any):
+    if isinstance(x, dict):
+        return {k: jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return None if not np.isfinite(x) else float(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def warn_changed_model(ds):
+    """A result records its model file and the local modules it imports, with their hashes
+    (:mod:`stabjax.plan.identity`); say so when one on disk has changed since."""
+    from ..plan.identity import changed_sources
+
+    for what in changed_sources(ds.attrs):
+        err_console.print(f"warning: the model file {what} has changed since this result was computed",
+                          style="yellow", markup=False)

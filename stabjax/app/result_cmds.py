@@ -1,0 +1,160 @@
+"""``stabjax plot | report | view | horizon-check``: what a finished result (or a running store) shows."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from ..run.outputs import input_files, write_image
+from .common import stamp_png, ForceOpt, IMAGE_SUFFIXES, check_output, open_result_file, warn_changed_model, console, jsonable
+
+
+def plot_cmd(
+    file: Path = typer.Argument(..., help="sweep result (netCDF)"),
+    out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with the --format extension)"),
+    fmt: Optional[str] = typer.Option(None, "--format", help="png | svg | pdf: vector output (svg, pdf) for a paper, "
+                                                            "beside the PNG (default: from --out, else png)"),
+    force: bool = ForceOpt,
+):
+    """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
+    if fmt is not None:
+        from ..errors import ValidationError
+
+        if fmt.lower().lstrip(".") not in ("png", "svg", "pdf"):
+            raise ValidationError("--format", f"choose png, svg or pdf; got {fmt!r}")
+        fmt = fmt.lower().lstrip(".")
+        if out is not None and out.suffix.lower() != f".{fmt}":
+            raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
+        out = out or file.with_suffix(f".{fmt}")
+    ds = open_result_file(file)
+    if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
+        from ..errors import ValidationError
+
+        raise ValidationError("file", f"{file} is not a sweep result (no 'outcome' or 'verdict' variable)")
+    warn_changed_model(ds)
+    out = out or file.with_suffix(".png")
+    # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
+    replacing = check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
+                              what=f"the map of {file}")
+    print_result(ds, out, replaced=replacing, result=file)
+
+
+def report_cmd(
+    file: Path = typer.Argument(..., help="a result (netCDF): a sweep, an example's basin result or a refinement"),
+    out: Optional[Path] = typer.Option(None, help="HTML page to write (default: FILE with .html)"),
+    force: bool = ForceOpt,
+):
+    """Write one self-contained HTML page of a result: what was run, outcomes with S ± SE and Wilson
+    intervals, figures, the theory's agreement and the warnings (for a lab notebook)."""
+    from ..present.report import write_report
+
+    ds = open_result_file(file)
+    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds:
+        from ..errors import ValidationError
+
+        raise ValidationError("file", f"{file} is not a stabjax result (no verdict, outcome or refinement points)")
+    out = out or file.with_suffix(".html")
+    replacing = check_output(out, "--out", (".html",), inputs=(file,), force=force,
+                              same=lambda p: p.resolve() == file.resolve().with_suffix(".html"),
+                              what=f"the report of {file}")
+    write_report(ds, out, source=str(file))
+    console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False,
+                  soft_wrap=True)
+
+
+def view_cmd(
+    result: Path = typer.Argument(..., help="a result (netCDF), or a running sweep's chunk store (RESULT.nc.zarr)"),
+    port: int = typer.Option(0, help="port on 127.0.0.1 (default: a free one)"),
+    browser: bool = typer.Option(True, "--browser/--no-browser", help="open the page in the default browser"),
+    quit_after: Optional[float] = typer.Option(None, "--quit-after", help="stop the server after this many seconds "
+                                                                          "(scripts, tests)"),
+):
+    """Explore a result in the browser: its map, a click re-simulates that trajectory (time series with the late
+    window, phase portrait, why it got its outcome), feature space, fractions with Wilson bands. Serves on
+    127.0.0.1 only; a running sweep's store refreshes as chunks land. Needs: pip install 'stabjax[view]'."""
+    from .. import validate
+    from ..present.view import serve
+
+    validate.integer(port, "--port", lo=0, hi=65535)
+    if quit_after is not None:
+        validate.number(quit_after, "--quit-after", lo=0.0, lo_open=True)
+    if not result.exists():
+        from ..errors import ValidationError
+
+        raise ValidationError("result", f"not found: {result}")
+    serve(result, port=port, show=browser, quit_after=quit_after,
+          announce=lambda text: console.print(text, markup=False, highlight=False, soft_wrap=True))
+
+
+def horizon_check_cmd(
+    file: Path = typer.Argument(..., help="sweep result (netCDF)"),
+    factor: float = typer.Option(4.0, help="re-run with t1 * factor"),
+    n: int = typer.Option(64, help="number of trajectories re-run"),
+    seed: int = typer.Option(0),
+    as_json: bool = typer.Option(False, "--json"),
+):
+    """Re-run a random subset at a longer horizon and report how many verdicts change.
+
+    The sweep's dataset already holds the verdicts at t1 and the decades below it (dim ``horizon``,
+    from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
+    from .. import validate
+    from ..fold import verdict as V
+    from ..run.horizon import horizon_check
+
+    validate.number(factor, "--factor", lo=1.0, lo_open=True)
+    validate.integer(n, "--n", lo=1)
+    validate.integer(seed, "--seed", lo=0)
+    ds = open_result_file(file)
+    if "verdict" not in ds:
+        from ..errors import ValidationError
+
+        raise ValidationError("file", f"{file} holds named outcomes, not attitude verdicts: horizon-check compares "
+                                      "verdicts (rerun the sweep with a longer --t1 to compare outcomes)")
+    if "horizon" in ds.dims and not as_json:
+        for j, T in enumerate(ds["horizon"].values):
+            c = V.counts(ds["verdict"].isel(horizon=j).values)
+            console.print(f"dataset, T = {T:<9.3g}" + " ".join(f"{k[:4]} {v:<6d}" for k, v in c.items()))
+    hc = horizon_check(ds, factor=factor, n=n, seed=seed)
+    if as_json:
+        console.print_json(json.dumps(jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
+                                                  "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],
+                                                  "transition": hc["transition"].values})))
+        return
+    t = Table(title=f"verdicts at t1 = {hc.attrs['t1_short']:g} (rows) vs t1 = {hc.attrs['t1_long']:g} (columns)")
+    t.add_column("")
+    for name in V.NAMES:
+        t.add_column(name)
+    for i, name in enumerate(V.NAMES):
+        t.add_row(name, *[str(int(x)) for x in hc["transition"].values[i]])
+    console.print(t)
+    console.print(f"{hc.attrs['n_changed']} of {hc.attrs['n_checked']} verdicts changed")
+
+
+def print_result(ds, png: Optional[Path], replaced: bool = False, result: Optional[Path] = None):
+    """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory.
+
+    The map is drawn into a temporary file beside ``png`` and renamed over it, so a full disk leaves the
+    previous map (or nothing), never half an image, and is reported in one line (exit 1) with the way
+    to draw it again; ``result``: the netCDF file the map is drawn from, for that message."""
+    from ..present.maps import format_confusion, plot_sweep
+
+    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
+        from ..present.basins import format_summary, plot_basin
+
+        console.print(format_summary(ds), highlight=False, markup=False)
+        draw = plot_basin
+    else:
+        console.print(format_confusion(ds), highlight=False, markup=False)
+        if "basin_fraction" in ds:
+            from ..present.basins import format_summary
+
+            console.print(format_summary(ds), highlight=False, markup=False)
+        draw = plot_sweep
+    if png is None:
+        return
+    write_image(png, lambda tmp: (draw(ds, tmp), stamp_png(tmp, ds)), result)
+    console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)

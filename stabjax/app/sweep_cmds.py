@@ -1,0 +1,220 @@
+"""``stabjax sweep | export``: run a spec (or a refinement) into a dataset, the summary printed after it, the exit
+status it deserves; write the netCDF file of a finished chunk store."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+
+from ..run.outputs import write_image, check_store_path, input_files
+from .result_cmds import print_result
+from .common import ForceOpt, IMAGE_SUFFIXES, RESULT_SUFFIXES, check_output, png_spec, result_spec, spec_hash, console, err_console
+
+
+def sweep(
+    spec: Path = typer.Argument(..., help="sweep spec (TOML), e.g. sweeps/at2019_alpha_sigma.toml"),
+    out: Optional[Path] = typer.Option(None, help="netCDF output (default results/<name>.nc)"),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="trajectories per compiled chunk"),
+    t1: Optional[float] = typer.Option(None, help="override [integrate].t1"),
+    plot: bool = typer.Option(True, "--plot/--no-plot", help="also write <out>.png"),
+    restart: bool = typer.Option(False, help="discard the finished chunks of an earlier run of this output"),
+    progress: bool = typer.Option(True, "--progress/--no-progress"),
+    store: Optional[Path] = typer.Option(None, help="chunk store (zarr directory; default <out>.zarr)"),
+    keep_store: bool = typer.Option(False, "--keep-store", help="keep the chunk store after writing <out>"),
+    scheduler: Optional[str] = typer.Option(None, help="run the chunks on an existing Dask scheduler "
+                                            "(tcp://HOST:8786 or a scheduler file)"),
+    workers: Optional[int] = typer.Option(None, help="run the chunks on a local Dask cluster of N worker processes"),
+    threads: Optional[int] = typer.Option(None, help="engine threads per Dask worker "
+                                          "(default: cores // workers locally)"),
+    oversubscribe: bool = typer.Option(False, "--oversubscribe", help="allow workers x threads > cores "
+                                       "(or more local workers than GPUs)"),
+    connect_timeout: float = typer.Option(10.0, "--connect-timeout", help="seconds to wait for the Dask scheduler "
+                                          "(--scheduler) before giving up with an error"),
+    force: bool = ForceOpt,
+):
+    """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
+
+    A spec with a [refine] section brackets the boundary between outcomes adaptively instead.
+    Exit status: 0 every trajectory classified, 1 some failed (the result is written and says which),
+    2 bad input, 130/143/129 interrupted (finished chunks kept: the same command resumes)."""
+    from .. import validate
+    from ..errors import ValidationError
+    from ..plan.spec import load_spec, make_plan, spec_json
+    from ..run.sweep import default_store, run_plan
+
+    if threads is not None and scheduler is None and workers is None:
+        raise ValidationError("--threads", "applies to Dask workers: give --workers N or --scheduler ADDRESS "
+                              "(a local run uses $STABJAX_THREADS)")
+    validate.number(connect_timeout, "--connect-timeout", lo=0.0, lo_open=True, hi=3600.0)
+    s = load_spec(spec)
+    plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
+    out = out or Path("results") / f"{plan.name}.nc"
+    inputs = input_files(spec, system=plan.system)
+    this_spec = json.loads(spec_json(plan.spec))
+    replacing = check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
+                              same=lambda p: result_spec(p) == this_spec,
+                              what="a result of this spec (with this --t1)")
+    if plot:  # the map follows its result: replaced with it, else only with --force
+        png = out.with_suffix(".png")
+        check_output(png, "--out", IMAGE_SUFFIXES, inputs=inputs, force=force or replacing,
+                      same=lambda p: png_spec(p) == spec_hash(this_spec),
+                      what="the map of a previous result of this spec")
+    store = store or default_store(out)
+    check_store_path(store, inputs, outputs=(out, out.with_suffix(".png") if plot else None))
+    if replacing:
+        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
+                          markup=False)
+    note = plan.outcomes.decl.default_distance_note() if plan.outcomes is not None and plan.outcomes.decl else ""
+    if note:
+        err_console.print(f"note: {note}", markup=False)
+    executor = None
+    if scheduler is not None or workers is not None:
+        import os
+
+        from ..run.distributed import DaskExecutor
+
+        # this process only collects results: keep a GPU's memory for the workers
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+        executor = DaskExecutor(scheduler=scheduler, workers=workers, threads=threads, oversubscribe=oversubscribe,
+                                timeout=connect_timeout)
+    try:
+        if executor is not None:
+            _start_executor(executor, scheduler, connect_timeout)
+        if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.explore.refine)
+            raise typer.Exit(_refine(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
+                                     store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
+        ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
+                      keep_partial=keep_store, executor=executor, overrides={"t1": t1})
+    except KeyboardInterrupt as exc:
+        status = getattr(exc, "status", 130)
+        by = f" by {exc.name}" if hasattr(exc, "name") else ""
+        err_console.print(f"interrupted{by}: finished chunks are kept in {store}; run the same command to resume",
+                          style="yellow", markup=False)
+        raise typer.Exit(status)
+    finally:
+        if executor is not None:
+            executor.close()
+    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
+                  f"{ds.attrs['wall_time_s']:.1f} s, engine {ds.attrs['engine']})", markup=False)
+    stops = _stops_line(ds)
+    if stops:
+        console.print(stops, markup=False)
+    print_result(ds, out.with_suffix(".png") if plot else None, result=out)
+    status = run_status(ds, out)  # the last line: how many failed, when any did
+    if status:
+        raise typer.Exit(status)
+
+
+def _refine(plan, out: Path, plot: bool, **run) -> int:
+    """``stabjax sweep SPEC`` for a spec with a [refine] section: refine, write ``out`` (and its map), print a
+    summary; the exit status. ``run``: the sweep runner's options, as for any sweep."""
+    from ..explore.refine import refine_plan
+    from ..explore.refine_config import refine_config
+    from ..present.refinement import format_summary, plot_refine
+
+    refine_config(plan)  # every field checked before anything is integrated or written
+    ds = refine_plan(plan, out, **run)
+    console.print(f"wrote {out}  ({ds.attrs['wall_time_s']:.1f} s)", markup=False)
+    console.print(format_summary(ds), highlight=False, markup=False)
+    if plot:
+        png = out.with_suffix(".png")
+        write_image(png, lambda tmp: plot_refine(ds, tmp), out)
+        console.print(f"wrote {png}", markup=False)
+    return run_status(ds, out)
+
+
+def _stops_line(ds) -> str:
+    """How many trajectories ended before t1 because their fate was decided (stabjax.fold.stops), or ""."""
+    if "stop_reason" not in ds:
+        return ""
+    from ..fold.stops import STOP_ATTRACTOR, STOP_FIXED_POINT
+
+    codes = ds["stop_reason"].values
+    parts = [f"{int((codes == c).sum()):,} {what}" for c, what in
+             ((STOP_FIXED_POINT, "at a stable fixed point"), (STOP_ATTRACTOR, "near an attractor found earlier"))
+             if (codes == c).any()]
+    return f"stopped early, fate decided: {', '.join(parts)}" if parts else ""
+
+
+def _start_executor(executor, scheduler: str | None, timeout: float) -> None:
+    """Connect to the Dask scheduler (or start the local cluster) within ``timeout`` seconds; any failure
+    is one line naming the option, never a traceback (a port that answers but is not a Dask scheduler
+    made distributed allocate exabytes)."""
+    from ..errors import StabjaxError, ValidationError
+
+    try:
+        executor.start()
+    except StabjaxError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - distributed raises many types for a bad address
+        field = "--scheduler" if scheduler is not None else "--workers"
+        what = f"cannot reach a Dask scheduler at {scheduler}" if scheduler is not None else "cannot start the local cluster"
+        msg = str(exc).splitlines()[0][:200] if str(exc) else ""
+        raise ValidationError(field, f"{what} within {timeout:g} s ({type(exc).__name__}{': ' + msg if msg else ''}); "
+                                     "check the address, or raise --connect-timeout") from None
+
+
+def run_status(ds, out: Optional[Path] = None) -> int:
+    """The exit status a finished sweep deserves: 0 when every trajectory is classified, 1 (said in one
+    line) when some failed (the solver did not reach t1), or when named outcomes classified none."""
+    from ..fold import verdict as V
+
+    if ds is None:
+        return 0
+    n = int(ds.attrs.get("n_trajectories", 0)) or None
+    where = f" (see solver_status in {out})" if out is not None else ""
+    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
+        names = str(ds["outcome"].attrs.get("flag_meanings", "")).split()
+        codes = np.asarray(ds["outcome"].values).ravel()
+        n = n or codes.size
+        failed = int((codes == names.index("failed")).sum()) if "failed" in names else 0
+        unclassified = int((codes == names.index("unclassified")).sum()) if "unclassified" in names else 0
+        if failed:
+            err_console.print(f"{failed} of {n} trajectories failed: the solver did not reach t1{where}; "
+                              "exit status 1", style="red", markup=False)
+            return 1
+        if n and unclassified == n:
+            err_console.print(f"no trajectory was classified: all {n} are unclassified (no rule holds and no "
+                              "template is near); exit status 1", style="red", markup=False)
+            return 1
+        return 0
+    if "verdict" not in ds:
+        return 0
+    v = np.asarray(V.at_t1(ds["verdict"]).values).ravel()
+    n = n or v.size
+    failed = int((v == V.NAMES.index("failed")).sum())
+    if failed:
+        err_console.print(f"{failed} of {n} trajectories failed: the solver did not reach t1{where}; exit status 1",
+                          style="red", markup=False)
+        return 1
+    return 0
+
+
+def export(
+    store: Path = typer.Argument(..., help="a finished chunk store (the zarr directory of a sweep)"),
+    out: Path = typer.Option(..., help="netCDF file to write"),
+    force: bool = ForceOpt,
+):
+    """Write the netCDF file of a finished chunk store (e.g. one kept with --keep-store).
+
+    An existing OUT is replaced only when it is a result of the same spec (an earlier export of this
+    store, or the sweep's own output); any other file needs --force."""
+    from ..plan.spec import spec_json
+    from ..run.store import finished_store
+    from ..run.sweep import export_store
+
+    _, plan = finished_store(store)
+    this_spec = json.loads(spec_json(plan.spec))
+    replacing = check_output(out, "--out", RESULT_SUFFIXES, inputs=input_files(system=plan.system), force=force,
+                              same=lambda p: result_spec(p) == this_spec,
+                              what="a result of the spec of this store")
+    if out.resolve().is_relative_to(Path(store).resolve()):
+        from ..errors import ValidationError
+
+        raise ValidationError("--out", f"{out} is inside the store {store}; write the file outside it")
+    ds = export_store(store, out)
+    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, engine {ds.attrs['engine']})"
+                  + (" (replaced the previous file)" if replacing else ""), markup=False)

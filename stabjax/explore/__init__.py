@@ -1,0 +1,1 @@
+"""Searches built on the runner: adaptive boundary refinement."""

@@ -1,0 +1,599 @@
+"""Named outcomes: which attractor (or fate) each trajectory reached, and basin stability.
+
+A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one
+integer code, stored as the dataset variable ``outcome`` with CF ``flag_values`` /
+``flag_meanings``. Codes are, in this order:
+
+1. the **rule** outcomes, in declaration order: the first rule that holds wins. A rule is an
+   expression over *late-window features* of the observables (``max(x)``, ``min(x)``,
+   ``mean(x)``, ``std(x)``, ``final(x)``: over the checkpoints with ``t >= t0 + (1 - window)(t1 - t0)``),
+   numbers and the system's scalar parameters, with ``+ - * / **``, ``abs``, comparisons,
+   ``and``/``or``/``not``; e.g. ``"std(omega) < 1e-3 and abs(mean(omega)) < 1e-3"``;
+2. the **template** outcomes: each template is an initial condition (parameter overrides) that
+   is integrated with the same settings at every grid point; a trajectory that no rule claimed is
+   given the template whose feature vector (``features``, a list of feature expressions) is
+   nearest, if that distance is below ``max_distance`` (default: half the smallest distance
+   between two templates' feature vectors, so the assignment is never a close call between two);
+3. ``escaped`` (renamed by ``escape = "unbounded"``) when the system or spec sets
+   ``escape_radius``: the integration stops once max_i |y_i| exceeds it;
+4. ``unclassified``: no rule holds and no template is near;
+5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
+
+Nothing is absorbed silently: 4 and 5 are always present. A system that declares no outcomes gets
+its attractors discovered (:mod:`stabjax.mapping.discover`: ``fixed_point_1``, ``limit_cycle_1``,
+``chaotic_1``, ...). The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
+outcomes (converged, flipped, diverged, undecided, failed), with the same codes as ``verdict``.
+
+Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
+sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
+"""
+from __future__ import annotations
+
+import ast
+import functools
+import math
+import operator
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..fold import status as S
+from ..errors import ValidationError
+
+FEATURES = ("max", "min", "mean", "std", "final")
+LYAPUNOV = "lyapunov"  # bare name in rules and features: the largest Lyapunov exponent (stabjax.model.tangent)
+UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
+Z95 = 1.959963984540054  # two-sided 95 % normal quantile
+MAX_RULE_CHARS = 500
+
+# named outcomes, in declaration order: Okabe & Ito's colour-blind-safe palette (blue, vermillion, bluish
+# green, reddish purple, orange, sky blue, yellow), then darker tones; greys stay for unclassified/failed
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#5f0f40", "#264653",
+           "#8d6e00")
+GREY_UNCLASSIFIED, GREY_FAILED, COLOR_ESCAPED = "#adb5bd", "#6c757d", "#8d0801"
+
+
+# ---- rule expressions ---------------------------------------------------------------------------
+
+_BIN = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+        ast.Pow: operator.pow}
+_CMP = {ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge,
+        ast.Eq: operator.eq, ast.NotEq: operator.ne}
+_CONST = {"pi": math.pi, "e": math.e, "inf": math.inf}
+
+
+class Rule:
+    """A parsed rule or feature expression; evaluated vectorised on feature arrays.
+
+    ``features(stat, observable) -> array (N,)``; ``params(name) -> array (N,)``.
+    """
+
+    def __init__(self, text: str, observables: tuple[str, ...], params: tuple[str, ...], field: str,
+                 boolean: bool = True):
+        self.text, self.field = text, field
+        if not isinstance(text, str) or not text.strip():
+            raise ValidationError(field, f"must be a non-empty expression string, got {text!r}")
+        if len(text) > MAX_RULE_CHARS:
+            raise ValidationError(field, f"expression longer than {MAX_RULE_CHARS} characters")
+        try:
+            self.tree = ast.parse(text.strip(), mode="eval").body
+        except SyntaxError as exc:
+            raise ValidationError(field, f"cannot parse {text!r}: {exc.msg}") from None
+        self.observables, self.params = observables, params
+        self.used: set[tuple[str, str]] = set()
+        kind = self._check(self.tree)
+        if boolean and kind != "bool":
+            raise ValidationError(field, f"{text!r} is not a condition (use a comparison, e.g. 'std(x) < 1e-3')")
+        if not boolean and kind != "num":
+            raise ValidationError(field, f"{text!r} must be a number-valued feature expression, e.g. 'max(x)'")
+
+    def _err(self, msg: str):
+        return ValidationError(self.field, f"{self.text!r}: {msg}")
+
+    def _check(self, node) -> str:
+        """Type-check the tree ('num' or 'bool'); only whitelisted nodes pass."""
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+                raise self._err(f"only numbers are allowed as constants, got {node.value!r}")
+            try:
+                finite = math.isfinite(float(node.value))
+            except OverflowError:  # an integer literal beyond any double
+                finite = False
+            if not finite:
+                raise self._err("non-finite constant")
+            return "num"
+        if isinstance(node, ast.Name):
+            if node.id in _CONST or node.id in self.params:
+                return "num"
+            if node.id == LYAPUNOV:  # the largest Lyapunov exponent over the window (stabjax.model.tangent)
+                self.used.add(("final", LYAPUNOV))
+                return "num"
+            raise self._err(f"unknown name {node.id!r}; use a feature such as max({node.id}) for observables, "
+                            f"or one of the parameters {', '.join(self.params)}")
+        if isinstance(node, ast.Call):
+            if not isinstance(node.func, ast.Name) or node.keywords or len(node.args) != 1:
+                raise self._err("calls take one argument: max(x), min(x), mean(x), std(x), final(x), abs(expr)")
+            fn = node.func.id
+            if fn == "abs":
+                if self._check(node.args[0]) != "num":
+                    raise self._err("abs() takes a number")
+                return "num"
+            if fn not in FEATURES:
+                raise self._err(f"unknown function {fn!r}; features: {', '.join(FEATURES)}; and abs()")
+            arg = node.args[0]
+            if not isinstance(arg, ast.Name) or arg.id not in self.observables:
+                raise self._err(f"{fn}() takes an observable name: {', '.join(self.observables)}")
+            self.used.add((fn, arg.id))
+            return "num"
+        if isinstance(node, ast.UnaryOp):
+            k = self._check(node.operand)
+            if isinstance(node.op, ast.Not):
+                if k != "bool":
+                    raise self._err("'not' needs a condition")
+                return "bool"
+            if isinstance(node.op, (ast.USub, ast.UAdd)) and k == "num":
+                return "num"
+            raise self._err("unsupported unary operator")
+        if isinstance(node, ast.BinOp):
+            if type(node.op) not in _BIN:
+                raise self._err("only + - * / ** are allowed")
+            if self._check(node.left) != "num" or self._check(node.right) != "num":
+                raise self._err("arithmetic on a condition")
+            self._constant_is_finite(node)
+            return "num"
+        if isinstance(node, ast.Compare):
+            for op in node.ops:
+                if type(op) not in _CMP:
+                    raise self._err("only < <= > >= == != comparisons are allowed")
+            for x in [node.left, *node.comparators]:
+                if self._check(x) != "num":
+                    raise self._err("comparisons take numbers")
+            return "bool"
+        if isinstance(node, ast.BoolOp):
+            for v in node.values:
+                if self._check(v) != "bool":
+                    raise self._err("'and'/'or' combine conditions")
+            return "bool"
+        raise self._err(f"unsupported syntax ({type(node).__name__})")
+
+    def _constant_is_finite(self, node) -> None:
+        """Refuse arithmetic on constants alone that is not finite (``1/0``, ``10.0**400``): evaluated
+        here, statically, it would otherwise make the rule always true or always false without a word."""
+        if any(isinstance(n, ast.Call) or (isinstance(n, ast.Name) and n.id not in _CONST) for n in ast.walk(node)):
+            return
+        if any(isinstance(n, ast.Name) and not math.isfinite(_CONST[n.id]) for n in ast.walk(node)):
+            return  # ``inf`` written on purpose
+        with np.errstate(all="ignore"):
+            v = self._eval(node, None, None)
+        if not np.isfinite(v):
+            raise self._err(f"{ast.unparse(node)} evaluates to {float(v)}, not a finite number")
+
+    def __call__(self, feat, params) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            return np.asarray(self._eval(self.tree, feat, params))
+
+    def _eval(self, node, feat, params):
+        # numpy scalars, not Python floats: 1/0 on features is inf (numpy), never a ZeroDivisionError
+        # raised after the whole integration
+        if isinstance(node, ast.Constant):
+            return np.float64(node.value)
+        if isinstance(node, ast.Name):
+            if node.id in _CONST:
+                return np.float64(_CONST[node.id])
+            return params(node.id) if node.id in self.params else feat("final", LYAPUNOV)
+        if isinstance(node, ast.Call):
+            if node.func.id == "abs":
+                return np.abs(self._eval(node.args[0], feat, params))
+            return feat(node.func.id, node.args[0].id)
+        if isinstance(node, ast.UnaryOp):
+            v = self._eval(node.operand, feat, params)
+            return np.logical_not(v) if isinstance(node.op, ast.Not) else (-v if isinstance(node.op, ast.USub) else v)
+        if isinstance(node, ast.BinOp):
+            left, right = self._eval(node.left, feat, params), self._eval(node.right, feat, params)
+            if isinstance(node.op, ast.Pow):
+                # bounded: a rule is evaluated on feature arrays, never on huge integers
+                return np.power(np.asarray(left, float), np.asarray(right, float))
+            return _BIN[type(node.op)](left, right)
+        if isinstance(node, ast.Compare):
+            vals = [self._eval(x, feat, params) for x in [node.left, *node.comparators]]
+            out = True
+            for op, a, b in zip(node.ops, vals[:-1], vals[1:]):
+                out = np.logical_and(out, _CMP[type(op)](a, b))
+            return out
+        if isinstance(node, ast.BoolOp):
+            vals = [self._eval(v, feat, params) for v in node.values]
+            f = np.logical_and if isinstance(node.op, ast.And) else np.logical_or
+            out = vals[0]
+            for v in vals[1:]:
+                out = f(out, v)
+            return out
+        raise AssertionError(type(node))
+
+
+def _trial(rule: Rule, observables: tuple[str, ...], params: tuple[str, ...]) -> None:
+    """Evaluate a rule once on made-up features and parameters, before anything is integrated: an
+    expression that cannot be evaluated fails here, naming its field, not after the whole run."""
+    probe = np.array([-2.0, -0.5, 0.0, 0.5, 2.0])
+    try:
+        out = rule(lambda stat, obs: probe, lambda name: probe)
+        np.broadcast_to(out, probe.shape)
+    except Exception as exc:  # noqa: BLE001 - any failure of a user's expression is a bad input
+        raise ValidationError(rule.field, f"{rule.text!r} cannot be evaluated ({type(exc).__name__}: {exc})") from None
+
+
+@functools.lru_cache(maxsize=256)
+def parse(text: str, observables: tuple[str, ...], params: tuple[str, ...], field: str, boolean: bool = True) -> Rule:
+    """A :class:`Rule`, parsed and checked once per text and system (assignment runs chunk by chunk)."""
+    return Rule(text, observables, params, field, boolean)
+
+
+def _names(system) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(observables, scalar parameters): the names a rule may use."""
+    return tuple(system.observables), tuple(p.name for p in system.params if not p.shape)
+
+
+# ---- declarations ----------------------------------------------------------------------------------
+
+
+class _Verdicts:
+    """The declaration ``outcomes = VERDICTS``: the outcomes are the attitude verdicts (converged,
+    flipped, diverged, undecided, failed) of :mod:`stabjax.fold.verdict`, whose rules read observable 0
+    as an error metric and observable 1 as a size. The built-in attitude systems declare it; a model
+    that declares nothing gets its attractors discovered (:mod:`stabjax.mapping.discover`) instead."""
+
+    def __repr__(self):
+        return "VERDICTS"
+
+    def __reduce__(self):
+        return "VERDICTS"
+
+
+VERDICTS = _Verdicts()
+
+
+@dataclass(frozen=True)
+class DiscoveryConfig:
+    """``[outcomes.discovery]``: the grouping and typing settings (defaults measured on the examples,
+    ``docs/performance.md``: eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic
+    attractor's feature cloud nor merges Duffing's period-3 cycles).
+
+    eps              DBSCAN radius, in units of each observable's range over the sweep
+    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample
+    subsample        trajectories grouped by DBSCAN itself; the others join their nearest core sample
+    fixed_point_tol  window std / range below this for every observable -> fixed point
+    chaos_threshold  median largest Lyapunov exponent above this -> chaotic
+    lyapunov         integrate the tangent dynamics for the exponent (off: no chaotic/limit-cycle types)
+    seed             of the subsample
+    continuation     with one [grid] axis: group each grid point on its own and match the attractors
+                     of neighbouring points (:func:`continue_along`); off: group all points together
+    match_threshold  largest distance (scaled features) between representatives of one attractor at
+                     neighbouring grid points (default inf, as Attractors.jl's MatchBySSSetDistance: the
+                     greedy order alone decides; a finite value lets a far jump be a death and a birth)
+    """
+
+    eps: float = 0.05
+    min_samples: int = 5
+    subsample: int = 4000
+    fixed_point_tol: float = 1e-4
+    chaos_threshold: float = 0.01
+    lyapunov: bool = True
+    seed: int = 0
+    continuation: bool = True
+    match_threshold: float = math.inf
+
+    @classmethod
+    def from_dict(cls, d: Any, section: str = "outcomes.discovery") -> "DiscoveryConfig":
+        if d is None:
+            return cls()
+        if not isinstance(d, Mapping):
+            raise ValidationError(section, "must be a table")
+        known = {f.name: f for f in fields(cls)}
+        kw = {}
+        for k, v in d.items():
+            if k not in known:
+                raise ValidationError(f"{section}.{k}", f"unknown key; known: {', '.join(known)}")
+            default = known[k].default
+            if isinstance(default, bool):
+                if not isinstance(v, bool):
+                    raise ValidationError(f"{section}.{k}", f"must be true or false, got {v!r}")
+            elif isinstance(default, int):
+                if isinstance(v, bool) or not isinstance(v, int) or v < (0 if k == "seed" else 1):
+                    raise ValidationError(f"{section}.{k}", f"must be a positive integer, got {v!r}")
+            else:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or (
+                        math.isinf(v) and k != "match_threshold"):
+                    raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
+                if k != "chaos_threshold" and not v > 0:
+                    raise ValidationError(f"{section}.{k}", f"must be > 0, got {v!r}")
+                v = float(v)
+            kw[k] = v
+        return cls(**kw)
+
+
+@dataclass
+class Outcomes:
+    """A system's outcome declaration (see the module docstring).
+
+    rules         name -> condition over late-window features (first match wins)
+    templates     name -> parameter overrides (an initial condition on the attractor's basin)
+    features      feature expressions compared between trajectories and templates
+    max_distance  largest feature distance to a template (None: half the smallest template spacing)
+    window        the features use the last ``window`` fraction of [t0, t1] (0 < window <= 1)
+    escape        name of the outcome of trajectories stopped at ``escape_radius``
+    """
+
+    rules: Mapping[str, str] = field(default_factory=dict)
+    templates: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    features: tuple[str, ...] = ()
+    max_distance: float | None = None
+    window: float = 0.5
+    escape: str = ESCAPED_NAME
+    discover: bool = False
+    lyapunov: bool = False
+    discovery: Mapping[str, Any] = field(default_factory=dict)
+
+    KEYS = ("rules", "templates", "features", "max_distance", "window", "escape", "discover", "lyapunov",
+            "discovery")
+
+    def uses_lyapunov(self, system) -> bool:
+        """Whether the tangent dynamics must be integrated: asked for (``lyapunov = true``), used by a
+        rule or a template feature, or discovery (which types attractors by the exponent unless
+        ``[outcomes.discovery] lyapunov = false``)."""
+        if self.lyapunov:
+            return True
+        if self.discover and self.discovery.get("lyapunov", True):
+            return True
+        obs, scalars = _names(system)
+        texts = [(t, True) for t in self.rules.values()] + [(t, False) for t in (self.features if self.templates else ())]
+        for t, boolean in texts:
+            try:
+                if ("final", LYAPUNOV) in parse(t, obs, scalars, "outcomes", boolean).used:
+                    return True
+            except ValidationError:
+                pass  # reported by check()
+        return False
+
+    @classmethod
+    def from_spec(cls, table: Any, base: "Outcomes | None" = None, section: str = "outcomes") -> "Outcomes":
+        """The spec's ``[outcomes]`` table; keys not given keep the system's declaration."""
+        if not isinstance(table, Mapping):
+            raise ValidationError(section, "must be a table")
+        unknown = set(table) - set(cls.KEYS)
+        if unknown:
+            raise ValidationError(f"{section}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(cls.KEYS)}")
+        base = base or cls()
+        kw = {k: getattr(base, k) for k in cls.KEYS}
+        for k in ("rules", "templates"):
+            if k in table:
+                if not isinstance(table[k], Mapping):
+                    raise ValidationError(f"{section}.{k}", "must be a table of name = ...")
+                kw[k] = dict(table[k])
+        if "features" in table:
+            if not isinstance(table["features"], list):
+                raise ValidationError(f"{section}.features", "must be a list of feature expressions")
+            kw["features"] = tuple(table["features"])
+        for k in ("max_distance", "window"):
+            if k in table:
+                v = table[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
+                kw[k] = float(v)
+        if "escape" in table:
+            kw["escape"] = table["escape"]
+        for k in ("discover", "lyapunov"):
+            if k in table:
+                if not isinstance(table[k], bool):
+                    raise ValidationError(f"{section}.{k}", f"must be true or false, got {table[k]!r}")
+                kw[k] = table[k]
+        if "discovery" in table:
+            DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
+            kw["discovery"] = dict(table["discovery"])
+            kw["discover"] = kw["discover"] or "discover" not in table
+        if ("rules" in table or "templates" in table) and "discover" not in table:
+            kw["discover"] = False  # declared outcomes replace a discovering base declaration
+        if kw["discover"] and "rules" not in table and "templates" not in table:
+            kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
+        return cls(**kw)
+
+    def names(self, escape: bool) -> tuple[str, ...]:
+        return (tuple(self.rules) + tuple(self.templates) + ((self.escape,) if escape else ())
+                + (UNCLASSIFIED, FAILED_NAME))
+
+    def check(self, system, where: str = "outcomes", escape: bool = False) -> None:
+        """Validate names, rules, templates and features against the system."""
+        obs, scalars = _names(system)
+        if not (self.rules or self.templates or self.discover):
+            raise ValidationError(where, "declares no outcome (give rules and/or templates, or discover = true)")
+        if self.discover and (self.rules or self.templates):
+            raise ValidationError(f"{where}.discover", "discovery finds the outcomes itself: give no rules or "
+                                  "templates with discover = true")
+        names = self.names(escape=True)
+        for n in names:
+            if not isinstance(n, str) or not n.isidentifier():
+                raise ValidationError(where, f"outcome name {n!r} is not an identifier")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValidationError(where, f"outcome name(s) used twice or reserved: {', '.join(dup)}")
+        if not (isinstance(self.window, (int, float)) and 0 < self.window <= 1):
+            raise ValidationError(f"{where}.window", f"must be in (0, 1], got {self.window!r}")
+        for name, text in self.rules.items():
+            _trial(parse(text, obs, scalars, f"{where}.rules.{name}"), obs, scalars)
+        if self.templates:
+            if not self.features:
+                raise ValidationError(f"{where}.features", "templates need features, e.g. [\"max(x)\", \"std(x)\"]")
+            for i, text in enumerate(self.features):
+                _trial(parse(text, obs, scalars, f"{where}.features[{i}]", boolean=False), obs, scalars)
+            seen: dict[str, str] = {}
+            for name, over in self.templates.items():
+                if not isinstance(over, Mapping) or not over:
+                    raise ValidationError(f"{where}.templates.{name}", "must be a table of parameter overrides")
+                try:
+                    resolved = system.params.resolve(over)
+                except ValidationError as exc:
+                    raise ValidationError(f"{where}.templates.{name}.{exc.field}", exc.message) from None
+                # the same initial condition twice: the two feature vectors coincide at every grid point
+                key = repr(sorted((k, np.asarray(resolved[k]).tolist()) for k in over))
+                if key in seen:
+                    raise ValidationError(f"{where}.templates.{name}", f"the same initial condition as "
+                                          f"{where}.templates.{seen[key]} (feature distance 0): the two templates "
+                                          "coincide and no trajectory could be told between them; drop one")
+                seen[key] = name
+        if self.max_distance is not None and not self.max_distance > 0:
+            raise ValidationError(f"{where}.max_distance", f"must be > 0, got {self.max_distance}")
+
+    def default_distance_note(self, where: str = "outcomes") -> str:
+        """One line for the user when the template distance is unbounded ("" otherwise): with a single
+        template and no ``max_distance``, every trajectory that no rule claims is assigned to it."""
+        if len(self.templates) == 1 and self.max_distance is None:
+            (name,) = self.templates
+            return (f"{where}: one template ({name}) and no max_distance: the default distance is unbounded, so "
+                    f"every trajectory that no rule claims is counted as {name}; set {where}.max_distance to bound it")
+        return ""
+
+
+@dataclass(frozen=True)
+class OutcomeScheme:
+    """The resolved outcomes of a plan: names (code = index), colours and how to assign them."""
+
+    names: tuple[str, ...]
+    colors: tuple[str, ...]
+    decl: Outcomes | None  # None: the verdicts are the outcomes
+
+    @property
+    def from_verdicts(self) -> bool:
+        return self.decl is None
+
+
+def scheme(system, decl: Outcomes | None, escape: bool) -> OutcomeScheme:
+    from ..fold import verdict as V
+
+    if decl is None:
+        return OutcomeScheme(tuple(V.NAMES), tuple(V.COLORS), None)
+    names = decl.names(escape)
+    user = len(decl.rules) + len(decl.templates)
+    colors = [PALETTE[i % len(PALETTE)] for i in range(user)]
+    if escape:
+        colors.append(COLOR_ESCAPED)
+    colors += [GREY_UNCLASSIFIED, GREY_FAILED]
+    return OutcomeScheme(names, tuple(colors), decl)
+
+
+def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...]):
+    """``feat(stat, observable)`` over the engine's ``feat_<stat>`` arrays (N, n_obs)."""
+    index = {o: i for i, o in enumerate(observables)}
+
+    def feat(stat, obs):
+        if obs == LYAPUNOV and obs not in index:
+            if LYAPUNOV not in results:
+                raise ValueError("the rules use the Lyapunov exponent but it was not integrated")
+            return np.asarray(results[LYAPUNOV])
+        return np.asarray(results[f"feat_{stat}"])[:, index[obs]]
+
+    return feat
+
+
+def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
+    obs, scalars = _names(system)
+    cols = [parse(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
+    return np.stack([np.asarray(c, float) for c in cols], axis=-1)
+
+
+def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params: Mapping[str, np.ndarray],
+           template_features: np.ndarray | None = None) -> np.ndarray:
+    """Outcome codes (int8, shape (N,)) of N trajectories.
+
+    ``results``: the engine's per-trajectory arrays (``verdict``, ``solver_status``, ``feat_*``);
+    ``params``: their parameters (N, ...); ``template_features``: (N, n_templates, n_features), the
+    feature vectors of the templates integrated at each trajectory's grid point.
+    """
+    if sch.from_verdicts:
+        v = S.verdicts(np.asarray(results["solver_status"]), np.asarray(results["verdict"]))
+        return (v[..., -1] if v.ndim > 1 else v).astype(np.int8)
+    decl = sch.decl
+    status = np.asarray(results["solver_status"])
+    n = status.shape[0]
+    code = np.full(n, -1, np.int16)
+    names = sch.names
+    feat = feature_getter(results, tuple(system.observables))
+
+    def par(name):
+        return np.asarray(params[name], float).reshape(n)
+
+    obs, scalars = _names(system)
+    for i, (name, text) in enumerate(decl.rules.items()):
+        hit = np.broadcast_to(parse(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
+        code = np.where((code < 0) & hit, i, code)
+    if decl.templates and template_features is not None:
+        x = feature_matrix(decl, system, feat, par)  # (N, F)
+        d = np.linalg.norm(x[:, None, :] - template_features, axis=-1)  # (N, T)
+        d = np.where(np.isfinite(d), d, np.inf)
+        j = np.argmin(d, axis=1)
+        dmin = d[np.arange(n), j]
+        limit = decl.max_distance if decl.max_distance is not None else 0.5 * min_template_spacing(template_features)
+        ok = dmin <= limit
+        code = np.where((code < 0) & ok, len(decl.rules) + j, code)
+    unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
+    code = np.where(code < 0, unclassified, code)
+    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed)
+    return code.astype(np.int8)
+
+
+def min_template_spacing(tf: np.ndarray) -> np.ndarray:
+    """Per trajectory (grid point): the smallest distance between two templates' feature vectors."""
+    t = tf.shape[-2]
+    if t < 2:
+        return np.full(tf.shape[:-2], np.inf)
+    d = np.linalg.norm(tf[..., :, None, :] - tf[..., None, :, :], axis=-1)
+    # a template that failed at a point (NaN features) is far from everything: it must not make the
+    # spacing NaN, which would leave every trajectory there unclassified
+    d = np.where(np.eye(t, dtype=bool) | ~np.isfinite(d), np.inf, d)
+    return d.min(axis=(-1, -2))
+
+
+COINCIDE_RTOL = 1e-6  # feature vectors this close (relative to their size) are one attractor
+
+
+def coinciding_templates(decl: Outcomes, tf: np.ndarray) -> tuple[int, str, str, float] | None:
+    """The first (point, template a, template b, distance) where two templates' feature vectors
+    coincide (distance <= COINCIDE_RTOL (1 + |feature vector|)), or None.
+
+    Coinciding templates make the default ``max_distance`` (half the smallest spacing) zero, and
+    every trajectory near them would end "unclassified" without a word; with a given ``max_distance``
+    the choice between the two is arbitrary. Either way the plan is refused before it runs.
+    """
+    t = tf.shape[-2]
+    if t < 2:
+        return None
+    names = list(decl.templates)
+    d = np.linalg.norm(tf[:, :, None, :] - tf[:, None, :, :], axis=-1)  # (P, T, T)
+    size = np.linalg.norm(tf, axis=-1)
+    scale = 1.0 + np.maximum(size[:, :, None], size[:, None, :])
+    with np.errstate(invalid="ignore"):
+        close = (d <= COINCIDE_RTOL * scale) & ~np.eye(t, dtype=bool)
+    if not close.any():
+        return None
+    p, a, b = (int(x[0]) for x in np.nonzero(close))
+    return p, names[a], names[b], float(d[p, a, b])
+
+
+# ---- basin stability ---------------------------------------------------------------------------------
+
+
+def basin_stats(codes: np.ndarray, n_outcomes: int, z: float = Z95) -> dict[str, np.ndarray]:
+    """Per outcome over the last axis (the samples): count, fraction S, SE sqrt(S(1-S)/N), Wilson interval.
+
+    Returns arrays of shape (*codes.shape[:-1], n_outcomes). The Wilson score interval keeps its
+    coverage near S = 0 or 1, where S +- z SE collapses to a point.
+    """
+    codes = np.asarray(codes)
+    n = codes.shape[-1]
+    counts = np.stack([(codes == k).sum(axis=-1) for k in range(n_outcomes)], axis=-1).astype(np.int64)
+    s = counts / n
+    se = np.sqrt(s * (1 - s) / n)
+    z2n = z * z / n
+    centre = (s + z2n / 2) / (1 + z2n)
+    half = z / (1 + z2n) * np.sqrt(s * (1 - s) / n + z2n / (4 * n))
+    # the interval contains S exactly; min/max only absorb rounding at S = 0 or 1
+    return dict(count=counts, fraction=s, se=se, ci_low=np.minimum(np.clip(centre - half, 0, 1), s),
+                ci_high=np.maximum(np.clip(centre + half, 0, 1), s))

@@ -1,0 +1,1 @@
+"""Presentation: labels, maps and basin plots, the HTML report and the browser explorer."""

@@ -1,0 +1,314 @@
+"""``stabjax report RESULT``: one self-contained HTML page per result, for a lab notebook.
+
+A result is read and understood long after it was computed, by someone who did not run it. The
+page therefore carries everything needed to judge it without the file: what was run (the spec,
+the model file's hash, library versions, machine, time -- all read from the dataset's attributes,
+never from the current environment), the outcome table with S ± SE and Wilson intervals, the
+figures (PNG inlined as base64: one file, nothing to lose when it is mailed or attached), the
+agreement with the theory, and the warnings that change how far the numbers can be trusted
+(unclassified share, solver failures, verdicts that still change with the horizon, a model file
+edited since).
+
+Three kinds of result are understood (:func:`kind`): verdict maps (paper sweeps: every
+trajectory has a verdict, outcomes are the verdicts), basin results (named outcomes from a user
+model, with per-point basin fractions) and refinement results (boundary segments from
+``[refine]``). The same classification is used by :mod:`stabjax.present.view`.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from ..fold import verdict as V
+
+# a share of undecided/unclassified trajectories above this is called out: the classifier could
+# not decide for that many, so the outcome fractions are lower bounds
+UNCLASSIFIED_WARN = 0.05
+
+
+def kind(ds: xr.Dataset) -> str:
+    """``"refine"`` (boundary segments), ``"basin"`` (named outcomes of a user model) or ``"verdicts"``."""
+    if ds.attrs.get("kind") == "refine" or "segment" in ds.dims:
+        return "refine"
+    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
+        return "basin"
+    return "verdicts"
+
+
+def _json_attr(ds: xr.Dataset, key: str, default: Any = None) -> Any:
+    try:
+        return json.loads(ds.attrs[key])
+    except (KeyError, ValueError, TypeError):
+        return default
+
+
+# ---- what the page says -------------------------------------------------------------------------
+
+
+def provenance_rows(ds: xr.Dataset) -> list[tuple[str, str]]:
+    """(what, value) of the run, from the dataset's attributes."""
+    a = ds.attrs
+    integ = _json_attr(ds, "integrate_json", {}) or {}
+    rows = [
+        ("system", f"{a.get('system', '?')}" + (f" ({a['system_ref']})" if a.get("system_ref") not in
+                                                 (None, "", a.get("system")) else "")),
+        ("paper", str(a.get("paper", "")) or "-"),
+        ("description", str((_json_attr(ds, "spec_json", {}) or {}).get("description", "")) or "-"),
+        ("model file", str(a.get("model_file", "")) or "built in"),
+        ("model source sha256", str(a.get("model_sha256", "")) or "-"),
+        ("spec fingerprint", str(a.get("fingerprint", "")) or "-"),
+        ("trajectories", f"{int(a.get('n_trajectories', 0)):,}"),
+        ("integration", ", ".join(f"{k} = {integ[k]}" for k in ("t0", "t1", "solver", "rtol", "atol", "max_steps")
+                                  if k in integ) or "-"),
+        ("engine", f"{a.get('engine', '?')}" + (f" ({a['engine_note']})" if a.get("engine_note") else "")
+         + (f", executor {a['executor']}" if a.get("executor") else "")),
+        ("steps, wall time", f"{int(a.get('total_steps', 0)):,} steps, {float(a.get('wall_time_s', float('nan'))):.1f} s"),
+        ("device, machine", f"{a.get('device', '?')}; {a.get('machine', '?')}"),
+        ("versions", ", ".join(f"{k} {v}" for k, v in (_json_attr(ds, "versions_json", {}) or {}).items()) or "-"),
+        ("git commit", str(a.get("git_commit", "")) or "-"),
+        ("created", str(a.get("created", "")) or "-"),
+    ]
+    return rows
+
+
+def outcome_table(ds: xr.Dataset) -> tuple[list[str], list[list[str]], str]:
+    """(header, rows, note) of the outcomes pooled over the result, with S ± SE and 95 % Wilson intervals.
+
+    For a refinement result the points are placed by the algorithm, not drawn at random, so no
+    fraction is an estimate of anything: the table counts points per label and says so.
+    """
+    from ..model.outcomes import basin_stats
+
+    k = kind(ds)
+    if k == "refine":
+        names = ds.attrs["label_names"].split()
+        lab = np.asarray(ds["point_label"].values)
+        rows = [[n, f"{int((lab == i).sum()):,}"] for i, n in enumerate(names)]
+        return (["label", "points"], rows,
+                "points are chosen by the refinement (near the boundary), not at random: counts, not fractions")
+    if "outcome" in ds:
+        names = str(ds["outcome"].attrs["flag_meanings"]).split()
+        codes = np.asarray(ds["outcome"].values).ravel()
+        what = "outcome"
+    else:
+        names = list(V.NAMES)
+        codes = np.asarray(V.at_t1(ds["verdict"]).values).ravel()
+        what = "verdict at t1"
+    st = basin_stats(codes[None, :], len(names))
+    rows = [[n, f"{int(st['count'][0, i]):,}", f"{st['fraction'][0, i]:.4f} ± {st['se'][0, i]:.4f}",
+             f"[{st['ci_low'][0, i]:.4f}, {st['ci_high'][0, i]:.4f}]"] for i, n in enumerate(names)]
+    grid = [d for d in ds["verdict" if "verdict" in ds else "outcome"].dims if d not in ("sample", "horizon")]
+    note = (f"all {codes.size:,} trajectories pooled" + (f" over the grid ({' x '.join(grid)}); per-point fractions "
+                                                         "are in the figures" if grid else ""))
+    return [what, "count", "S ± SE", "95% Wilson interval"], rows, note
+
+
+def theory_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]], list[str]] | None:
+    """(header, rows, sentences) of the theory x simulation agreement, or None without a theory."""
+    from .maps import confusion
+
+    if kind(ds) == "refine":
+        summ = _json_attr(ds, "theory_distance_json", {}) or {}
+        if not summ:
+            return None
+        rows = [[ax, f"{s['median']:+.4g}", f"[{s['min']:+.4g}, {s['max']:+.4g}]"] for ax, s in summ.items()]
+        return (["axis", "median distance", "range"], rows,
+                [f"Distance of each bracketed boundary segment to the boundary of the theorem "
+                 f"'{ds.attrs.get('theory_main', '')}' along the axis (> 0: the theorem is conservative there)."])
+    if "verdict" not in ds or not ds.attrs.get("theory_main"):
+        return None
+    c = confusion(ds)
+    if "predicate" not in c:
+        return None
+    header = ["theory \\ simulation", *c["columns"]]
+    rows = [[r, *[f"{v:,}" for v in vals]] for r, vals in c["rows"].items()]
+    sentences = [f"Predicate '{c['predicate']}': 'guaranteed' rows are the trajectories whose parameters satisfy it.",
+                 f"Theory conservative (silent, simulation converged): {c['conservative']:,}.",
+                 f"Red flags (theory guarantees stability, simulation flipped or diverged): {c['red_flags']:,}."]
+    return header, rows, sentences
+
+
+def warnings(ds: xr.Dataset) -> list[str]:
+    """What limits trust in this result, one sentence each (empty when nothing does)."""
+    out = []
+    k = kind(ds)
+    if k == "refine":
+        nu = int(ds.attrs.get("n_unbracketed", 0))
+        if nu:
+            out.append(f"{nu} of {ds.attrs.get('n_segments')} boundary segments are wider than the tolerance "
+                       "(the point budget ran out, or the boundary is fractal there).")
+        names = ds.attrs["label_names"].split()
+        lab = np.asarray(ds["point_label"].values)
+        for bad in ("undecided", "unclassified", "failed"):
+            if bad in names and (lab == names.index(bad)).any():
+                out.append(f"{int((lab == names.index(bad)).sum())} refinement points are '{bad}'.")
+    else:
+        if "outcome" in ds:
+            names = str(ds["outcome"].attrs["flag_meanings"]).split()
+            codes = np.asarray(ds["outcome"].values).ravel()
+        else:
+            names, codes = list(V.NAMES), np.asarray(V.at_t1(ds["verdict"]).values).ravel()
+        n = max(codes.size, 1)
+        for bad in ("unclassified", "undecided"):
+            if bad in names:
+                share = float((codes == names.index(bad)).sum()) / n
+                if share > UNCLASSIFIED_WARN:
+                    out.append(f"{100 * share:.1f}% of the trajectories are '{bad}' (over {100 * UNCLASSIFIED_WARN:g}%): "
+                               "the other fractions are lower bounds; a longer t1 or other thresholds may decide them.")
+        if "solver_status" in ds:
+            st = np.asarray(ds["solver_status"].values).ravel()
+            from ..fold.status import ESCAPED as STATUS_ESCAPED
+
+            failed = int(((st != 0) & (st != STATUS_ESCAPED)).sum())
+            if failed:
+                out.append(f"{failed:,} of {st.size:,} trajectories ended with a solver failure (status != 0): "
+                           "raise max_steps or loosen the tolerances, or read them as 'failed'.")
+        if "verdict" in ds and "horizon" in ds.dims and ds.sizes["horizon"] >= 2:
+            v = np.asarray(ds["verdict"].values)
+            last, prev = v[..., -1].ravel(), v[..., -2].ravel()
+            changed = int((last != prev).sum())
+            if changed:
+                T = ds["horizon"].values
+                out.append(f"Horizon sensitivity: {changed:,} of {last.size:,} verdicts differ between T = {T[-2]:.4g} "
+                           f"and t1 = {T[-1]:.4g}; a longer horizon may change more of them "
+                           "(stabjax horizon-check RESULT re-runs a subset longer).")
+    from ..plan.identity import changed_sources  # the model file and every local module it imports
+
+    for what in changed_sources(ds.attrs):
+        out.append(f"The model file {what} has changed since this result was computed.")
+    return out
+
+
+# ---- figures -------------------------------------------------------------------------------------
+
+
+def figures(ds: xr.Dataset) -> list[tuple[str, bytes]]:
+    """(caption, PNG bytes) of the result's figures: the same pictures `stabjax plot` draws."""
+    import tempfile
+
+    from .maps import plt
+
+    out = []
+    k = kind(ds)
+    with tempfile.TemporaryDirectory() as tmp:
+        if k == "refine":
+            from .refinement import plot_refine
+
+            p = Path(tmp) / "map.png"
+            plot_refine(ds, p)
+            out.append(("Evaluated points coloured by label, bracketed boundary and the theorem's boundary.",
+                        p.read_bytes()))
+        elif k == "basin":
+            from .basins import plot_basin
+
+            p = Path(tmp) / "basin.png"
+            plot_basin(ds, p)
+            out.append(("Outcomes and basin stability S with 95% Wilson intervals.", p.read_bytes()))
+        else:
+            from .maps import plot_sweep
+
+            p = Path(tmp) / "map.png"
+            plot_sweep(ds, p)
+            out.append(("Verdicts at t1 with the theory's boundary (the map of `stabjax plot`).", p.read_bytes()))
+            if "basin_fraction" in ds:
+                from .basins import plot_basin
+
+                q = Path(tmp) / "basin.png"
+                plot_basin(ds, q)
+                out.append(("Basin stability S per outcome with 95% Wilson intervals.", q.read_bytes()))
+    plt.close("all")
+    return out
+
+
+# ---- the page ------------------------------------------------------------------------------------
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
+color:#222;line-height:1.45}
+h1{font-size:1.5em;margin-bottom:.2em} h2{font-size:1.15em;border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.5em 0;font-size:.92em} td,th{border:1px solid #ddd;padding:.25em .6em;text-align:left}
+th{background:#f4f4f4} td.num{text-align:right;font-variant-numeric:tabular-nums}
+.warn{background:#fff4e5;border-left:4px solid #e76f51;padding:.4em .8em;margin:.4em 0}
+.ok{background:#eef7f1;border-left:4px solid #2a9d8f;padding:.4em .8em}
+pre{background:#f7f7f7;padding:.6em;white-space:pre-wrap;font-size:.85em} figure{margin:1em 0} img{max-width:100%}
+figcaption{font-size:.9em;color:#555} .muted{color:#666;font-size:.9em}
+"""
+
+
+def _table(header: list[str] | None, rows: list[list[str]], numeric: bool = True) -> str:
+    """An HTML table; ``numeric``: columns after the first are numbers (right-aligned)."""
+    e = html.escape
+    head = "<thead><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr></thead>" if header else ""
+    cls = " class=num" if numeric else ""
+    body = "".join("<tr>" + "".join(f"<td{cls if i else ''}>{e(str(c))}</td>" for i, c in enumerate(r))
+                   + "</tr>" for r in rows)
+    return f"<table>{head}<tbody>{body}</tbody></table>"
+
+
+def render(ds: xr.Dataset, source: str = "") -> str:
+    """The HTML page of ``ds`` (``source``: the file it was read from, shown in the heading)."""
+    e = html.escape
+    title = f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '') or 'result'}"
+    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8><title>{e(title)} - stabjax report</title>"
+             f"<style>{_CSS}</style></head><body>",
+             f"<h1>{e(title)}</h1><p class=muted>{e(kind(ds))} result"
+             + (f" read from <code>{e(source)}</code>" if source else "") + "; page written by <code>stabjax report</code>"
+             "</p>"]
+    parts.append("<h2>What was run</h2>" + _table(None, [list(r) for r in provenance_rows(ds)], numeric=False))
+    spec = _json_attr(ds, "spec_json")
+    if spec is not None:
+        parts.append("<details><summary>spec (as recorded in the result)</summary><pre>"
+                     f"{e(json.dumps(spec, indent=2))}</pre></details>")
+    vcfg = _json_attr(ds, "verdict_json")
+    if vcfg:
+        parts.append("<details><summary>classifier settings</summary><pre>"
+                     f"{e(json.dumps(vcfg, indent=2))}</pre></details>")
+    header, rows, note = outcome_table(ds)
+    stats = "" if kind(ds) == "refine" else "; S = fraction, SE = sqrt(S (1 - S) / N), Wilson = 95% score interval"
+    parts.append("<h2>Outcomes</h2>" + _table(header, rows) + f"<p class=muted>{e(note)}{stats}.</p>")
+    if kind(ds) == "refine":
+        from .refinement import format_summary
+
+        parts.append(f"<pre>{e(format_summary(ds))}</pre>")
+    th = theory_section(ds)
+    parts.append("<h2>Theory agreement</h2>")
+    if th is None:
+        parts.append("<p>This system states no theorem for these parameters: nothing to compare.</p>")
+    else:
+        header, rows, sentences = th
+        parts.append(_table(header, rows) + "".join(f"<p>{e(s)}</p>" for s in sentences))
+    parts.append("<h2>Figures</h2>")
+    for caption, png in figures(ds):
+        b64 = base64.b64encode(png).decode()
+        parts.append(f"<figure><img alt='{e(caption)}' src='data:image/png;base64,{b64}'>"
+                     f"<figcaption>{e(caption)}</figcaption></figure>")
+    parts.append("<h2>Warnings</h2>")
+    ws = warnings(ds)
+    parts.append("".join(f"<div class=warn>{e(w)}</div>" for w in ws) if ws else
+                 "<div class=ok>None: no unclassified excess, no solver failures, verdicts stable at the last "
+                 "horizon.</div>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_report(ds: xr.Dataset, out: str | Path, source: str = "") -> Path:
+    """Write the page atomically (a half-written page is never left behind)."""
+    import os
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(render(ds, source), encoding="utf-8")
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out
+

@@ -1,0 +1,202 @@
+"""What a command may write, and where: outputs never destroy a user's file (issue 22, items 2 and 3).
+
+* :func:`input_files` / :func:`same_file_as_any`: an output never resolves (through a symlink or a
+  hard link either) to the command's input, the model file, or any Python module loaded in the process
+  (a model's helper modules among them);
+* :func:`check_store_path`: a chunk store is never an input file nor a folder holding one;
+* :func:`write_image` / :func:`write_reason`: maps are written to a temporary file and renamed, and a
+  failed write (a full disk) is one line naming the file (:class:`stabjax.errors.OutputError`, exit 1);
+* :func:`reproduce_into`: ``stabjax reproduce`` computes in a staging folder and replaces only the
+  files it wrote there before, unchanged since (``.stabjax-reproduce.json``), unless ``--force``.
+
+The checks that compare an output with a previous result of the same command stay with the commands
+(:func:`stabjax.app.common.check_output`). Nothing heavy is imported at module level.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Callable, Iterator
+
+from ..errors import OutputError, ValidationError
+
+RECORD = ".stabjax-reproduce.json"
+
+
+def same_file_as_any(path: Path, inputs) -> bool:
+    """Whether ``path`` is one of ``inputs`` (the same file on disk: through a symlink or a hard link too)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    for inp in inputs:
+        try:
+            si = os.stat(inp)
+        except (OSError, TypeError, ValueError):
+            continue
+        if (si.st_dev, si.st_ino) == (st.st_dev, st.st_ino):
+            return True
+    return False
+
+
+def input_files(*paths, system=None) -> tuple[Path, ...]:
+    """What a command must never write over: the files it reads (``paths``), the model file of
+    ``system`` and every Python module loaded in this process (a model's helper modules among them:
+    an output path resolving to any of them would destroy user code)."""
+    files = [Path(p) for p in paths if p is not None]
+    if system is not None:
+        from ..model.loading import source_file
+
+        src = source_file(system)
+        if src is not None:
+            files.append(Path(src))
+    for mod in list(sys.modules.values()):
+        f = getattr(mod, "__file__", None)
+        if isinstance(f, str):
+            files.append(Path(f))
+    return tuple(files)
+
+
+def check_store_path(store: Path, inputs, outputs=()) -> None:
+    """A chunk store is a directory of the sweep's own files: never an input file, never a folder
+    holding the spec or the model (a ``--restart`` there would be one step from deleting them), never
+    one of the files the same command writes (``--store`` equal to ``--out`` or its map: the store
+    would be made, filled for minutes, and the result could not be written over it)."""
+    from ..errors import ValidationError
+
+    for o in outputs:
+        if o is not None and Path(store).resolve() == Path(o).resolve():
+            raise ValidationError("--store", f"{store} is also where this command writes {o}; "
+                                             "give --store a directory of its own (default: <out>.zarr)")
+    if store.exists() and not store.is_dir():
+        raise ValidationError("--store", f"{store} exists and is not a directory" +
+                              (" (it is this command's input)" if same_file_as_any(store, inputs) else ""))
+    if store.is_dir():
+        root = store.resolve()
+        for f in inputs:
+            try:
+                inside = Path(f).resolve().is_relative_to(root)
+            except (OSError, ValueError):
+                continue
+            if inside and Path(f).exists():
+                raise ValidationError("--store", f"{store} holds {f}, an input of this command; a store directory "
+                                                 "holds only what the sweep writes: choose another --store")
+
+
+def write_reason(exc: BaseException, out: Path) -> str:
+    """Why a write failed, in words: the OS error, else the library's message with the free space
+    (netCDF reports a full disk as ``RuntimeError: NetCDF: HDF error``)."""
+    import shutil
+
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    try:
+        free = shutil.disk_usage(Path(out).parent).free
+        space = f"; {free / 2**20:.1f} MiB free on its disk" + (" (the disk is full?)" if free < 2**26 else "")
+    except OSError:
+        space = ""
+    return f"{type(exc).__name__}: {exc}{space}"
+
+
+def write_image(path: Path, draw, result: Optional[Path] = None) -> None:
+    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic)."""
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        draw(tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:
+        tmp.unlink(missing_ok=True)
+        plt.close("all")
+        hint = f"{result} is written; draw the map again with: stabjax plot {result} --out {path}" if result else ""
+        raise OutputError(path, write_reason(exc, path), hint) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def reproduce_into(out_dir: Path, name: str, fn: Callable, *, quick: bool = False, force: bool = False
+                   ) -> Iterator[tuple[Path, bool]]:
+    """Run the reproduction ``fn`` into ``out_dir/.staging-NAME`` and move its files into ``out_dir``;
+    yields (file written, whether it replaced one). See ``stabjax reproduce --help`` for the rules."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValidationError("--out-dir", f"{out_dir} exists and is not a directory")
+    record = reproduce_record(out_dir)
+    mine = record.get(name, {})
+    # before minutes of computing: the names an earlier run recorded, and any file of the kinds a
+    # reproduction writes that this command did not write there (the figures tracked in the repository)
+    if not force:
+        refuse_foreign(out_dir, [out_dir / rel for rel in mine], mine)
+        present = [p for p in out_dir.glob("*") if p.is_file()] if out_dir.is_dir() else []
+        foreign = sorted(p.name for p in present if not p.name.startswith(".")
+                         and p.suffix.lower() in REPRODUCE_SUFFIXES and not is_mine(p, out_dir, mine))
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (f", ... ({len(foreign)} in all)" if len(foreign) > 3 else "")
+            raise ValidationError("--out-dir", f"{out_dir} holds files this command did not write ({shown}); "
+                                               "reproducing may replace them: pass --force to allow it, or choose "
+                                               "another --out-dir")
+    staging = out_dir / f".staging-{name}"
+    staging.mkdir(parents=True, exist_ok=True)
+    made = [Path(f) for f in fn(staging, quick=quick)]
+    for f in made:  # a reproducer that writes elsewhere: said, not moved
+        if not f.resolve().is_relative_to(staging.resolve()):
+            yield f, False
+    files = [f for f in made if f.resolve().is_relative_to(staging.resolve())]
+    rels = [f.resolve().relative_to(staging.resolve()) for f in files]
+    if not force:
+        refuse_foreign(out_dir, [out_dir / r for r in rels], mine, staging=staging)
+    for f, r in zip(files, rels):
+        dest = out_dir / r
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        replaced = dest.exists()
+        os.replace(f, dest)
+        mine[str(r)] = hashlib.sha256(dest.read_bytes()).hexdigest()
+        yield dest, replaced
+    record[name] = mine
+    tmp = out_dir / f"{RECORD}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(record, indent=1, sort_keys=True))
+    os.replace(tmp, out_dir / RECORD)
+    for d in sorted((p for p in staging.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)) + [staging]:
+        try:
+            d.rmdir()  # only empty folders: anything left in staging is kept, never deleted
+        except OSError:
+            pass
+
+
+def reproduce_record(out_dir: Path) -> dict:
+    """``--out-dir/.stabjax-reproduce.json``: per reproduction, the files it wrote and their sha256."""
+    try:
+        rec = json.loads((out_dir / RECORD).read_text())
+    except (OSError, ValueError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
+
+
+REPRODUCE_SUFFIXES = (".png", ".pdf", ".svg", ".nc", ".md", ".txt", ".json", ".csv")  # what reproducers write
+
+
+def is_mine(path: Path, out_dir: Path, mine: dict) -> bool:
+    """Whether ``path`` is a file an earlier run of this reproduction wrote there, unchanged since."""
+    try:
+        return mine.get(str(path.relative_to(out_dir))) == hashlib.sha256(path.read_bytes()).hexdigest()
+    except (OSError, ValueError):
+        return False
+
+
+def refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Path | None = None) -> None:
+    """Refuse when a destination exists and is not, unchanged, a file an earlier run of this command wrote."""
+    for dest in dests:
+        if not dest.exists():
+            continue
+        if dest.is_dir():
+            raise ValidationError("--out-dir", f"{dest} is a directory where a file would be written")
+        if is_mine(dest, out_dir, mine):
+            continue  # our own previous result, unchanged: replaced like a re-run of any command
+        kept = f"; the new files are kept in {staging}" if staging is not None else ""
+        raise ValidationError("--out-dir", f"{dest} exists and was not written by this command (or was changed "
+                                           f"since); pass --force to replace it, or choose another --out-dir{kept}")

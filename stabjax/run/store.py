@@ -1,0 +1,751 @@
+"""The chunk store of a sweep: a zarr group holding the sweep's dataset, filled chunk by chunk.
+
+Layout of a store directory (default ``<out>.zarr`` next to the netCDF output)::
+
+    zarr.json         the zarr group (format 3, consolidated metadata): the dataset's attributes
+    <variable>/       one zarr array per variable and coordinate of the sweep's dataset, with the
+                      dataset's dims (``xr.open_zarr(store)`` gives the netCDF file's variables)
+    manifest.json     the committed chunk record: identity, chunking, the entries above that the
+                      store wrote, and per finished chunk its engine, worker, time, steps and the
+                      sha256 of every array's block (replaced atomically)
+    .lock             the writer holding the store: {"pid", "host", "started"} (O_CREAT|O_EXCL)
+
+Chunks (:class:`Chunking`) are blocks of the dataset's grid -- ``(1, ..., 1, m, full trailing
+dims)`` -- so chunk i of the sweep is a contiguous run of flat trajectory indices *and* exactly one
+zarr chunk of every per-trajectory variable; no two sweep chunks share a zarr chunk, and a region
+write never touches another chunk's data.
+
+Writes happen in this order: the chunk's arrays, then the manifest listing the chunk with its
+checksums (write-to-temp + ``os.replace``). The committed chunk record is that file rather than the
+group's attributes: zarr rewrites ``zarr.json`` in place, and a kill midway would leave a group no
+one can open (the group's metadata is written when the arrays are created, and its attributes are
+replaced atomically when the sweep finishes; a store whose metadata cannot be read starts over). A process killed at any moment leaves a manifest that
+lists only chunks whose data are complete; a chunk written but not yet listed is recomputed (to the
+same values) by the next run. Durability is against process death (kill -9, OOM); nothing is
+fsync'ed, so a power cut may lose recent chunks -- and a chunk file lost or damaged afterwards (a
+deleted file, a truncated one) is caught by its checksum: recomputed on resume, named in an error
+by ``export``, never read as the fill value.
+
+A store directory is only ever created, reused when it holds a store of the same computation, or
+refused: a directory holding anything else is refused untouched, and ``--restart`` (or removing the
+store after the netCDF file is written) deletes only the entries the manifest lists.
+
+The manifest's identity (:mod:`stabjax.plan.identity`) is compared on every resume; any difference is
+refused with a message naming what changed (library versions: recorded and reported only).
+
+Size (~750 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
+integrity checks are one file format and change together; the writer lock is :mod:`stabjax.run.lock`.
+
+Size (~750 lines): :class:`ChunkStore` is one object guarding one invariant (a chunk is listed in the
+manifest only once all its blocks are on disk), with the reads that must honour the same layout
+(:func:`verify`, :func:`load_results`, :func:`open_store`); split, the layout would be known in two places.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import errno
+import hashlib
+import json
+import os
+import shutil
+import socket
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..plan import identity as I
+from .lock import Lock, StoreError, StoreIOError, _pid_alive
+
+FORMAT = "stabjax-store/2"
+OLD_FORMATS = {"stabjax-store/1": ["data"]}  # earlier layouts: their entries besides the manifest (for --restart)
+MANIFEST = "manifest.json"
+LOCK = ".lock"
+ROOT = "zarr.json"
+
+
+# ---- identity: stabjax.plan.identity (the one place a run's identity is computed) --------------------
+
+identity = I.identity
+describe_changes = I.describe_changes
+
+
+# ---- the chunk grid ----------------------------------------------------------------------------
+
+
+class Chunking:
+    """The chunks of a plan of ``shape`` for a requested chunk size ``batch``.
+
+    A chunk is a block ``(1, ..., 1, m, d_{j+1}, ..., d_k)`` of the grid: the innermost axes that
+    fit in ``batch`` whole, and ``m`` points of the next one (balanced, so that the last block of a
+    row is not a sliver). In C order its trajectories are contiguous, and it is one zarr chunk of
+    each per-trajectory array: the store writes whole chunks and nothing else. Every chunk has at
+    most ``size`` <= ``batch`` trajectories (the engines compile once, for ``size``); only the
+    blocks at the end of axis j are smaller.
+    """
+
+    def __init__(self, shape, batch: int):
+        self.shape = tuple(int(s) for s in shape)
+        self.batch = int(batch)
+        self.n = int(np.prod(self.shape)) if self.shape else 1
+        if self.n <= self.batch:
+            self.axis, self.inner, self.m = None, self.n, 0
+            self.block, self.grid, self.size = self.shape, (1,), self.n
+        else:
+            j, inner = len(self.shape) - 1, 1
+            while inner * self.shape[j] <= self.batch:
+                inner *= self.shape[j]
+                j -= 1
+            per = self.batch // inner
+            pieces = -(-self.shape[j] // per)
+            m = -(-self.shape[j] // pieces)
+            self.axis, self.inner, self.m = j, inner, m
+            self.block = (1,) * j + (m,) + self.shape[j + 1:]
+            self.grid = self.shape[:j] + (-(-self.shape[j] // m),)
+            self.size = m * inner
+        self.n_chunks = int(np.prod(self.grid))
+
+    def _split(self, i: int) -> tuple[tuple[int, ...], int, int]:
+        idx = np.unravel_index(int(i), self.grid)
+        j = self.axis
+        start = int(idx[-1]) * self.m
+        return tuple(int(x) for x in idx[:-1]), start, min(self.shape[j], start + self.m)
+
+    def region(self, i: int) -> tuple[slice, ...]:
+        """Chunk ``i`` as slices of the grid."""
+        if self.axis is None:
+            return tuple(slice(0, s) for s in self.shape)
+        outer, start, stop = self._split(i)
+        return (tuple(slice(o, o + 1) for o in outer) + (slice(start, stop),)
+                + tuple(slice(0, s) for s in self.shape[self.axis + 1:]))
+
+    def block_shape(self, i: int) -> tuple[int, ...]:
+        return tuple(r.stop - r.start for r in self.region(i))
+
+    def bounds(self, i: int) -> tuple[int, int]:
+        """Chunk ``i`` as the flat trajectory indices [lo, hi)."""
+        if self.axis is None:
+            return 0, self.n
+        outer, start, stop = self._split(i)
+        j = self.axis
+        o = int(np.ravel_multi_index(outer, self.shape[:j])) if j else 0
+        lo = (o * self.shape[j] + start) * self.inner
+        return lo, lo + (stop - start) * self.inner
+
+    def chunk_coords(self, i: int) -> tuple[int, ...]:
+        """Chunk ``i``'s position in the zarr chunk grid of the plan's dims."""
+        if self.axis is None:
+            return (0,) * len(self.shape)
+        outer, start, _ = self._split(i)
+        return outer + (start // self.m,) + (0,) * (len(self.shape) - self.axis - 1)
+
+
+# ---- the manifest ------------------------------------------------------------------------------
+
+
+def read_manifest(path: Path) -> dict | None:
+    mf = Path(path) / MANIFEST
+    if not mf.exists():
+        return None
+    try:
+        m = json.loads(mf.read_text())
+    except (OSError, ValueError) as exc:
+        raise StoreError(f"{mf} is unreadable ({exc}); pass --restart to start the sweep over") from None
+    if not isinstance(m, dict) or m.get("format") != FORMAT:
+        old = isinstance(m, dict) and m.get("format") in OLD_FORMATS
+        raise StoreError(f"{mf} is {'a store of an earlier stabjax version' if old else 'not a stabjax store manifest'}; "
+                         "pass --restart to start over, or use another --out")
+    return m
+
+
+def _atomic_json(path: Path, obj) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(obj, indent=1))
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def _ours_transient(p: Path) -> bool:
+    """Files the store writes for an instant (a manifest being replaced) or holds while it runs (the
+    lock: only one in the lock's own format, so that another tool's ``.lock`` counts as foreign)."""
+    name = p.name
+    if name in (LOCK, LOCK + ".break"):
+        if name == LOCK + ".break":
+            return p.is_file() and p.stat().st_size == 0
+        try:
+            held = json.loads(p.read_text() or "{}")
+        except (OSError, ValueError):
+            return False
+        return isinstance(held, dict) and (not held or {"pid", "host", "started"} <= set(held))
+    return (name.startswith(f".{MANIFEST}.") or name.startswith(f".{ROOT}.")) and name.endswith(".tmp")
+
+
+def _safe_entry(name: str) -> bool:
+    """A manifest entry the store may delete: a plain name inside the store directory."""
+    return isinstance(name, str) and name not in ("", ".", "..") and "/" not in name and "\\" not in name \
+        and "\0" not in name
+
+
+def stored_batch(path: str | Path) -> int | None:
+    """Batch size of an existing store (a resume without --batch-size keeps it)."""
+    try:
+        m = read_manifest(Path(path))
+    except StoreError:
+        return None
+    return int(m["batch_size"]) if m else None
+
+
+def checksum(block: np.ndarray) -> str:
+    """sha256 of a block's dtype, shape and bytes (C order), 16 hex digits."""
+    b = np.ascontiguousarray(block)
+    h = hashlib.sha256(f"{b.dtype.str}{b.shape}".encode())
+    h.update(b.tobytes())
+    return h.hexdigest()[:16]
+
+
+@contextlib.contextmanager
+def _quiet_zarr():
+    """zarr warns that manifest.json and .lock are not zarr nodes, and that consolidated metadata is
+    not in the v3 specification yet (xarray and zarr-python read it): neither is the user's concern."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*not recognized as a component of a Zarr hierarchy.*")
+        warnings.filterwarnings("ignore", message=".*Consolidated metadata is currently not part.*")
+        yield
+
+
+# ---- the store ---------------------------------------------------------------------------------
+
+
+class ChunkStore:
+    """The writer's view of a store: lock held from open to :meth:`close`.
+
+    ``batch``: the requested chunk size (the chunks are :class:`Chunking` blocks of at most that
+    many trajectories); ``overrides``: command-line settings recorded in the identity; ``restart``:
+    remove what a previous run of the store wrote (only that) and start over; ``template_features``:
+    the plan's, when the caller has integrated them already (a new store records them).
+    """
+
+    def __init__(self, path: str | Path, plan, batch: int, *, overrides: Mapping[str, Any] | None = None,
+                 restart: bool = False, template_features: np.ndarray | None = None):
+        from ..config import versions
+
+        self.path = Path(path)
+        self.plan = plan
+        self.batch = int(batch)
+        self.chunking = Chunking(plan.shape, self.batch)
+        self.n = int(plan.size)
+        self.n_chunks = self.chunking.n_chunks
+        self.version_changes: list[str] = []
+        self.repaired: list[str] = []  # chunks found missing or corrupt on open (recomputed)
+        self._group = None
+        self._tf: Any = False  # template features: not yet known
+        self._tf_given = template_features
+        self._restarted = False
+        ident = identity(plan, {"batch_size": self.batch, **(overrides or {})})
+        if self.path.is_dir() and not restart and not (self.path / MANIFEST).exists():
+            self._refuse_foreign()  # before the lock: nothing is created in a directory that is not ours
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise StoreError(f"{self.path} exists and is not a directory; choose another --store") from None
+        except OSError as exc:
+            raise StoreIOError(f"cannot create the store {self.path}: {exc}") from None
+        self.lock = Lock(self.path / LOCK)
+        self.lock.acquire(self.path)
+        try:
+            old = self._previous(restart)
+            if old is not None:
+                refusals, self.version_changes = I.compare(old.get("identity", {}), ident)
+                if refusals:
+                    raise StoreError(
+                        f"{self.path} holds a run of a different computation ({'; '.join(refusals)}); "
+                        "pass --restart to discard it, or use another --out")
+                self.manifest = old
+                self.manifest.setdefault("resumed_with_versions", [])
+                v = versions()
+                if v != old.get("versions") and v not in self.manifest["resumed_with_versions"]:
+                    self.manifest["resumed_with_versions"].append(v)
+                self._check_chunks()
+            else:
+                if not self._restarted:
+                    self._refuse_foreign()
+                self.manifest = {"format": FORMAT, "identity": ident, "batch_size": self.batch,
+                                 "chunking": {"shape": list(self.chunking.shape), "block": list(self.chunking.block)},
+                                 "n_chunks": self.n_chunks, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                 "versions": versions(), "entries": [MANIFEST], "arrays": None, "finished": False,
+                                 "chunks": {}}
+                self._save_manifest()
+        except BaseException:
+            self.lock.release()
+            raise
+
+    # -- what is in the directory
+    def _refuse_foreign(self):
+        foreign = sorted(p.name for p in self.path.iterdir() if not _ours_transient(p))
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise StoreError(f"--store: {self.path} exists and is not a stabjax store (it holds {shown}); nothing in it was "
+                             "changed. Use a new or empty directory for --store (or another --out)")
+
+    def _previous(self, restart: bool) -> dict | None:
+        """The manifest to resume, or None to start afresh (after --restart removed what the store wrote)."""
+        if not restart:
+            return read_manifest(self.path)
+        try:
+            old = read_manifest(self.path)
+        except StoreError:
+            old = self._damaged_manifest()
+        if old is not None:
+            self._remove_entries(old)
+            self._restarted = True  # a store of ours: what else a user put in it stays, and is no reason to refuse
+        return None
+
+    def _damaged_manifest(self) -> dict:
+        """What a store with an unreadable manifest wrote, for --restart: the manifest itself and the
+        zarr group marked as a stabjax store. Anything else in the directory refuses the restart
+        (it cannot be told from a user's files), before anything is removed."""
+        mf = self.path / MANIFEST
+        try:
+            m = json.loads(mf.read_text())
+        except (OSError, ValueError):
+            m = None  # our writes are atomic: a damaged manifest was cut short by hand or by the disk
+        if isinstance(m, dict) and m.get("format") in OLD_FORMATS:
+            entries = [MANIFEST, *OLD_FORMATS[m["format"]]]
+        elif m is not None:
+            raise StoreError(f"{mf} is not a stabjax store manifest: {self.path} is not a store, and nothing in it "
+                             "was removed; use another --store")
+        else:
+            entries = [MANIFEST] + self._zarr_entries()
+        foreign = sorted(p.name for p in self.path.iterdir() if p.name not in entries and not _ours_transient(p))
+        if foreign:
+            raise StoreError(f"{self.path}: the manifest is unreadable and the directory also holds "
+                             f"{', '.join(foreign[:5])}; nothing was removed. Remove the store by hand, or use "
+                             "another --store")
+        return {"entries": entries, "damaged": True}
+
+    def _zarr_entries(self) -> list[str]:
+        try:
+            root = json.loads((self.path / ROOT).read_text())
+        except (OSError, ValueError):
+            return []
+        if not isinstance(root, dict) or root.get("attributes", {}).get("stabjax_store") not in (FORMAT, *OLD_FORMATS):
+            return []
+        children = (root.get("consolidated_metadata") or {}).get("metadata") or {}
+        return [ROOT] + sorted({k.split("/")[0] for k in children})
+
+    def _remove_entries(self, m: Mapping[str, Any], *, manifest: bool = True):
+        """Delete what the store wrote (the manifest's entries), the manifest last. First the manifest
+        is rewritten to list no chunk and no arrays: a kill midway leaves a store that starts over and
+        recreates its arrays, never one whose manifest lists data that are gone."""
+        self._group = None
+        entries = [e for e in m.get("entries", []) if _safe_entry(e)]
+        if not m.get("damaged") and (self.path / MANIFEST).exists():
+            _atomic_json(self.path / MANIFEST, {**m, "arrays": None, "chunks": {}, "finished": False})
+        for e in entries:
+            if e == MANIFEST:
+                continue
+            p = self.path / e
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            elif p.exists() or p.is_symlink():
+                p.unlink()
+        if manifest:
+            (self.path / MANIFEST).unlink(missing_ok=True)
+
+    def discard(self):
+        """Delete what the store wrote (the netCDF file is written); the lock stays until close, and
+        anything else a user put in the directory stays."""
+        self._remove_entries(self.manifest)
+
+    def _save_manifest(self):
+        try:
+            _atomic_json(self.path / MANIFEST, self.manifest)
+        except OSError as exc:
+            raise self._io_error("the manifest", exc) from None
+
+    def _io_error(self, what: str, exc: OSError) -> StoreIOError:
+        done = len(self.manifest.get("chunks", {}))
+        why = "the disk is full" if exc.errno == errno.ENOSPC else str(exc)
+        return StoreIOError(
+            f"could not write {what} to {self.path}: {why}. The {done} finished chunk(s) of {self.n_chunks} are kept "
+            f"in {self.path}; fix the cause and run the same command to continue")
+
+    def close(self):
+        self.lock.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- state
+    def done(self, i: int) -> bool:
+        return str(i) in self.manifest["chunks"]
+
+    def pending(self) -> list[int]:
+        return [i for i in range(self.n_chunks) if not self.done(i)]
+
+    def complete(self) -> bool:
+        return len(self.manifest["chunks"]) == self.n_chunks
+
+    def bounds(self, i: int) -> tuple[int, int]:
+        return self.chunking.bounds(i)
+
+    def steps(self) -> int:
+        return int(sum(c.get("steps", 0) for c in self.manifest["chunks"].values()))
+
+    def chunk_results(self, i: int) -> dict[str, np.ndarray]:
+        """The stored records of finished chunk ``i`` (flat over its trajectories)."""
+        lo, hi = self.bounds(i)
+        return {k: np.asarray(v[lo:hi]) for k, v in load_results(self.path, self.manifest, lazy=True).items()}
+
+    # -- integrity
+    def _check_chunks(self):
+        """Drop from the manifest every finished chunk whose data are missing or differ from their
+        checksum (they are recomputed), saying which; a store whose arrays are gone starts over."""
+        if not self.manifest["chunks"]:
+            return
+        try:
+            bad = verify(self.path, self.manifest)
+        except StoreError as exc:  # an array's metadata is gone: every chunk is recomputed
+            bad = {int(i): str(exc) for i in self.manifest["chunks"]}
+            self.manifest["arrays"] = None
+        if not bad:
+            return
+        for i, why in sorted(bad.items()):
+            del self.manifest["chunks"][str(i)]
+            self.repaired.append(f"chunk {i}: {why}")
+        self.manifest["finished"] = False
+        self._save_manifest()
+        warnings.warn(f"{self.path}: {len(bad)} finished chunk(s) are missing or damaged and are computed again: "
+                      + "; ".join(self.repaired[:5]) + (" ..." if len(self.repaired) > 5 else ""), StoreWarning,
+                      stacklevel=3)
+
+    # -- data
+    def _data(self):
+        import zarr
+
+        if self._group is None:
+            with _quiet_zarr():
+                self._group = zarr.open_group(self.path, mode="r+", zarr_format=3)
+        return self._group
+
+    def template_features(self):
+        """The plan's template features: read back from the store when it has them (a resume
+        classifies with the very numbers the first chunks used), else integrated now."""
+        if self._tf is False:
+            from . import dataset as D
+
+            if self.manifest.get("arrays") is not None and "template_features" in self.manifest.get("entries", []):
+                tf = np.asarray(self._data()["template_features"][...])
+                self._tf = tf.reshape(-1, *tf.shape[-2:])
+            elif self._tf_given is not None:
+                self._tf = self._tf_given
+            else:
+                self._tf = D.template_features(self.plan)
+        return self._tf
+
+    def _create(self, rec: Mapping[str, np.ndarray]):
+        """Create the dataset's arrays (from the first chunk's keys, dtypes and trailing shapes): the
+        coordinates and the variables that depend on the parameters only are written now, the
+        per-trajectory ones are filled chunk by chunk, the basin statistics at the end."""
+        import dask.array as da
+
+        from . import dataset as D
+
+        shape, block = self.chunking.shape, self.chunking.block
+        holders = {k: da.empty(shape + v.shape[1:], chunks=block + v.shape[1:], dtype=v.dtype) for k, v in rec.items()}
+        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan), whole=False)
+        ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
+        for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
+            ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
+        names = [ROOT, *sorted(str(k) for k in ds.variables)]
+        # write-ahead: the manifest lists every entry before it exists, so --restart can remove them
+        leftovers = [e for e in self.manifest["entries"] if e != MANIFEST]  # of a creation killed midway
+        if leftovers:
+            self._remove_entries({"entries": leftovers, "damaged": True}, manifest=False)
+        self.manifest["entries"] = [MANIFEST, *names]
+        self._save_manifest()
+        nd = len(shape)
+        enc = {k: {"chunks": block + tuple(v.shape[nd:])} for k, v in ds.variables.items()
+               if nd and v.dims[:nd] == self.plan.dims}
+        if "outcome" in rec and self._basin_per_chunk():  # basin statistics: one zarr chunk per sweep chunk's grid points
+            for k in D.basin_placeholders(self.plan):
+                enc[k] = {"chunks": block[:-1] + tuple(ds[k].shape[nd - 1:])}
+        with _quiet_zarr():
+            ds.to_zarr(self.path, mode="a", compute=False, zarr_format=3, consolidated=True, encoding=enc)
+        self._group = None
+        self.manifest["arrays"] = {k: {"dtype": v.dtype.str, "trailing": list(v.shape[1:]),
+                                       "dims": list(ds[k].dims[nd:])} for k, v in rec.items()}
+        self.manifest["variables"] = [str(k) for k in ds.data_vars]  # the dataset's order (zarr lists names sorted)
+        self._save_manifest()
+
+    def _basin_per_chunk(self) -> bool:
+        """Whether each chunk holds every sample of its grid points (the sample axis is not split)."""
+        ax = self.chunking.axis
+        return bool(self.plan.n_sample) and (ax is None or ax < len(self.chunking.shape) - 1)
+
+    def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
+        """Store chunk ``i`` (the engine's results, trimmed to the chunk's trajectories): its record
+        (:func:`stabjax.run.dataset.derive_chunk`: verdicts, outcome) into the arrays, then the manifest
+        entry with the checksum of every array's block."""
+        import zarr
+
+        from . import dataset as D
+
+        lo, hi = self.bounds(i)
+        rec = D.derive_chunk(self.plan, res, lo, hi, self.template_features())
+        try:
+            if self.manifest.get("arrays") is None:
+                self._create(rec)
+            arrays = self.manifest["arrays"]
+            if set(rec) != set(arrays):
+                raise StoreError(f"chunk {i} returned results {sorted(rec)} but the store holds {sorted(arrays)}")
+            region, block = self.chunking.region(i), self.chunking.block_shape(i)
+            g = self._data()
+            sums = {}
+            with zarr.config.set({"array.write_empty_chunks": True}):  # every chunk has its file: a missing one is lost
+                for k, v in rec.items():
+                    trailing = tuple(arrays[k]["trailing"])
+                    if v.shape != (hi - lo, *trailing):
+                        raise StoreError(f"chunk {i}: result {k} has shape {v.shape}, expected {(hi - lo, *trailing)}")
+                    b = v.reshape(block + trailing).copy(order="C")  # ascontiguousarray makes a 0-d block 1-d
+                    g[k][region + (slice(None),) * len(trailing)] = b
+                    sums[k] = checksum(b)
+                if "outcome" in rec and self._basin_per_chunk():
+                    # a reader of the running store sees the statistics of every finished grid point (the
+                    # chunk holds all its samples); finish() computes them all again from the stored outcomes
+                    for k, (_, values, _) in D.basin_vars(self.plan, rec["outcome"].reshape(block)).items():
+                        g[k][region[:-1] + (slice(None),)] = values
+            entry = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else 0}
+            entry.update(info or {})
+            entry["sha256"] = sums
+            self.manifest["chunks"][str(i)] = entry
+            self._save_manifest()
+        except OSError as exc:
+            raise self._io_error(f"chunk {i}", exc) from None
+
+    def finish(self, attrs: Mapping[str, Any]):
+        """After the last chunk: the basin statistics (from the stored outcomes) and the run's
+        attributes (wall time, steps, engines); the store then reads as the finished dataset."""
+        from . import dataset as D
+
+        if not self.complete():
+            raise StoreError(f"{self.path}: {len(self.manifest['chunks'])} of {self.n_chunks} chunks finished")
+        try:
+            if self.manifest.get("arrays") is None:  # a plan with no trajectory cannot happen; be explicit
+                raise StoreError(f"{self.path} has no arrays")
+            g = self._data()
+            if "outcome" in self.manifest["arrays"]:
+                codes = g["outcome"][...]
+                for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
+                    g[k][...] = values
+                extras = D.outcome_extras(self.plan, codes, list(self.plan.scheme.names))
+                if extras:  # need every code (starts-file agreement, basin entropy): added now
+                    self._add_vars(extras, {})
+            elif "solver_status" in self.manifest["arrays"]:  # outcomes over the whole sweep: added now
+                self._add_vars(*D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
+                                                   self.template_features()))
+            _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
+            self.manifest["finished"] = True
+            self._save_manifest()
+        except OSError as exc:
+            raise self._io_error("the dataset's statistics", exc) from None
+
+
+    def _add_vars(self, data: Mapping[str, tuple], coords: Mapping[str, tuple]):
+        """Variables known only when every chunk is in (a classification over the whole sweep:
+        :func:`stabjax.run.dataset.whole_sweep_vars`; what needs every outcome code:
+        :func:`stabjax.run.dataset.outcome_extras`), written as new arrays of the group, listed in the
+        manifest first and placed in the dataset's order as :func:`stabjax.run.dataset.build` places them."""
+        import xarray as xr
+
+        from . import dataset as D
+
+        extra = xr.Dataset(dict(data), coords=dict(coords))
+        D.cf_attributes(extra, self.plan)
+        # xarray's append replaces the group's attributes with these: keep the dataset's
+        extra.attrs = json.loads((self.path / ROOT).read_text()).get("attributes", {})
+        for k in [k for k, v in extra.variables.items() if v.dtype.kind == "U"]:
+            extra[k] = extra[k].astype(object)
+        names = [k for k in extra.variables if k not in self.manifest["entries"]]
+        self.manifest["entries"] = [*self.manifest["entries"], *names]
+        order = [v for v in self.manifest.get("variables", []) if v not in extra.data_vars]
+        at = next((j for j, v in enumerate(order) if v.startswith(("theory_", "margin_", "derived_"))), len(order))
+        self.manifest["variables"] = order[:at] + [str(k) for k in extra.data_vars] + order[at:]  # as build() orders
+        self._save_manifest()
+        existing = set(self._data().array_keys())
+        extra = extra.drop_vars([k for k in extra.variables if k in existing and k not in data])
+        with _quiet_zarr():
+            extra.to_zarr(self.path, mode="a", zarr_format=3, consolidated=True)
+        self._group = None
+
+
+class StoreWarning(UserWarning):
+    """Something in the store was repaired (a chunk recomputed)."""
+
+
+def _set_root_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
+    """Update the zarr group's attributes by replacing ``zarr.json`` atomically (zarr rewrites it in
+    place; a kill midway would leave a group no one can open)."""
+    root = Path(path) / ROOT
+    meta = json.loads(root.read_text())
+    meta.setdefault("attributes", {}).update(I.plain(dict(attrs)))
+    _atomic_json(root, meta)
+
+
+def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
+    """Chunk index -> what is wrong, for every finished chunk whose block of some array is missing
+    (no chunk file), unreadable, or differs from the checksum recorded when it was written."""
+    import zarr
+
+    arrays = manifest.get("arrays") or {}
+    if not manifest["chunks"]:
+        return {}
+    if not arrays:  # chunks listed before any array was created: a manifest edited by hand
+        return {int(i): "the store has no arrays" for i in manifest["chunks"]}
+    ch = Chunking(manifest["chunking"]["shape"], manifest["batch_size"])
+    try:
+        for k in arrays:  # each array's own metadata too (readers without consolidated metadata use it)
+            json.loads((Path(path) / k / ROOT).read_text())
+        with _quiet_zarr():
+            g = zarr.open_group(Path(path), mode="r", zarr_format=3)
+            arr = {k: g[k] for k in arrays}
+    except Exception as exc:  # noqa: BLE001 - any damage to the metadata: the arrays are gone
+        raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
+    bad: dict[int, str] = {}
+    for key, entry in manifest["chunks"].items():
+        i = int(key)
+        coords = ch.chunk_coords(i)
+        for k, a in arr.items():
+            trailing = len(arrays[k]["trailing"])
+            ck = a.metadata.encode_chunk_key(coords + (0,) * trailing)
+            f = Path(path) / k / ck
+            if not f.is_file():
+                bad[i] = f"{k}/{ck} is missing"
+                break
+            try:
+                b = a[ch.region(i) + (slice(None),) * trailing]
+            except Exception as exc:  # noqa: BLE001 - a truncated or overwritten chunk file
+                bad[i] = f"{k}/{ck} is unreadable ({type(exc).__name__})"
+                break
+            if checksum(b) != (entry.get("sha256") or {}).get(k):
+                bad[i] = f"{k}/{ck} differs from its checksum"
+                break
+    return bad
+
+
+def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool = False) -> dict[str, Any]:
+    """The per-trajectory records of a store, flat over the trajectories (N, *trailing) in the plan's
+    C order: dask arrays reading the store (``lazy``) or numpy."""
+    import zarr
+
+    with _quiet_zarr():
+        g = zarr.open_group(Path(path), mode="r", zarr_format=3)
+    nd = len(manifest["chunking"]["shape"])
+    out = {}
+    for k, meta in (manifest.get("arrays") or {}).items():
+        trailing = tuple(meta["trailing"])
+        if lazy:
+            import dask.array as da
+
+            a = da.from_zarr(g[k])
+        else:
+            a = np.asarray(g[k][...])
+        out[k] = a.reshape((-1, *trailing)) if nd else a.reshape((1, *trailing))
+    return out
+
+
+def pending_mask(manifest: Mapping[str, Any]) -> np.ndarray:
+    """Boolean array over the plan's grid: True where a trajectory's chunk has not finished."""
+    ch = Chunking(manifest["chunking"]["shape"], manifest["batch_size"])
+    pending = np.ones(ch.shape, bool)
+    for i in manifest.get("chunks", {}):
+        pending[ch.region(int(i))] = False
+    return pending
+
+
+def open_store(path: str | Path):
+    """The dataset a store holds, as xarray reads it (``xr.open_zarr``), lazily; with the zarr
+    encodings dropped and text coordinates as Python strings, so that it writes to netCDF exactly
+    as the dataset of a run without a store does."""
+    import xarray as xr
+
+    ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3)
+    with contextlib.suppress(StoreError, TypeError, KeyError):
+        order = (read_manifest(Path(path)) or {}).get("variables") or []
+        names = [v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]
+        ds = xr.Dataset({v: ds[v] for v in names}, coords=ds.coords, attrs=ds.attrs)  # every coordinate kept
+    for v in ds.variables.values():
+        v.encoding = {}
+    for k in list(ds.coords):
+        if ds[k].dtype.kind == "T":  # numpy StringDType
+            ds = ds.assign_coords({k: (ds[k].dims, ds[k].values.astype(object), ds[k].attrs)})
+    for k in ("stabjax_store", "stabjax_complete"):
+        ds.attrs.pop(k, None)
+    return ds
+
+
+def plan_from_manifest(manifest: Mapping[str, Any]):
+    """Rebuild the plan a store was computed for (spec + overrides + effective integrate settings)."""
+    from ..plan.spec import make_plan
+
+    ident = manifest["identity"]
+    plan = make_plan(ident["spec"], t1=ident["overrides"].get("t1"))
+    icfg = dataclasses.replace(plan.icfg, **ident["integrate"])
+    if icfg != plan.icfg:
+        plan = dataclasses.replace(plan, icfg=icfg)
+    return plan
+
+
+def _holder(path: Path) -> dict | None:
+    lock = Path(path) / LOCK
+    try:
+        h = json.loads(lock.read_text() or "{}")
+    except (OSError, ValueError):
+        return None
+    if h.get("host") == socket.gethostname() and isinstance(h.get("pid"), int) and not _pid_alive(h["pid"]):
+        return None
+    return h
+
+
+def finished_store(store: str | Path):
+    """(manifest, plan) of a finished store that no sweep is writing and whose every chunk matches its
+    checksum, for ``stabjax export``; otherwise an error saying what is wrong and how to go on."""
+    from ..errors import ValidationError
+
+    store = Path(store)
+    if not store.exists():
+        raise ValidationError("store", f"not found: {store}")
+    if not store.is_dir():
+        raise ValidationError("store", f"{store} is a file, not a stabjax store (a directory written by "
+                                       "'stabjax sweep ... --keep-store')")
+    m = read_manifest(store)
+    if m is None:
+        raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST})")
+    h = _holder(store)
+    if h is not None:
+        raise StoreError(f"{store} is being written by pid {h.get('pid')} on {h.get('host')}; export it when that sweep ends")
+    done = len(m["chunks"])
+    if done != m["n_chunks"] or not m.get("finished"):
+        raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
+                         "again to finish it")
+    bad = verify(store, m)
+    if bad:
+        listed = "; ".join(f"chunk {i}: {why}" for i, why in sorted(bad.items())[:5])
+        raise StoreError(f"{store}: {len(bad)} chunk(s) are missing or damaged ({listed}{' ...' if len(bad) > 5 else ''}); "
+                         "nothing was exported. Run the sweep command again: it recomputes them")
+    return m, plan_from_manifest(m)
+
+
+__all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
+           "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "plan_from_manifest",
+           "stored_batch", "verify", "checksum"]

@@ -1,0 +1,277 @@
+"""The native engine (stabjax.engines.native: jaxprs translated to C, SIMD Tsit5 loop) against SciPy
+DOP853, diffrax and the diffrax engine path; its C translation of every registered model against
+JAX; failures, interruption, fallbacks and the sweep runner's use of it."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from stabjax import engines
+from stabjax.fold import verdict as V
+from stabjax.config import IntegrateConfig
+from stabjax.engines.simulate import batch_params, solve_batch
+from stabjax.engines import native
+from stabjax.engines.lanes import NoRule
+from stabjax.engines.native import emit
+from stabjax.model.registry import get_system, list_systems
+
+from references import monoaxial_rhs
+
+pytestmark = pytest.mark.skipif(not native.available(), reason="no working C compiler")
+
+SYS = get_system("monoaxial")
+ALPHAS = np.linspace(0.3, 1.0, 40)
+ICFG = IntegrateConfig(t1=800.0, rtol=1e-10, atol=1e-12, n_checkpoints=200)
+
+
+def batch(n=len(ALPHAS)):
+    p = batch_params(SYS, None, n)
+    p["alpha"] = np.linspace(0.3, 1.0, n)
+    p["w0"][1] = [0.5, -1.0, 2.0]  # other initial conditions, so w0 is a dynamic (lane-varying) input
+    p["w0"][min(6, n - 1)] = [-2.0, 0.3, 0.1]
+    return p
+
+
+@pytest.fixture(scope="module")
+def nat():
+    # 40 trajectories through blocks of 16 lanes on 2 threads: lanes are refilled from the shared queue
+    return native.solve(SYS, batch(), ICFG, SYS.verdict, with_state=True, threads=2)
+
+
+@pytest.mark.parametrize("i", [0, 1, 6, 13, 39])
+def test_final_states_match_scipy_dop853(nat, i):
+    p = batch()
+    y0 = np.concatenate([p["w0"][i], p["s0"][i]])
+    args = (p["J"][i], p["D"][i], p["a"][i], p["mu"][i], p["b"][i], p["sigma"][i], p["alpha"][i], p["omega0"][i], p["r"][i])
+    sol = solve_ivp(monoaxial_rhs, (0.0, ICFG.t1), y0, method="DOP853", rtol=1e-11, atol=1e-13, args=args)
+    assert sol.success and nat["solver_status"][i] == 0
+    np.testing.assert_allclose(nat["state_t1"][i], sol.y[:, -1], atol=1e-6, rtol=0)
+
+
+def test_verdicts_summaries_and_steps_match_diffrax_engine(nat):
+    ref = solve_batch(SYS, batch(), IntegrateConfig(**{**ICFG.__dict__, "engine": "diffrax"}))
+    np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
+    for k in ("n_excursions", "n_flips", "t_settle", "t_first_flip"):
+        np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
+    for k in ("error_t1", "error_max_late", "error_max_settled", "size_max", "peak_last", "decay_exponent"):
+        np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
+    # same method, controller and step sequence (checkpoints come from the dense output, as in
+    # diffrax's SaveAt(ts)): accepted steps agree up to rounding-level differences of the controller
+    np.testing.assert_allclose(nat["n_steps"], ref["n_steps"], rtol=0.02, atol=3)
+
+
+def test_results_do_not_depend_on_threads_width_or_static_folding(nat):
+    p = batch()
+    other = native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=1, width=8, static=[])
+    np.testing.assert_array_equal(other["verdict"], nat["verdict"])
+    np.testing.assert_allclose(other["state_t1"], nat["state_t1"], atol=1e-9, rtol=0)
+    again = native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=2)
+    np.testing.assert_array_equal(again["state_t1"], nat["state_t1"])  # deterministic, whatever the scheduling
+
+
+def test_every_summary_is_bit_identical_across_threads_and_runs(nat):
+    """Which trajectories share a SIMD block depends on thread scheduling; every observation and
+    classifier update goes through the same vector code (item batches padded, FIFO drains
+    vectorised), so no summary may move even in its last bit (docs/performance.md)."""
+    p = batch()
+    runs = [native.solve(SYS, p, ICFG, SYS.verdict, with_state=True, threads=t) for t in (1, 2, 2)]
+    for other in runs:
+        for k in nat:
+            np.testing.assert_array_equal(other[k], nat[k], err_msg=k)
+
+
+def test_classifier_queue_overflow_and_late_drains_change_nothing():
+    """Checkpoints so dense that lane FIFOs fill (QCAP) and hold items until the lane finishes: the
+    kernel's drain counters (``run_raw(...)["drains"]``) show both overflow drains and end-of-lane drains
+    happen, and the summaries equal those of the diffrax engine, which classifies checkpoint by
+    checkpoint (no queue, hence no overflow). Fails if the overflow no longer happens (the test would
+    prove nothing: then raise n_checkpoints) or if a drain changes a summary."""
+    icfg = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=4000)
+    p = batch(20)
+    kern, dyn = native.kernel_for(SYS, icfg, SYS.verdict, p)
+    ain, y0 = kern.model.host_inputs(dyn, 20)
+    drains = native.run_raw(kern, ain, y0, threads=1)["drains"]
+    assert drains["overflow"] > 0 and drains["late"] > 0, drains  # measured: 5,122 and 3,088
+    nat = native.solve(SYS, p, icfg, SYS.verdict, threads=1)
+    ref = solve_batch(SYS, p, IntegrateConfig(**{**icfg.__dict__, "engine": "diffrax"}))
+    np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
+    for k in ("n_excursions", "n_flips", "t_settle", "t_first_flip"):
+        np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
+    for k in ("error_t1", "error_max_late", "error_max_settled", "peak_last", "decay_exponent"):
+        np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
+    # a sparse run of the same trajectories does not overflow: the counter is not stuck above 0
+    sparse = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=64)
+    kern, dyn = native.kernel_for(SYS, sparse, SYS.verdict, p)
+    ain, y0 = kern.model.host_inputs(dyn, 20)
+    assert native.run_raw(kern, ain, y0, threads=1)["drains"]["overflow"] == 0
+
+
+def test_failures_are_reported_not_raised():
+    p = batch_params(SYS, None, 3)
+    p["b"][1] = np.nan  # right-hand side NaN from t = 0
+    p["w0"][2] = [300.0, -200.0, 100.0]  # needs far more than max_steps
+    icfg = IntegrateConfig(t1=20.0, rtol=1e-8, atol=1e-10, n_checkpoints=16, max_steps=400)
+    out = native.solve(SYS, p, icfg, SYS.verdict)
+    assert out["verdict"][0, -1] != V.FAILED and out["solver_status"][0] == 0
+    assert out["verdict"][1, -1] == V.FAILED and out["solver_status"][1] == 1
+    assert out["verdict"][2, -1] == V.FAILED and out["solver_status"][2] == 1
+    assert out["n_steps"][2] + out["n_rejected"][2] == 400
+
+
+def test_progress_and_interruption():
+    p = batch(64)
+    icfg = IntegrateConfig(t1=3000.0, n_checkpoints=100)
+    seen = []
+    native.solve(SYS, p, icfg, SYS.verdict, progress=lambda done, n: seen.append((done, n)), threads=1)
+    assert seen and all(n == 64 for _, n in seen) and seen[-1][0] == 64
+
+    def interrupt(done, n):
+        raise KeyboardInterrupt
+
+    long = IntegrateConfig(t1=1e6, n_checkpoints=100)
+    with pytest.raises(KeyboardInterrupt):  # the threads stop at their next step; nothing is returned
+        native.solve(SYS, batch(32), long, SYS.verdict, progress=interrupt)
+
+
+def test_dispatch_prefers_native_and_falls_back(monkeypatch):
+    assert engines.resolve(SYS, IntegrateConfig()) == ("native", "")
+    assert engines.chain("fused") == ("fused", "native", "diffrax")
+    choice = engines.resolve(SYS, IntegrateConfig(solver="dopri5"))
+    assert choice.engine == "diffrax" and "solver 'dopri5'" in choice.note
+    small = IntegrateConfig(t1=50.0, n_checkpoints=32)
+    assert engines.resolve(SYS, small, SYS.verdict, batch_params(SYS, None, 2)).engine == "native"
+
+    # a primitive without a C rule: the fused engine takes over (once, with the reason), same answer
+    def refuse(self, prim, params, es, in_dtypes):
+        raise NoRule(prim.name)
+
+    native._kernel.cache_clear()
+    monkeypatch.setattr(emit.CEmit, "bind_elem", refuse)
+    p = batch_params(SYS, None, 2)
+    choice = engines.resolve(SYS, small, SYS.verdict, p)
+    assert choice.engine == "fused" and choice.note.startswith("engine fused runs monoaxial (native: no C rule for")
+    out = solve_batch(SYS, p, small)
+    assert out["verdict"].shape[0] == 2
+    native._kernel.cache_clear()
+
+
+def test_no_compiler_means_no_native(monkeypatch):
+    monkeypatch.setattr(native.build, "compiler", lambda: None)
+    monkeypatch.setattr(native, "compiler", lambda: None)
+    native.available.cache_clear()
+    try:
+        assert not native.available()
+        choice = engines.resolve(SYS, IntegrateConfig())
+        assert choice.engine == "fused" and "native: no C compiler on PATH" in choice.note
+    finally:
+        native.available.cache_clear()
+
+
+def test_generated_c_is_exact_where_it_should_be():
+    em = emit.CEmit()
+    assert emit.flit(0.1) == "(0x1.999999999999ap-4)" and float.fromhex("0x1.999999999999ap-4") == 0.1
+    x = emit.Sym("x", np.float64)
+    assert em.pow_(x, np.float64(0.5), ["x", "0.5"], [np.float64, np.float64]).name in em.lines[-1]
+    assert "sqrt(x)" in em.lines[-1]
+    assert em.pow_(x, np.float64(1.0), ["x", "1.0"], [np.float64, np.float64]) is x
+
+
+@pytest.mark.parametrize("name", list_systems(available_only=True))
+def test_translation_of_every_model_equals_jax(name):
+    """rhs and observables compiled from the jaxprs equal JAX's, with constants folded and without."""
+    S = get_system(name)
+    rng = np.random.default_rng(1)
+    n = 3
+    p = {k: np.asarray(v) for k, v in batch_params(S, None, n).items()}
+    p = S.check(p) if hasattr(S, "check") else p
+    icfg = IntegrateConfig(t1=10.0, n_checkpoints=16)
+    for static in (None, []):
+        kern, dyn = native.kernel_for(S, icfg, S.verdict, p, static=static, check=False, eval_only=True)
+        a, y0 = kern.model.host_inputs(dyn, n)
+        for i in range(n):
+            q = {k: jnp.asarray(v[i]) for k, v in p.items()}
+            args = S.prepare(q)
+            y = np.asarray(S.initial_state(q)) + 0.1 * rng.normal(size=y0.shape[1])
+            t = 0.3 + 7.0 * i
+            ref_dy = np.asarray(S.rhs(t, jnp.asarray(y), args))
+            ref_obs = np.ravel(np.asarray(S.observe(t, jnp.asarray(y), args)))
+            np.testing.assert_allclose(y0[i], np.asarray(S.initial_state(q)), rtol=1e-14, atol=1e-15)
+            dy, obs = native.evaluate(kern, t, y, a[i])
+            # the sixth/seventh stages' form (t-only part computed apart) is the same arithmetic
+            np.testing.assert_array_equal(native.evaluate(kern, t, y, a[i], split=True)[0], dy)
+            scale = max(1.0, float(np.max(np.abs(ref_dy))))
+            np.testing.assert_allclose(dy, ref_dy, rtol=1e-11, atol=1e-12 * scale, err_msg=f"{name} rhs static={static}")
+            np.testing.assert_allclose(obs, ref_obs, rtol=1e-11, atol=1e-12, err_msg=f"{name} observe static={static}")
+
+
+def test_rhs_split_and_zero_terms():
+    """The t-only part of paper A's rhs is cos(omega0 t**alpha) (shared by the stages at t + h); the
+    diagonal damping matrix costs no products with zero."""
+    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8), eval_only=True)
+    m = kern.model
+    t_part = m.functions.split("void f_rhs_t(", 1)[1].split("\n}\n", 1)[0]
+    assert m.n_tv == 1 and "cos(" in t_part and "jpow(t" in t_part and "y[" not in t_part
+    y_part = m.functions.split("void f_rhs_y(", 1)[1].split("\n}\n", 1)[0]
+    assert "cos(" not in y_part and "jpow(" not in y_part
+    rhs = m.functions.split("void f_rhs(", 1)[1].split("\n}\n", 1)[0]
+    assert "(0x0.0p+0) *" not in rhs and "(-0x0.0p+0) *" not in rhs
+    lines = ["const double v0 = y[0*S];", "const double v1 = a[0*S];", "const double v2 = v1 * v0;",
+             "out[0*S] = v2;"]
+    assert emit.split_t(lines) is None  # autonomous: nothing to share
+    # a term t * y stays with the state; the product c * t that a sum consumes is not stored
+    lines = ["const double v0 = y[0*S];", "const double v1 = t * v0;", "const double v2 = (0x1p+1) * t;",
+             "const double v3 = cos(v2);", "const double v4 = v1 + v2;", "const double v5 = v4 * v3;",
+             "out[0*S] = v5;"]
+    t_lines, frontier, y_lines = emit.split_t(lines)
+    assert frontier == ["v3"] and "const double v3 = cos(v2);" in t_lines
+    assert "const double v1 = t * v0;" in y_lines and "const double v2 = (0x1p+1) * t;" in y_lines
+    assert not any("cos(" in ln for ln in y_lines)
+
+
+def test_classifier_update_equals_jax():
+    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8))
+    m = kern.model
+    t_late = V.late_start(SYS.verdict, float(ICFG.t0), float(ICFG.t1))
+    upd = jax.jit(lambda c, t, o: V.update(c, t, o, SYS.verdict, t_late))
+    rng = np.random.default_rng(2)
+    c_tree, c_flat = V.init(jnp.float64, SYS.verdict), m.c0.copy()  # the engines' state: sized to the config
+    ts = np.sort(rng.uniform(0, ICFG.t1, 200))
+    for t in ts:  # a noisy error signal with excursions, flips and NaN-free values
+        e = abs(rng.normal(0, 0.6)) if rng.random() < 0.3 else 10 ** rng.uniform(-9, -1)
+        o = np.array([e, rng.uniform(0, 3)])
+        c_tree = upd(c_tree, t, jnp.asarray(o))
+        c_flat = native.update(kern, c_flat, t, o)
+        ref = np.concatenate([np.asarray(x, np.float64).ravel() for x in jax.tree.leaves(c_tree)])
+        np.testing.assert_allclose(c_flat, ref, rtol=1e-13, atol=0, equal_nan=True)
+
+
+def test_sweep_runs_native_with_progress_and_records_engine(tmp_path):
+    from stabjax.run.sweep import run_spec
+
+    spec = {"system": "monoaxial", "name": "tiny",
+            "grid": {"alpha": {"start": 0.4, "stop": 1.0, "num": 6}},
+            "integrate": {"t1": 200.0, "n_checkpoints": 64}}
+    ds = run_spec(spec, tmp_path / "tiny.nc", progress=True)
+    assert ds.attrs["engine"] == "native"
+    ref = run_spec({**spec, "integrate": {**spec["integrate"], "engine": "diffrax"}})
+    np.testing.assert_array_equal(ds["verdict"].values, ref["verdict"].values)
+
+
+def test_huge_trig_arguments():
+    """cos(omega0 t**alpha) at t = 1e12 and 1e15 (libm's range reduction, as in JAX).
+
+    alpha = 1 is folded as a constant (t**1 = t exactly): with a lane-varying alpha, t**alpha is
+    exp(alpha log t), whose ~27 ulp at t = 1e12 move the cosine's argument by ~1e-3, the same
+    for any pow of finite accuracy at such arguments."""
+    p = batch_params(SYS, None, 2)
+    p["alpha"] = np.array([1.0, 1.0])
+    kern, dyn = native.kernel_for(SYS, ICFG, SYS.verdict, p)
+    a, _ = kern.model.host_inputs(dyn, 2)
+    q = {k: jnp.asarray(v[0]) for k, v in p.items()}
+    y = np.array([0.1, -0.2, 0.3, 0.6, 0.48, 0.64])
+    for t in (3.0, 1e12, 1e15):
+        ref = np.asarray(SYS.rhs(t, jnp.asarray(y), SYS.prepare(q)))
+        dy, _ = native.evaluate(kern, t, y, a[0])
+        np.testing.assert_allclose(dy, ref, rtol=1e-12, atol=1e-14, err_msg=f"t={t}")

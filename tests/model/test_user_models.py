@@ -1,0 +1,229 @@
+"""Systems from outside the package: spec path, Python API, stabjax.register, entry points; bad models.
+
+The oscillator x'' + (c - k) x' + x = 0 has the closed-form solution used to check the outcomes:
+the amplitude sqrt(x^2 + v^2) decays as exp(-(c - k) t / 2) (up to a bounded oscillating factor).
+"""
+import json
+import shutil
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import stabjax
+from stabjax.app.cli import main
+from stabjax.errors import ValidationError
+
+HERE = Path(__file__).parents[1]  # tests/
+MODEL = HERE / "models" / "oscillator.py"
+
+SPEC = """
+system = "model.py:Oscillator"
+name = "osc"
+[grid]
+k = [0.0, 1.0]
+[sample]
+n = 16
+seed = 0
+x0 = {dist = "uniform", low = -1.0, high = 1.0}
+v0 = {dist = "uniform", low = -1.0, high = 1.0}
+[integrate]
+t1 = 40.0
+n_checkpoints = 200
+"""
+
+
+def _run(argv, capsys):
+    """(exit status, printed text) of the CLI run in-process; a normal return is status 0."""
+    code = 0
+    try:
+        main(argv)
+    except SystemExit as exc:
+        code = exc.code if exc.code is not None else 0
+    cap = capsys.readouterr()
+    return code, " ".join((cap.out + cap.err).split())  # rich may wrap long lines
+
+
+@pytest.fixture()
+def project(tmp_path):
+    shutil.copy(MODEL, tmp_path / "model.py")
+    (tmp_path / "spec.toml").write_text(SPEC)
+    return tmp_path
+
+
+def _expect_outcomes(ds):
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert names == ["decays", "grows", "unclassified", "failed"]
+    assert list(ds["outcome"].attrs["flag_values"]) == [0, 1, 2, 3]
+    # k = 0 < c = 0.5: amplitude ~ exp(-t/4): at t in [30, 40] below 1e-2 for |start| <= sqrt(2)
+    # k = 1 > c: grows as exp(t/4) from |start| >= the smallest sampled one: final amplitude > 10
+    assert (ds["outcome"].sel(k=0.0).values == 0).all()
+    assert (ds["outcome"].sel(k=1.0).values == 1).all()
+    np.testing.assert_array_equal(ds["basin_fraction"].sel(k=0.0).values, [1, 0, 0, 0])
+    np.testing.assert_array_equal(ds["basin_se"].values, 0.0)
+
+
+def test_spec_path_relative_to_the_spec(project, capsys, monkeypatch, tmp_path_factory):
+    elsewhere = tmp_path_factory.mktemp("cwd")
+    monkeypatch.chdir(elsewhere)  # the model path is relative to the spec file, not the working directory
+    out = project / "res.nc"
+    code, text = _run(["sweep", str(project / "spec.toml"), "--out", str(out), "--no-progress"], capsys)
+    assert code == 0, text
+    ds = xr.load_dataset(out)
+    _expect_outcomes(ds)
+    assert "decays" in text and "grows" in text  # the CLI summary uses the system's names
+    assert ds.attrs["model_sha256"] == __import__("hashlib").sha256((project / "model.py").read_bytes()).hexdigest()
+    assert (project / "res.png").exists()
+
+
+def test_changed_model_file_changes_the_fingerprint(project):
+    from stabjax.plan.spec import load_spec, make_plan
+
+    fp1 = make_plan(load_spec(project / "spec.toml")).fingerprint()
+    (project / "model.py").write_text((project / "model.py").read_text() + "\n# edited\n")
+    fp2 = make_plan(load_spec(project / "spec.toml")).fingerprint()
+    assert fp1 != fp2
+
+
+def test_python_api_accepts_a_class_and_an_instance(project):
+    from stabjax.engines.simulate import simulate
+    from stabjax.model.loading import resolve
+    from stabjax.run.sweep import run_spec
+
+    cls = type(resolve(f"{project / 'model.py'}:Oscillator"))
+    spec = {"system": cls, "grid": {"k": [0.0, 1.0]},
+            "sample": {"n": 16, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 1.0},
+                       "v0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
+            "integrate": {"t1": 40.0, "n_checkpoints": 200}}
+    _expect_outcomes(run_spec(spec))
+    spec["system"] = cls()
+    _expect_outcomes(run_spec(spec))
+    traj = simulate(cls, {"k": 0.0, "x0": 1.0, "v0": 0.0}, t1=10.0, ts=np.linspace(0, 10, 11))
+    # x'' + 0.5 x' + x = 0, x(0) = 1, v(0) = 0: x = e^{-t/4} (cos wt + sin(wt) / (4 w)), w = sqrt(15)/4
+    t = traj.t.values
+    w = np.sqrt(15) / 4
+    # the error bound follows from the solver's: each accepted step errs by at most
+    # sqrt(n) (atol + rtol max|y|) (RMS error norm), carried to the end by the linear flow, whose
+    # gain is kappa = max ||exp(A t)||_2 over the horizon; so n_steps * kappa * that
+    from scipy.linalg import expm
+
+    A = np.array([[0.0, 1.0], [-1.0, -0.5]])
+    kappa = max(np.linalg.norm(expm(A * s_), 2) for s_ in np.linspace(0, 10, 201))
+    bound = traj.attrs["n_steps"] * kappa * np.sqrt(2) * (1e-12 + 1e-10 * 1.0)
+    np.testing.assert_allclose(traj["x"].values, np.exp(-t / 4) * (np.cos(w * t) + np.sin(w * t) / (4 * w)),
+                               rtol=0, atol=bound)
+    assert bound < 1e-6  # still a sharp check of the model
+
+
+def test_register_for_the_running_process(project, capsys, monkeypatch):
+    from stabjax.model import registry
+    from stabjax.model.loading import resolve
+
+    cls = type(resolve(f"{project / 'model.py'}:Oscillator"))
+    monkeypatch.setattr(registry, "_registered", {})
+    monkeypatch.setattr(registry, "_cache", dict(registry._cache))
+    stabjax.register("my_osc", cls)
+    assert "my_osc" in stabjax.list_systems()
+    with pytest.raises(ValidationError, match="already registered"):
+        stabjax.register("my_osc", cls)
+    with pytest.raises(ValidationError, match="built-in"):
+        stabjax.register("monoaxial", cls)
+    (project / "spec2.toml").write_text(SPEC.replace('"model.py:Oscillator"', '"my_osc"'))
+    from stabjax.run.sweep import run_spec
+
+    _expect_outcomes(run_spec(project / "spec2.toml"))
+
+
+def test_entry_point_of_an_installed_distribution(tmp_path, capsys, monkeypatch):
+    """A distribution on sys.path with ``[stabjax.systems] damped = "osc_pkg.model:Oscillator"``."""
+    pkg = tmp_path / "osc_pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    shutil.copy(MODEL, pkg / "model.py")
+    dist = tmp_path / "osc_pkg-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: osc-pkg\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("[stabjax.systems]\ndamped = osc_pkg.model:Oscillator\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from stabjax.model import registry
+
+    monkeypatch.setattr(registry, "_cache", dict(registry._cache))
+    assert registry.lookup("damped") == "entry point"
+    code, text = _run(["systems", "--json"], capsys)
+    assert code == 0
+    listed = json.loads(text)
+    assert listed["damped"]["source"] == "entry point" and "monoaxial" in listed
+    code, text = _run(["systems", "damped"], capsys)
+    assert code == 0 and "decays" in text and "feedback gain" in text
+    (tmp_path / "spec.toml").write_text(SPEC.replace('"model.py:Oscillator"', '"damped"'))
+    from stabjax.run.sweep import run_spec
+
+    _expect_outcomes(run_spec(tmp_path / "spec.toml"))
+
+
+def test_systems_name_describes_a_builtin(capsys):
+    code, text = _run(["systems", "monoaxial"], capsys)
+    assert code == 0
+    assert "alpha" in text and "converged" in text and "Traceback" not in text
+    code, text = _run(["systems", "no_such_system"], capsys)
+    assert code == 2 and "unknown system" in text and "Traceback" not in text
+
+
+# ---- bad model files: each a clear error naming the file and the member, exit 2, nothing written ----
+
+GOOD = MODEL.read_text()
+BAD = {
+    "missing_file": (None, "model file not found"),
+    "no_class": (GOOD.replace("class Oscillator(System)", "class Other(System)"), "no class 'Oscillator'"),
+    "not_a_system": (GOOD.replace("class Oscillator(System)", "class Oscillator"), "not a stabjax.System"),
+    "syntax": (GOOD + "\ndef broken(:\n", "importing the model failed"),
+    "rhs_shape": (GOOD.replace("return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])",
+                               "return jnp.stack([y[1], y[0], y[0]])"), "Oscillator.rhs: returned shape (3,)"),
+    "rhs_dtype": (GOOD.replace("return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])",
+                               "return jnp.array([1, 2])"), "Oscillator.rhs: returned dtype int"),
+    "rhs_raises": (GOOD.replace("return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])",
+                                "raise RuntimeError('boom')"), "Oscillator.rhs: raised RuntimeError: boom"),
+    "observe_shape": (GOOD.replace("return jnp.stack([jnp.sqrt(y[0] ** 2 + y[1] ** 2), y[0]])",
+                                   "return y[0]"), "Oscillator.observe: returned shape ()"),
+    "nan_default": (GOOD.replace('Param("c", 0.5, "damping")', 'Param("c", float("nan"), "damping")'),
+                    "Oscillator.params.c"),
+    "duplicate_param": (GOOD.replace('Param("k", 0.0,', 'Param("c", 0.0,'), "declared twice: c"),
+    "reserved_param": (GOOD.replace('Param("k", 0.0,', 'Param("sample", 0.0,').replace('p["k"]', 'p["sample"]'),
+                       "clash with dataset names"),
+    "bad_rule": (GOOD.replace('"max(amplitude) < 1e-2"', '"max(nope) < 1e-2"'), "outcomes.rules.decays"),
+    "python_if": (GOOD.replace("return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])",
+                               "return jnp.stack([y[1], -y[0]]) if y[0] > 0 else jnp.stack([y[1], y[0]])"),
+                  "cannot be traced by JAX"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_model_file(case, tmp_path, capsys):
+    text, needle = BAD[case]
+    if text is not None:
+        (tmp_path / "model.py").write_text(text)
+    (tmp_path / "spec.toml").write_text(SPEC)
+    out = tmp_path / "res.nc"
+    out.write_bytes(b"an earlier result")  # must survive the failed run
+    code, msg = _run(["sweep", str(tmp_path / "spec.toml"), "--out", str(out), "--no-progress"], capsys)
+    assert code == 2, msg
+    assert needle in msg, msg
+    assert "model.py" in msg, msg
+    assert "Traceback" not in msg
+    assert out.read_bytes() == b"an earlier result"
+    assert not (tmp_path / "res.nc.zarr").exists() and not (tmp_path / "res.png").exists()
+
+
+def test_model_reference_forms():
+    from stabjax.model.loading import resolve
+
+    with pytest.raises(ValidationError, match="cannot import module"):
+        resolve("no_such_module_xyz:Model")
+    with pytest.raises(ValidationError, match="has no attribute"):
+        resolve("stabjax.systems.monoaxial:Nope")
+    with pytest.raises(ValidationError, match="must be a system name"):
+        resolve(42)
+    assert resolve("stabjax.systems.monoaxial:Monoaxial").state_size == 6

@@ -1,0 +1,94 @@
+"""Starts from a file ([sample] from = ...) and the per-start comparison with the file's labels."""
+import numpy as np
+import pytest
+
+from stabjax.errors import ValidationError
+from stabjax.plan.starts import compare
+from stabjax.run.sweep import run_spec
+
+PENDULUM = "examples/pendulum/model.py:Pendulum"
+
+
+def test_compare_majority_mapping_and_mcc():
+    """Outcome names differ from the labels: mapped by majority; MCC by its definition (two classes:
+    (TP TN - FP FN) / sqrt(...), computed here by hand)."""
+    names = ["a", "b"]
+    codes = np.array([0, 0, 0, 1, 1, 1, 1, 0])
+    labels = np.array(["x", "x", "x", "y", "y", "y", "x", "y"])
+    r = compare(names, codes, labels)
+    assert r["mapping"] == {"a": "x", "b": "y"} and r["one_to_one"]
+    assert r["agreement"] == pytest.approx(6 / 8)
+    tp, tn, fp, fn = 3, 3, 1, 1  # x as positive
+    mcc = (tp * tn - fp * fn) / np.sqrt((tp + fp) * (tp + fn) * (tn + fp) * (tn + fn))
+    assert r["mcc"] == pytest.approx(mcc, rel=1e-12)
+
+
+def _write(tmp_path, fmt, theta, omega, label):
+    if fmt == ".csv":
+        p = tmp_path / "starts.csv"
+        p.write_text("theta0,omega0,label\n" + "".join(f"{float(a)!r},{float(b)!r},{c}\n" for a, b, c in zip(theta, omega, label)))
+    elif fmt == ".npy":
+        p = tmp_path / "starts.npy"
+        arr = np.zeros(len(theta), dtype=[("theta0", float), ("omega0", float), ("label", "U16")])
+        arr["theta0"], arr["omega0"], arr["label"] = theta, omega, label
+        np.save(p, arr)
+    else:
+        import xarray as xr
+
+        p = tmp_path / "starts.nc"
+        xr.Dataset({"theta0": ("start", theta), "omega0": ("start", omega), "label": ("start", np.asarray(label))}
+                   ).to_netcdf(p)
+    return p
+
+
+@pytest.mark.parametrize("fmt", [".csv", ".npy", ".nc"])
+def test_file_starts_run_exactly_and_agree_with_their_labels(tmp_path, fmt):
+    """The pendulum's own declared run gives the labels of its starts; the same starts from a file, run
+    again, are those starts exactly and agree with the labels completely (MCC 1)."""
+    ref = run_spec({"system": PENDULUM, "sample": {"n": 60, "seed": 3,
+                                                   "theta0": {"dist": "uniform", "low": -2.6, "high": 3.6},
+                                                   "omega0": {"dist": "uniform", "low": -6.0, "high": 6.0}},
+                    "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 300}})
+    names = ref["outcome"].attrs["flag_meanings"].split()
+    label = [names[c] for c in ref["outcome"].values]
+    p = _write(tmp_path, fmt, ref["theta0_sample"].values, ref["omega0_sample"].values, label)
+    ds = run_spec({"system": PENDULUM, "sample": {"from": str(p)},
+                   "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 300}})
+    np.testing.assert_array_equal(ds["theta0_sample"].values, ref["theta0_sample"].values)
+    np.testing.assert_array_equal(ds["outcome"].values, ref["outcome"].values)
+    assert float(ds["start_label_agreement"]) == 1.0 and float(ds["start_label_mcc"]) == pytest.approx(1.0)
+    assert list(ds["start_label"].values) == label
+
+
+def test_bad_starts_files(tmp_path):
+    spec = {"system": PENDULUM, "integrate": {"t1": 10.0}}
+    bad = tmp_path / "b.csv"
+    bad.write_text("theta0,nope\n1,2\n")
+    with pytest.raises(ValidationError, match="'nope' is not a parameter"):
+        run_spec({**spec, "sample": {"from": str(bad)}})
+    bad.write_text("theta0,omega0\n1,x\n")
+    with pytest.raises(ValidationError, match="finite numbers"):
+        run_spec({**spec, "sample": {"from": str(bad)}})
+    with pytest.raises(ValidationError, match="no distributions"):
+        run_spec({**spec, "sample": {"from": str(bad), "omega0": {"dist": "uniform", "low": 0, "high": 1}}})
+    with pytest.raises(ValidationError, match="file not found"):
+        run_spec({**spec, "sample": {"from": str(tmp_path / "none.csv")}})
+
+
+def test_discovery_against_labels_in_the_file(tmp_path):
+    """Discovered names (fixed_point_1, limit_cycle_1) are mapped to the file's names; the pendulum's
+    partition is recovered (pyBasin's integration tests ask MCC >= 0.95)."""
+    ref = run_spec({"system": PENDULUM, "sample": {"n": 120, "seed": 4,
+                                                   "theta0": {"dist": "uniform", "low": -2.6, "high": 3.6},
+                                                   "omega0": {"dist": "uniform", "low": -6.0, "high": 6.0}},
+                    "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 300}})
+    names = ref["outcome"].attrs["flag_meanings"].split()
+    p = _write(tmp_path, ".csv", ref["theta0_sample"].values, ref["omega0_sample"].values,
+               [names[c] for c in ref["outcome"].values])
+    ds = run_spec({"system": PENDULUM, "sample": {"from": str(p)}, "outcomes": {"discover": True},
+                   "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 300}})
+    assert float(ds["start_label_agreement"]) >= 0.98 and float(ds["start_label_mcc"]) >= 0.95
+    assert "fixed_point_1" in ds["start_label_mcc"].attrs["mapping"]
+    from stabjax.present.basins import format_summary
+
+    assert "Matthews correlation" in format_summary(ds)
