@@ -425,6 +425,7 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
 
 
 def open_result(path: str | Path) -> xr.Dataset:
+    """A result file (netCDF) read into memory; a missing file is a ValidationError naming it."""
     path = Path(path)
     if not path.exists():
         raise ValidationError("file", f"not found: {path}")
