@@ -111,7 +111,8 @@ class Labeller:
         feats, _ = D.feature_table(results, obs)
         if self.ref is None:
             disc = D.discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
-            self.names = tuple(disc.names) + (O.ESCAPED_NAME, O.UNCLASSIFIED, O.FAILED_NAME)
+            escape = (plan.escape_radius is not None) * (plan.scheme.decl.escape,)
+            self.names = tuple(disc.names) + escape + (O.UNCLASSIFIED, O.FAILED_NAME)
             keep = disc.labels >= 0
             self.ref = (feats[keep] / np.repeat(disc.scale, len(D.STATS)), disc.labels[keep], disc.scale)
             lab = disc.labels
@@ -124,7 +125,8 @@ class Labeller:
                 d, j = NearestNeighbors(n_neighbors=1).fit(x).kneighbors(y[ok])
                 lab[ok] = np.where(d[:, 0] <= cfg.eps, lab_ref[j[:, 0]], -1)
         code = np.where(lab >= 0, lab, self.names.index(O.UNCLASSIFIED))
-        code = np.where(status == S.ESCAPED, self.names.index(O.ESCAPED_NAME), code)
+        if plan.escape_radius is not None:
+            code = np.where(status == S.ESCAPED, self.names.index(plan.scheme.decl.escape), code)
         code = np.where((status != 0) & (status != S.ESCAPED), self.names.index(O.FAILED_NAME), code)
         return code.astype(np.int16)
 

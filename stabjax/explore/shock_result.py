@@ -93,6 +93,7 @@ def compare(plan, cfg: ShockConfig, norm: Norm, name: str, search, witness: np.n
     g = np.arange(G)
     base = norm.params(g, np.zeros((G, cfg.dim)))
     th = plan.system.theory(plan.system.check({k: np.asarray(v)[:1] for k, v in base.items()}))
+    doc = th.derived_doc.get(name, name) if name in th.derived else th.predicates[name].doc
     if name in th.derived:
         rg = theory_values(plan, base, name)
         inside = found & (hi < rg)
@@ -120,7 +121,7 @@ def compare(plan, cfg: ShockConfig, norm: Norm, name: str, search, witness: np.n
     with np.errstate(divide="ignore", invalid="ignore"):
         f_lo = np.where(ok, lo / rg, np.nan)
         f_hi = np.where(ok & found, hi / rg, np.nan)
-    return {"radius": rg, "verdict": verdict, "factor_lo": f_lo, "factor_hi": f_hi}
+    return {"radius": rg, "verdict": verdict, "factor_lo": f_lo, "factor_hi": f_hi, "doc": doc}
 
 
 def recheck(rplan, label, g: np.ndarray, params: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -242,7 +243,7 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
         c = compare(plan, cfg, norm, name, search, witness, found, np.where(np.isnan(lo), 0, lo), hi)
         data[f"theory_radius_{name}"] = (gdims, shp(c["radius"]), {
             "long_name": f"radius of the region guaranteed by {name} in the shock's norm (0: its hypotheses fail)",
-            **nu})
+            "theorem": str(c["doc"]), **nu})
         data[f"theory_verdict_{name}"] = (gdims, shp(c["verdict"]), {
             "long_name": f"{name} against the minimal fatal shock", "flag_values": np.arange(4, dtype=np.int8),
             "flag_meanings": " ".join(VERDICTS)})

@@ -115,6 +115,16 @@ def test_along_an_axis_follows_the_closed_form():
     assert ds.shock_norm.dims == ("a",)
 
 
+def test_discovered_attractors_decide_fatal():
+    """T2 with its attractors discovered (no rules): the origin's group and the r = 2 cycle's; delta* = 1."""
+    ds = search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 8, "refine": "none"},
+                t1=60.0, n_checkpoints=300, outcomes={"discover": True, "discovery": {"lyapunov": False}})
+    assert_brackets(ds, 1.0)
+    names = ds.attrs["outcome_names"].split()
+    assert names[int(ds.base_outcome)] != names[int(ds.shock_witness_outcome)]
+    assert "unclassified" in names and "escaped" not in names
+
+
 def test_excitability_threshold_of_a_neighbourhood():
     """x' = -x + 10 y, y' = -y: leaving |x| <= 0.1 (and coming back) takes a shock of 0.02705 in direction 84 deg."""
     exact, th = M.t4_threshold()
