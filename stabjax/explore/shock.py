@@ -23,6 +23,8 @@ killed search resumes), with the points of every grid point packed together:
    along it to its nearest point), so it needs one trajectory per candidate, not a bisection. CMA-ES uses ranks
    only. Random directions alone find the minimising direction slowly once the shock has more than two entries
    (the cap of directions within 1 % of the minimum shrinks like a power of the dimension).
+   Before it, along a grid, every grid point's best direction is also scanned and bisected at the other points
+   (the witness of a neighbouring gain is the likeliest direction where the random ones found nothing).
 4. **Polish**: the best refined shock's direction is scanned and bisected like the others.
 
 Result per grid point: ``|delta*|``, the smallest fatal shock found (an upper bound: a fatal start of that size
@@ -193,7 +195,7 @@ class Rays:
     hi: list = dataclasses.field(default_factory=list)
     delta: list = dataclasses.field(default_factory=list)  # the fatal shock at hi (NaN while none)
     code: list = dataclasses.field(default_factory=list)  # its outcome code
-    kind: list = dataclasses.field(default_factory=list)  # 0: a scan direction, 1: a polished one
+    kind: list = dataclasses.field(default_factory=list)  # 0: scanned, 1: polished, 2: shared from another grid point
 
     def add(self, g, u, kind):
         k = len(self.g)
@@ -258,6 +260,7 @@ class Search:
         ks = np.arange(len(self.rays.g))
         self._scan(evaluate, ks, np.full(len(ks), cfg.max_radius), with_base=True)
         self._bisect(evaluate)
+        self._share(evaluate)
         if cfg.refine == "cma" and cfg.dim >= 2 and cfg.generations > 0:
             self._cma(evaluate)
             polish = []
@@ -274,11 +277,30 @@ class Search:
                 self._bisect(evaluate)
         return self
 
+    def _share(self, evaluate):
+        """Along a grid, each point's best direction is scanned and bisected at every other point too (a fatal
+        direction of a neighbour is the likeliest one where the scan found none, or a worse one)."""
+        r, best = self.rays, self.best()
+        owners = [g for g in range(self.G) if np.isfinite(best[g])]
+        if self.G < 2 or not owners:
+            return
+        shared = []
+        for h in owners:
+            k = min((k for k in range(len(r.g)) if r.g[k] == h), key=lambda k: r.hi[k])
+            for g in range(self.G):
+                if g != h and self.attractor[g] >= 0:
+                    shared.append(r.add(g, r.u[k], 2))
+        ks = np.array(shared)
+        self._scan(evaluate, ks, np.full(len(ks), self.cfg.max_radius))
+        self._bisect(evaluate)
+
     def _scan(self, evaluate, ks, top, with_base=False, known_top=False):
         """Each ray ``ks`` at ``radii`` radii up to ``top`` (the last one skipped when ``known_top``: it is a
         known fatal shock); the first fatal radius and the one before bracket the exit."""
         K, d = self.cfg.radii, self.cfg.dim
         js = np.arange(1, K + (0 if known_top else 1))
+        if not len(js):  # one radius, and it is the known fatal shock: nothing below it was tried
+            return
         kk = np.repeat(ks, len(js))
         R = (np.repeat(top, len(js)) * np.tile(js, len(ks)) / K)
         g = np.array(self.rays.g)[kk]
@@ -462,7 +484,13 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
         return label(g, params, res)
 
     t0 = time.perf_counter()
-    search = Search(cfg, norm, plan.size, lambda: label.names).run(evaluate)
+    fresh = base_dir is not None and not base_dir.exists()
+    try:
+        search = Search(cfg, norm, plan.size, lambda: label.names).run(evaluate)
+    except ValidationError:  # an attractor that discovery did not find: refused after round 0, nothing left behind
+        if fresh:
+            shutil.rmtree(base_dir, ignore_errors=True)
+        raise
     ds = assemble(plan, rplan, cfg, norm, search, label.names, base, wall=time.perf_counter() - t0,
                   engines=engines, rounds_resumed=resumed[0], label=label)
     if out is not None:

@@ -9,7 +9,9 @@ components; it is measured by
 * ``space = "state"``: the shift of the start *state*, ``initial_state(base + delta) - initial_state(base)``,
   grouped by the system's state components (``System.state``). For a model whose state is its initial-condition
   parameters the two agree; where the model maps parameters onto a manifold (Saakyan's ``S0`` is normalised onto
-  the unit sphere) only the state shift is the quantity a theorem's region is stated in.
+  the unit sphere) only the state shift is the quantity a theorem's region is stated in. ``unit = ["s0"]`` puts a
+  shocked vector back on the unit sphere (normalised) before the system sees it, for a model that refuses a
+  direction that is not a unit vector; the shift is then best measured in the state.
 
 Norm: ``norm = "euclidean"`` (default) is ``sqrt(sum_i (w_i d_i)^2)`` over every measured entry; ``norm = "max"``
 is the largest of the blocks' weighted Euclidean norms (``blocks = [["w"], ["S"]]``; default: one block per
@@ -32,7 +34,7 @@ import numpy as np
 from .. import validate as V
 from ..errors import ValidationError
 
-SHOCK_KEYS = ("components", "space", "norm", "weights", "blocks", "attractor", "target", "excitability",
+SHOCK_KEYS = ("components", "unit", "space", "norm", "weights", "blocks", "attractor", "target", "excitability",
               "directions", "radii", "max_radius", "resolution", "rel_resolution", "refine", "popsize",
               "generations", "seed", "theory")
 SPACES = ("params", "state")
@@ -63,6 +65,7 @@ class ShockConfig:
 
     components: tuple[str, ...]
     entries: tuple[Entry, ...]
+    unit: tuple[str, ...]  # vector components put back on the unit sphere after the shock
     space: str
     norm: str
     blocks: tuple[tuple[str, ...], ...]  # names in the measured space (components, or state components)
@@ -169,6 +172,12 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
                                                   "e.g. [\"x0\", \"v0\"]")
     comps = _names(raw["components"], "shock.components")
     entries = _entries(plan, comps)
+    unit = tuple(_names(raw["unit"], "shock.unit")) if "unit" in raw else ()
+    for i, u in enumerate(unit):
+        prm = plan.system.params.by_name.get(u)
+        if u not in comps or prm is None or len(prm.shape) != 1:
+            raise ValidationError(f"shock.unit[{i}]", f"{u!r} is not a shocked vector parameter (a whole one of "
+                                                      f"{', '.join(comps)}): only those are put back on the sphere")
     space = V.string(raw.get("space", "params"), "shock.space", SPACES)
     norm = V.string(raw.get("norm", "euclidean"), "shock.norm", NORMS)
     measured = list(comps) if space == "params" else [n for n, _ in plan.system.state]
@@ -249,7 +258,7 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
     theory = tuple(_names(raw["theory"], "shock.theory")) if "theory" in raw else ()
     if theory:
         _check_theory(plan, theory)
-    return ShockConfig(components=tuple(comps), entries=tuple(entries), space=space, norm=norm, blocks=tuple(blocks),
+    return ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, space=space, norm=norm, blocks=tuple(blocks),
                        weights=dict(weights), attractor=attractor, target=target, excitability=excit,
                        directions=directions, radii=radii, max_radius=max_radius, resolution=resolution,
                        rel_resolution=rel, refine=refine, popsize=popsize, generations=generations, seed=seed,
@@ -319,6 +328,8 @@ class Norm:
                 p[e.param] = p[e.param] + deltas[:, j]
             else:
                 p[e.param][(slice(None), *e.index)] += deltas[:, j]
+        for name in self.cfg.unit:  # a direction: the shocked vector is put back on the sphere (a retraction)
+            p[name] = p[name] / np.linalg.norm(p[name], axis=-1, keepdims=True)
         return p
 
     def _states(self, g, deltas):

@@ -121,8 +121,10 @@ def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset 
         legend_below(ax, h, ncol=1, width=70)
     if plane:
         _plane(axs[0, 1], ds, basin)
-    fig.suptitle(title or f"Minimal fatal shock: {ds.attrs.get('system', '')} ({ds.attrs.get('sweep_name', '')})",
-                 fontsize=10)
+    import textwrap
+
+    fig.suptitle(textwrap.fill(title or f"Minimal fatal shock: {ds.attrs.get('system', '')} "
+                                        f"({ds.attrs.get('sweep_name', '')})", 80), fontsize=10)
     if out is not None:
         fig.savefig(out, dpi=100)
         plt.close(fig)
@@ -139,7 +141,7 @@ def _theory_lines(ax, ds, x=None):
         col, ls = _TH_STYLES[i % len(_TH_STYLES)]
         r = np.asarray(ds[f"theory_radius_{th}"].values, float)
         r = np.where(np.isinf(r), np.nan, r)
-        what = str(ds[f"theory_radius_{th}"].attrs.get("theorem", "")).split(":")[0] or th
+        what = str(ds[f"theory_radius_{th}"].attrs.get("theorem", "")).split(": ", 1)[-1].split(";")[0] or th
         label = f"radius guaranteed by {th}: {what}"
         if x is None:
             if np.isfinite(r).any() and float(r) > 0:
@@ -169,7 +171,8 @@ def _single(ax, ds):
     _red_flags(ax, ds)
     ax.set_xticks([0], [f"from {att}"])
     ax.set_xlim(-1, 1)
-    ax.set_ylim(0, None)
+    tops = [v for v in [hi, lo] + [float(ds[f"theory_radius_{t}"]) for t in theories(ds)] if np.isfinite(v)]
+    ax.set_ylim(0, 1.15 * max(tops) if tops else None)
     ax.set_ylabel(f"size of the shock, {ds.attrs.get('norm', '')}"[:90] + _unit(ds))
 
 

@@ -21,6 +21,7 @@ atol = 1e-10
 components = ["x0", "y0"]
 max_radius = 2.0
 directions = 12
+refine = "none"
 theory = ["disc"]
 """
 
