@@ -3,7 +3,8 @@
 The minimal fatal shock (Halekotte & Feudel, Sci. Rep. 10, 2020; Attractors.jl's ``minimal_fatal_shock``) of an
 attractor is the smallest perturbation ``delta*`` of its state after which the trajectory reaches another
 outcome; its size is the distance from the attractor to the edge of its basin, its direction the weak spot.
-Here the state is the spec's start (its initial-condition parameters, put on the attractor) and a shock perturbs
+Here the state is the spec's start (its initial-condition parameters, put on the attractor; or, with ``settle =
+true``, the state that start reaches at t1, for a model whose shocked parameters are its state) and a shock perturbs
 chosen components in a chosen norm (:mod:`stabjax.explore.shock_config`), at every point of the spec's ``[grid]``.
 
 The search is batched: every round is one batch of trajectories through the sweep's runner
@@ -180,6 +181,52 @@ def base_points(plan: Plan) -> tuple[dict[str, np.ndarray], np.ndarray]:
     else:
         gv = np.zeros((G, 0))
     return {k: np.asarray(v) for k, v in base.items()}, gv
+
+
+def settle(plan: Plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``[shock] settle = true``: the start moved onto its attractor -- integrated to t1 (the plan's solver and
+    tolerances) and its final state written back into the shocked entries. Needs entries that *are* state entries
+    (``initial_state`` copies each into one state entry, and every state entry comes from one): checked on the
+    Jacobian of ``initial_state``. For a forced system the final state is on the attractor at t1's phase; the shock
+    is applied at t0, so choose t1 a whole number of forcing periods."""
+    import jax
+
+    from ..engines.simulate import simulate
+
+    sysm = plan.system
+    d = cfg.dim
+
+    def y0(v, p):
+        q = dict(p)
+        for j, e in enumerate(cfg.entries):
+            q[e.param] = v[j] if e.index is None else q[e.param].at[e.index].set(v[j])
+        return jax.numpy.ravel(sysm.initial_state(q))
+
+    p0 = {k: jax.numpy.asarray(np.asarray(v)[0]) for k, v in base.items()}
+    vals = np.array([float(np.asarray(base[e.param][0]) if e.index is None else np.asarray(base[e.param][0])[e.index])
+                     for e in cfg.entries])
+    J = np.asarray(jax.jacfwd(y0)(jax.numpy.asarray(vals), p0))  # (n_state, d)
+    if not (J.shape[0] == d and np.allclose(np.abs(J), np.eye(d)[np.argmax(np.abs(J), axis=0)].T)
+            and np.allclose(np.abs(J).sum(axis=0), 1) and np.allclose(np.abs(J).sum(axis=1), 1)):
+        raise ValidationError("shock.settle", "needs shocked components that set the whole state one entry each "
+                                              f"(the state of {sysm.name} has {J.shape[0]} entries); put the start "
+                                              "on the attractor in [params] instead")
+    row = np.argmax(np.abs(J), axis=0)  # the state entry of each shocked entry
+    out = {k: np.array(v, copy=True) for k, v in base.items()}
+    G = len(next(iter(base.values())))
+    for g in range(G):
+        p = {k: np.asarray(v)[g] for k, v in base.items()}
+        ic = plan.icfg
+        ds = simulate(sysm, p, t1=ic.t1, t0=ic.t0, ts=[ic.t1], solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
+                      max_steps=ic.max_steps)
+        yf = np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in sysm.state])
+        for j, e in enumerate(cfg.entries):
+            v = yf[row[j]] * np.sign(J[row[j], j])
+            if e.index is None:
+                out[e.param][g] = v
+            else:
+                out[e.param][(g, *e.index)] = v
+    return sysm.check(out)
 
 
 # ---- the search --------------------------------------------------------------------------------------
@@ -466,6 +513,8 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
         shutil.rmtree(base_dir)
     rplan = round_plan(plan, cfg)
     base, gv = base_points(plan)
+    if cfg.settle:
+        base = settle(plan, cfg, base)
     norm = Norm(plan, cfg, base)
     label = Labeller(rplan, base)
     engines: set[str] = set()

@@ -19,6 +19,27 @@ component), so that a region made of two balls, ``|w1| < lam l`` and ``|delta| <
 one ball ``max(|w1|/lam, |delta|) < l``. A weight is a number or an expression of the scalar parameters
 (``"1/lam"``), evaluated at each grid point.
 
+Fields (``stabjax.explore.shock`` says what the search does with them):
+
+=================  =====================================================================================
+``components``     initial-condition parameters shocked (required): ``["x0", "v0"]``, ``["dw0", "S0"]``, ``"J0[1]"``
+``unit``           shocked vector parameters put back on the unit sphere (e.g. ``["s0"]``)
+``settle``         shock the state the spec's start reaches at t1 (a template's start, say), not the start itself
+``space``          ``"params"`` (default) or ``"state"``: what the norm measures
+``norm``           ``"euclidean"`` (default) or ``"max"`` over ``blocks``
+``blocks``         with ``norm = "max"``: lists of component (or state component) names
+``weights``        name -> number or expression of the scalar parameters (``{w = "1/lam"}``)
+``attractor``      the outcome the unshocked start must reach (default: whatever it reaches)
+``target``         only these outcomes are fatal (the excitability threshold into their basins)
+``excitability``   a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
+``max_radius``     the largest shock searched, in the norm's units (required)
+``directions``     directions scanned (64), ``radii``: radii per direction and rungs of CMA-ES's ladder (8)
+``resolution``     bracket width to reach, absolute; or ``rel_resolution``, a fraction of delta* (0.01)
+``refine``         ``"cma"`` (default) or ``"none"``; ``popsize`` (pycma's default 4 + 3 ln d), ``generations`` (40)
+``seed``           of the directions and of CMA-ES (0)
+``theory``         the system's theorems to hold against the result: predicates or derived radii
+=================  =====================================================================================
+
 Kept apart from the search so that the table can be checked (``stabjax sweep`` refuses a bad table before anything
 is integrated or written) and the norm evaluated without the runner.
 """
@@ -34,7 +55,7 @@ import numpy as np
 from .. import validate as V
 from ..errors import ValidationError
 
-SHOCK_KEYS = ("components", "unit", "space", "norm", "weights", "blocks", "attractor", "target", "excitability",
+SHOCK_KEYS = ("components", "unit", "settle", "space", "norm", "weights", "blocks", "attractor", "target", "excitability",
               "directions", "radii", "max_radius", "resolution", "rel_resolution", "refine", "popsize",
               "generations", "seed", "theory")
 SPACES = ("params", "state")
@@ -66,6 +87,7 @@ class ShockConfig:
     components: tuple[str, ...]
     entries: tuple[Entry, ...]
     unit: tuple[str, ...]  # vector components put back on the unit sphere after the shock
+    settle: bool  # the base start is first integrated to t1: its final state is the attractor's state shocked
     space: str
     norm: str
     blocks: tuple[tuple[str, ...], ...]  # names in the measured space (components, or state components)
@@ -258,7 +280,8 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
     theory = tuple(_names(raw["theory"], "shock.theory")) if "theory" in raw else ()
     if theory:
         _check_theory(plan, theory)
-    return ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, space=space, norm=norm, blocks=tuple(blocks),
+    settle_ = V.boolean(raw.get("settle", False), "shock.settle")
+    return ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, settle=settle_, space=space, norm=norm, blocks=tuple(blocks),
                        weights=dict(weights), attractor=attractor, target=target, excitability=excit,
                        directions=directions, radii=radii, max_radius=max_radius, resolution=resolution,
                        rel_resolution=rel, refine=refine, popsize=popsize, generations=generations, seed=seed,

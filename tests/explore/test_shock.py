@@ -115,6 +115,23 @@ def test_along_an_axis_follows_the_closed_form():
     assert ds.shock_norm.dims == ("a",)
 
 
+def test_settle_moves_the_start_onto_its_attractor():
+    """T2 from (0.3, 0): the start itself is 0.7 from the basin's edge; settled (integrated to t1 first) it is the
+    origin, 1 from the edge; settled from (2.5, 0) it is a point of the r = 2 cycle, 1 from the edges r = 1, 3."""
+    kw = dict(t1=60.0, n_checkpoints=300)
+    shock = {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 12, "refine": "none"}
+    raw = search("test_shock_t2", shock, params={"x0": 0.3}, **kw)
+    assert_brackets(raw, 0.7)
+    settled = search("test_shock_t2", {**shock, "settle": True}, params={"x0": 0.3}, **kw)
+    assert_brackets(settled, 1.0)
+    w, dlt = settled.shock_witness.values, settled.shock_delta.values
+    assert np.abs(w - dlt).max() < 1e-9  # the base is the origin
+    cycle = search("test_shock_t2", {**shock, "settle": True, "attractor": "cycle2", "refine": "cma"},
+                   params={"x0": 2.5}, **kw)  # the exit depends on the direction here: refined
+    assert_brackets(cycle, 1.0)
+    assert abs(np.hypot(*(cycle.shock_witness.values - cycle.shock_delta.values)) - 2.0) < 1e-6
+
+
 def test_discovered_attractors_decide_fatal():
     """T2 with its attractors discovered (no rules): the origin's group and the r = 2 cycle's; delta* = 1."""
     ds = search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 8, "refine": "none"},
@@ -204,6 +221,7 @@ def test_python_entry_point_and_cf_attributes():
     ({"components": ["x0"], "theory": ["no_such_theorem"]}, "shock.theory[0]"),
     ({"components": ["x0"], "directions": 0}, "shock.directions"),
     ({"components": ["x0"], "sideways": 1}, "shock.sideways"),
+    ({"components": ["x0"], "settle": True}, "shock.settle"),  # y0 is a state entry no shocked entry sets
 ])
 def test_bad_input_names_the_field(shock, field):
     with pytest.raises(ValidationError) as exc:
@@ -235,3 +253,22 @@ def test_a_grid_sweep_of_the_shocked_parameter_is_refused():
         search("test_shock_t2", {"components": ["x0"], "max_radius": 2.0},
                sample={"n": 2, "y0": {"dist": "uniform", "low": 0, "high": 0.1}})
     assert exc.value.field == "sample"
+
+
+@pytest.mark.slow
+def test_rounds_run_on_dask_workers_with_the_local_result():
+    """Every round through a spawned Dask worker (the example model, loadable there) gives the in-process search."""
+    from pathlib import Path
+
+    from stabjax.plan.spec import load_spec
+    from stabjax.run.distributed import DaskExecutor
+
+    spec = load_spec(Path(__file__).resolve().parents[2] / "examples" / "shock_circle" / "spec.toml")
+    spec["shock"].update(directions=8, refine="none")
+    local = shock_spec(spec)
+    with DaskExecutor(workers=1, threads=1) as ex:
+        ex.wait_for_workers(1)
+        ds = shock_spec(spec, executor=ex)
+    for v in ("shock_norm", "shock_norm_lo", "shock_delta", "direction_exit_lo", "direction_exit_hi"):
+        np.testing.assert_array_equal(ds[v].values, local[v].values, err_msg=v)
+    assert_brackets(ds, 1.0)
