@@ -85,8 +85,8 @@ def spec_for(system: str, max_radius: float, **shock) -> dict:
 def brute_force(spec: dict, exact: float, per_ball: int, budget: int | None, seed: int = 1) -> dict:
     """Balls of radius r_0 1.01^k, ``per_ball`` uniform starts each, through the search's runner and outcome
     assignment, until one holds a fatal start (or ``budget`` trajectories are spent)."""
-    from stabjax.explore.shock import FATAL, Labeller, base_points, classify, round_plan
-    from stabjax.explore.shock_config import Norm, shock_config
+    from stabjax.explore.shock import FATAL, Labeller, classify, round_plan
+    from stabjax.explore.shock_config import Norm, base_points, shock_config
     from stabjax.plan.spec import make_plan
     from stabjax.run.sweep import run_points
 

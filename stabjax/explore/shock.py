@@ -42,7 +42,7 @@ not fatal in the bisection and their smallest norm is reported; a solver failure
 ``target_id``); with ``excitability = "<condition>"`` a shock is fatal when the condition holds over the whole
 run (``max(error) > 0.3``: the trajectory left that neighbourhood, even if it came back).
 
-Layout: the table and the norm are :mod:`stabjax.explore.shock_config`; the theorems' regions, the dataset and the
+Layout: the table, the start shocked and the norm are :mod:`stabjax.explore.shock_config`; the theorems' regions, the dataset and the
 replay are :mod:`stabjax.explore.shock_result`; the figures :mod:`stabjax.present.shock`.
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ import xarray as xr
 
 from ..errors import StabjaxError, ValidationError
 from ..plan.spec import Plan, load_spec, make_plan
-from .shock_config import INCONCLUSIVE, LEFT, STAYED, Norm, ShockConfig, shock_config
+from .shock_config import INCONCLUSIVE, LEFT, STAYED, Norm, ShockConfig, base_points, settle, shock_config
 
 FATAL, SAFE, UNDECIDED = 1, 0, 2
 PATIENCE = 8  # CMA-ES generations without a better fatal shock (by a quarter of the resolution) before it stops
@@ -169,64 +169,6 @@ def round_plan(plan: Plan, cfg: ShockConfig) -> Plan:
         spec["outcomes"] = {"rules": {LEFT: cfg.excitability, STAYED: f"not ({cfg.excitability})"}, "templates": {},
                             "discover": False, "window": 1.0}
     return make_plan(spec)
-
-
-def base_points(plan: Plan) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Every parameter of the unshocked start at each grid point (checked), and the grid axes' values (G, n_axes)."""
-    G = plan.size
-    base = plan.system.check(plan.params_for(0, G))
-    if plan.grid:
-        idx = np.unravel_index(np.arange(G), tuple(ax.size for ax in plan.grid))
-        gv = np.stack([ax.values[i] for ax, i in zip(plan.grid, idx)], axis=1).astype(float)
-    else:
-        gv = np.zeros((G, 0))
-    return {k: np.asarray(v) for k, v in base.items()}, gv
-
-
-def settle(plan: Plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``[shock] settle = true``: the start moved onto its attractor -- integrated to t1 (the plan's solver and
-    tolerances) and its final state written back into the shocked entries. Needs entries that *are* state entries
-    (``initial_state`` copies each into one state entry, and every state entry comes from one): checked on the
-    Jacobian of ``initial_state``. For a forced system the final state is on the attractor at t1's phase; the shock
-    is applied at t0, so choose t1 a whole number of forcing periods."""
-    import jax
-
-    from ..engines.simulate import simulate
-
-    sysm = plan.system
-    d = cfg.dim
-
-    def y0(v, p):
-        q = dict(p)
-        for j, e in enumerate(cfg.entries):
-            q[e.param] = v[j] if e.index is None else q[e.param].at[e.index].set(v[j])
-        return jax.numpy.ravel(sysm.initial_state(q))
-
-    p0 = {k: jax.numpy.asarray(np.asarray(v)[0]) for k, v in base.items()}
-    vals = np.array([float(np.asarray(base[e.param][0]) if e.index is None else np.asarray(base[e.param][0])[e.index])
-                     for e in cfg.entries])
-    J = np.asarray(jax.jacfwd(y0)(jax.numpy.asarray(vals), p0))  # (n_state, d)
-    if not (J.shape[0] == d and np.allclose(np.abs(J), np.eye(d)[np.argmax(np.abs(J), axis=0)].T)
-            and np.allclose(np.abs(J).sum(axis=0), 1) and np.allclose(np.abs(J).sum(axis=1), 1)):
-        raise ValidationError("shock.settle", "needs shocked components that set the whole state one entry each "
-                                              f"(the state of {sysm.name} has {J.shape[0]} entries); put the start "
-                                              "on the attractor in [params] instead")
-    row = np.argmax(np.abs(J), axis=0)  # the state entry of each shocked entry
-    out = {k: np.array(v, copy=True) for k, v in base.items()}
-    G = len(next(iter(base.values())))
-    for g in range(G):
-        p = {k: np.asarray(v)[g] for k, v in base.items()}
-        ic = plan.icfg
-        ds = simulate(sysm, p, t1=ic.t1, t0=ic.t0, ts=[ic.t1], solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
-                      max_steps=ic.max_steps)
-        yf = np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in sysm.state])
-        for j, e in enumerate(cfg.entries):
-            v = yf[row[j]] * np.sign(J[row[j], j])
-            if e.index is None:
-                out[e.param][g] = v
-            else:
-                out[e.param][(g, *e.index)] = v
-    return sysm.check(out)
 
 
 # ---- the search --------------------------------------------------------------------------------------

@@ -40,7 +40,8 @@ Fields (``stabjax.explore.shock`` says what the search does with them):
 ``theory``         the system's theorems to hold against the result: predicates or derived radii
 =================  =====================================================================================
 
-Kept apart from the search so that the table can be checked (``stabjax sweep`` refuses a bad table before anything
+Here too: the start to shock at each grid point (:func:`base_points`, :func:`settle`). Kept apart from the search so
+that the table can be checked (``stabjax sweep`` refuses a bad table before anything
 is integrated or written) and the norm evaluated without the runner.
 """
 from __future__ import annotations
@@ -305,6 +306,67 @@ def _check_theory(plan, names: tuple[str, ...]) -> None:
         if n not in th.predicates and n not in th.derived:
             raise ValidationError(f"shock.theory[{i}]", f"{plan.system.name} states no predicate or derived radius "
                                                         f"{n!r}; known: {', '.join(known) or 'none'}")
+
+
+# ---- the start shocked -----------------------------------------------------------------------------
+
+
+def base_points(plan) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every parameter of the unshocked start at each grid point (checked), and the grid axes' values (G, n_axes)."""
+    G = plan.size
+    base = plan.system.check(plan.params_for(0, G))
+    if plan.grid:
+        idx = np.unravel_index(np.arange(G), tuple(ax.size for ax in plan.grid))
+        gv = np.stack([ax.values[i] for ax, i in zip(plan.grid, idx)], axis=1).astype(float)
+    else:
+        gv = np.zeros((G, 0))
+    return {k: np.asarray(v) for k, v in base.items()}, gv
+
+
+def settle(plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``[shock] settle = true``: the start moved onto its attractor -- integrated to t1 (the plan's solver and
+    tolerances) and its final state written back into the shocked entries. Needs entries that *are* state entries
+    (``initial_state`` copies each into one state entry, and every state entry comes from one): checked on the
+    Jacobian of ``initial_state``. For a forced system the final state is on the attractor at t1's phase; the shock
+    is applied at t0, so choose t1 a whole number of forcing periods."""
+    import jax
+
+    from ..engines.simulate import simulate
+
+    sysm = plan.system
+    d = cfg.dim
+
+    def y0(v, p):
+        q = dict(p)
+        for j, e in enumerate(cfg.entries):
+            q[e.param] = v[j] if e.index is None else q[e.param].at[e.index].set(v[j])
+        return jax.numpy.ravel(sysm.initial_state(q))
+
+    p0 = {k: jax.numpy.asarray(np.asarray(v)[0]) for k, v in base.items()}
+    vals = np.array([float(np.asarray(base[e.param][0]) if e.index is None else np.asarray(base[e.param][0])[e.index])
+                     for e in cfg.entries])
+    J = np.asarray(jax.jacfwd(y0)(jax.numpy.asarray(vals), p0))  # (n_state, d)
+    if not (J.shape[0] == d and np.allclose(np.abs(J), np.eye(d)[np.argmax(np.abs(J), axis=0)].T)
+            and np.allclose(np.abs(J).sum(axis=0), 1) and np.allclose(np.abs(J).sum(axis=1), 1)):
+        raise ValidationError("shock.settle", "needs shocked components that set the whole state one entry each "
+                                              f"(the state of {sysm.name} has {J.shape[0]} entries); put the start "
+                                              "on the attractor in [params] instead")
+    row = np.argmax(np.abs(J), axis=0)  # the state entry of each shocked entry
+    out = {k: np.array(v, copy=True) for k, v in base.items()}
+    G = len(next(iter(base.values())))
+    for g in range(G):
+        p = {k: np.asarray(v)[g] for k, v in base.items()}
+        ic = plan.icfg
+        ds = simulate(sysm, p, t1=ic.t1, t0=ic.t0, ts=[ic.t1], solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
+                      max_steps=ic.max_steps)
+        yf = np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in sysm.state])
+        for j, e in enumerate(cfg.entries):
+            v = yf[row[j]] * np.sign(J[row[j], j])
+            if e.index is None:
+                out[e.param][g] = v
+            else:
+                out[e.param][(g, *e.index)] = v
+    return sysm.check(out)
 
 
 # ---- the norm --------------------------------------------------------------------------------------
