@@ -30,6 +30,8 @@ def plot_cmd(
             raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
         out = out or file.with_suffix(f".{fmt}")
     ds = open_result_file(file)
+    if "shock_norm" in ds:  # a minimal-fatal-shock search (stabjax.present.shock)
+        return _plot_shock(ds, file, out, force)
     if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
         from ..errors import ValidationError
 
@@ -43,6 +45,17 @@ def plot_cmd(
     print_result(ds, out, replaced=replacing, result=file)
 
 
+def _plot_shock(ds, file: Path, out: Optional[Path], force: bool) -> None:
+    from ..present.shock import format_summary, plot_shock
+
+    out = out or file.with_suffix(".png")
+    check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
+                 same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix), what=f"the figure of {file}")
+    write_image(out, lambda tmp: plot_shock(ds, tmp), file)
+    console.print(format_summary(ds), highlight=False, markup=False, soft_wrap=True)
+    console.print(f"wrote {out}", markup=False)
+
+
 def report_cmd(
     file: Path = typer.Argument(..., help="a result (netCDF): a sweep, an example's basin result or a refinement"),
     out: Optional[Path] = typer.Option(None, help="HTML page to write (default: FILE with .html)"),
@@ -53,7 +66,7 @@ def report_cmd(
     from ..present.report import write_report
 
     ds = open_result_file(file)
-    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds:
+    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds and "shock_norm" not in ds:
         from ..errors import ValidationError
 
         raise ValidationError("file", f"{file} is not a stabjax result (no verdict, outcome or refinement points)")

@@ -37,7 +37,8 @@ def sweep(
 ):
     """Run a sweep spec: integrate, classify, evaluate the theory, write a labelled dataset.
 
-    A spec with a [refine] section brackets the boundary between outcomes adaptively instead.
+    A spec with a [refine] section brackets the boundary between outcomes adaptively instead; one with a
+    [shock] section searches the minimal fatal shock of its start at every grid point.
     Exit status: 0 every trajectory classified, 1 some failed (the result is written and says which),
     2 bad input, 130/143/129 interrupted (finished chunks kept: the same command resumes)."""
     from .. import validate
@@ -83,6 +84,9 @@ def sweep(
     try:
         if executor is not None:
             _start_executor(executor, scheduler, connect_timeout)
+        if "shock" in s:  # minimal fatal shocks at every grid point (stabjax.explore.shock)
+            raise typer.Exit(_shock(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
+                                    store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.explore.refine)
             raise typer.Exit(_refine(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
                                      store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
@@ -124,6 +128,25 @@ def _refine(plan, out: Path, plot: bool, **run) -> int:
         write_image(png, lambda tmp: plot_refine(ds, tmp), out)
         console.print(f"wrote {png}", markup=False)
     return run_status(ds, out)
+
+
+def _shock(plan, out: Path, plot: bool, **run) -> int:
+    """``stabjax sweep SPEC`` for a spec with a [shock] section: search, write ``out`` (and its figure), print the
+    summary (red flags with the command replaying their witness); exit 0 (a red flag is a finding, not an error)."""
+    from ..explore.shock import shock_plan
+    from ..explore.shock_config import shock_config
+    from ..present.shock import format_summary, plot_shock
+
+    shock_config(plan)  # every field checked before anything is integrated or written
+    ds = shock_plan(plan, out, **run)
+    console.print(f"wrote {out}  ({ds.attrs['n_trajectories']:,} trajectories, {ds.attrs['wall_time_s']:.1f} s)",
+                  markup=False)
+    console.print(format_summary(ds), highlight=False, markup=False, soft_wrap=True)
+    if plot:
+        png = out.with_suffix(".png")
+        write_image(png, lambda tmp: plot_shock(ds, tmp), out)
+        console.print(f"wrote {png}", markup=False)
+    return 0
 
 
 def _stops_line(ds) -> str:

@@ -44,7 +44,7 @@ from ..model.system import System
 # every top-level key is read by something: a section nothing reads (formerly ``[run]``, accepted with
 # any content) is refused like any unknown key, so a setting the user believes in is never ignored
 TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integrate", "engine", "verdict", "outcomes",
-            "refine"}
+            "refine", "shock"}  # [refine], [shock]: explorers' tables, checked by stabjax.explore (refine_config, shock_config)
 _NAME = re.compile(r"^(?![.\-\s])[^/\\\x00-\x1f]{1,128}$")  # a file stem: no path, no hidden file
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 

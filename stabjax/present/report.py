@@ -269,6 +269,11 @@ def render(ds: xr.Dataset, source: str = "") -> str:
     if vcfg:
         parts.append("<details><summary>classifier settings</summary><pre>"
                      f"{e(json.dumps(vcfg, indent=2))}</pre></details>")
+    if ds.attrs.get("kind") == "shock":  # a minimal-fatal-shock search: its own section (stabjax.present.shock)
+        from .shock import report_parts
+
+        parts += [f"<h2>{e(h)}</h2>{body}" for h, body in report_parts(ds)] + ["</body></html>"]
+        return "\n".join(parts)
     header, rows, note = outcome_table(ds)
     stats = "" if kind(ds) == "refine" else "; S = fraction, SE = sqrt(S (1 - S) / N), Wilson = 95% score interval"
     parts.append("<h2>Outcomes</h2>" + _table(header, rows) + f"<p class=muted>{e(note)}{stats}.</p>")

@@ -8,6 +8,9 @@ The paper has no numerical example; the examples are ours (docs/models/saakyan.m
   Corollary 2 with and without mu (the unstable case), B-2 with lam^2 = nu and off it,
   B-3 with the Theorem-3 torque and with (3.9)+(3.21) (double-counted term), B-4 with h
   between the exact and the printed bound (4.4).
+* the minimal fatal shock of the target motion along the gain, H0 on each principal axis, against the radii of
+  (1.18) and (1.22) (``sweeps/saakyan_shock_*.toml``, :mod:`stabjax.explore.shock`): a figure per axis and the numbers,
+  witnesses and replay commands in ``saakyan_shock.json`` / ``saakyan_shock.txt`` (not in quick mode);
 * one verdict map per shipped sweep ``sweeps/saakyan_*.toml`` (the engine's ``plot_sweep``),
   plus: region-of-attraction curves (converged fraction +- standard error against |delta0|,
   with the guaranteed radii l of (1.18) and 2 of (1.22)), gain maps with the (1.10), (1.21),
@@ -72,6 +75,14 @@ TITLES = {
     "saakyan_no_mu": "fixed direction (Cor. 2) without and with the stabilising torque mu",
     "saakyan_region_axis": "fixed direction (Cor. 2): size of the initial perturbation, H0 along a principal axis",
     "saakyan_region_generic": "fixed direction (Cor. 2): size of the initial perturbation, H0 off the principal axes",
+    "saakyan_shock_max_axis": "fixed direction (Cor. 2): minimal fatal shock against (1.18) and (1.22), H0 along the "
+                              "axis of largest moment",
+    "saakyan_shock_mid_axis": "fixed direction (Cor. 2): minimal fatal shock against (1.18) and (1.22), H0 along the "
+                              "axis of middle moment",
+    "saakyan_shock_min_axis": "fixed direction (Cor. 2): minimal fatal shock against (1.18) and (1.22), H0 along the "
+                              "axis of smallest moment",
+    "saakyan_shock_gyrostat": "gyrostat (Theorem 3): minimal fatal shock against the claim of convergence from every "
+                              "start",
 }
 _AXIS = {0: "smallest", 1: "middle", 2: "largest"}
 # one colour per theorem on every Saakyan figure (Okabe & Ito): Cor. 2 (Theorem 1) black, Cor. 1 vermillion,
@@ -248,13 +259,65 @@ def _sweeps(out_dir: Path, quick: bool) -> list[Path]:
     specs = shipped_specs("saakyan_")
     if quick:
         specs = [s for s in specs if s in QUICK_SWEEPS]
+    shocks = []
     for stem in specs:
         spec = load_shipped(stem)
+        if "shock" in spec:  # a minimal-fatal-shock search, not a sweep (below)
+            shocks.append(stem)
+            continue
         if quick:
             spec = _shrink(spec)
         ds = run_spec(spec)
         files += plot_sweep_figures(ds, stem, out_dir)
+    if shocks and not quick:
+        files += _shocks(out_dir, shocks)
     return files
+
+
+def _shocks(out_dir: Path, stems: list[str]) -> list[Path]:
+    """The minimal fatal shock of the target motion along the gain, for H0 on each principal axis against the radii
+    of (1.18) and (1.22), and for the gyrostat against Theorem 3's global claim (``sweeps/saakyan_shock_*.toml``): a
+    figure per spec, and the numbers with their witnesses and the commands replaying them in ``saakyan_shock.json``
+    and ``saakyan_shock.txt``."""
+    from ..explore.shock import shock_spec
+    from ..explore.shock_result import VERDICTS, witness_replay
+    from ..present.shock import format_summary, plot_shock
+
+    files, rows, texts = [], [], []
+    for stem in stems:
+        ds = shock_spec(load_shipped(stem))
+        png = out_dir / f"{stem}.png"
+        plot_shock(ds, png, title=TITLES[stem])
+        files.append(png)
+        texts.append(format_summary(ds, limit=50))
+        names = ds.attrs["outcome_names"].split()
+        gain = ds["shock_norm"].dims[0]  # K, or h for the gyrostat
+        theorems = [str(v)[len("theory_radius_"):] for v in ds.data_vars if str(v).startswith("theory_radius_")]
+        for K in ds[gain].values:
+            p = ds.sel({gain: K})
+            hi, lo = float(p.shock_norm), float(p.shock_norm_lo)
+            row = {"spec": stem, "where": _where_h0(ds), gain: float(K), "attractor": names[int(p.base_outcome)],
+                   "delta_star": None if np.isnan(hi) else hi, "bracket": [lo, None if np.isnan(hi) else hi],
+                   "trajectories": int(p.shock_trajectories)}
+            for th in theorems:
+                row[th] = {"radius": float(p[f"theory_radius_{th}"]),
+                           "verdict": VERDICTS[int(p[f"theory_verdict_{th}"])],
+                           "factor": [float(p[f"theory_factor_lo_{th}"]), float(p[f"theory_factor_hi_{th}"])]}
+            if np.isfinite(hi):
+                dev = p.shock_state_delta.values
+                rep = witness_replay(ds, **{gain: K})
+                S0 = np.asarray(rep["params"]["S0"], float)
+                row["witness"] = {"S0": (S0 / np.linalg.norm(S0)).tolist(), "w1_0": dev[:3].tolist(),
+                                  "norm_w1_0_over_lam": float(np.linalg.norm(dev[:3])), "norm_delta_0":
+                                  float(np.linalg.norm(dev[3:])), "outcome": names[int(p.shock_witness_outcome)],
+                                  "recheck_outcome": names[int(p.shock_witness_recheck)] if "shock_witness_recheck"
+                                  in p else None, "replay": rep["command"]}
+            rows.append(row)
+    js = out_dir / "saakyan_shock.json"
+    js.write_text(json.dumps(rows, indent=1))
+    txt = out_dir / "saakyan_shock.txt"
+    txt.write_text("\n\n".join(texts) + "\n")
+    return files + [js, txt]
 
 
 def plot_sweep_figures(ds, stem: str, out_dir: Path) -> list[Path]:

@@ -25,7 +25,10 @@ always an off-target steady spin ``omega = omega0 + lam S0``, which is why the r
 grid of starts, docs/models/saakyan.md, "The l of (1.18)"); :func:`l_spurious` takes the smallest
 |delta| over the nonzero ones; :func:`l_116` solves the paper's scalar equation (1.16).
 
-Size (~615 lines): the theorems of one paper (predicates, steady spins, the radius l of (1.18)) over
+Regions of initial conditions: every theorem that guarantees one states it as ``derived["radius_<theorem>"]``, a radius
+in the norm max(|w1(0)|/lam, |delta(0)|) (:func:`_radius`), for the minimal-fatal-shock search (``[shock] theory``).
+
+Size (~640 lines): the theorems of one paper (predicates, steady spins, the radius l of (1.18)) over
 shared notation; each predicate is tested against the paper's statements in tests/systems/test_saakyan_theory.py.
 """
 from __future__ import annotations
@@ -540,7 +543,20 @@ def _b1_predicates(c, p):
     doc["K_110"] = "gain bound of (1.10): lam m1"
     derived["bracket_phi0"] = br
     doc["bracket_phi0"] = "bracket of phi(0) = -lam^4 K [..]: > 0 means instability without mu"
+    _radius(derived, doc, "theorem1", p110.ok & c["use_mu"], c["l"],
+            "region (1.18) of Theorem 1 (Cor. 2 for omega0 = 0): l where (1.10) holds and mu is on")
+    _radius(derived, doc, "corollary1", p121.ok & c["use_mu"], 2.0,
+            "region (1.22) of Corollary 1: 2 where H0 is principal, (1.21) holds and mu is on")
     return preds, derived, doc
+
+
+def _radius(derived, doc, name, holds, radius, what):
+    """The region of initial conditions a theorem guarantees, as a radius in the norm max(|w1(0)|/lam, |delta(0)|)
+    (the two balls |w1(0)| < lam r, |delta(0)| < r of (1.18)/(1.22) are the one ball of radius r in it): ``radius``
+    where the theorem's other hypotheses ``holds``, else 0 (nothing guaranteed). Read by ``[shock] theory``
+    (:mod:`stabjax.explore.shock_result`), which holds the minimal fatal shock in that norm against it."""
+    derived[f"radius_{name}"] = np.where(holds, radius, 0.0) * np.ones(np.shape(holds))
+    doc[f"radius_{name}"] = f"guaranteed radius in max(|w1(0)|/lam, |delta(0)|): {what}; else 0"
 
 
 def evaluate_moving(p: Mapping[str, np.ndarray]) -> Theory:
@@ -571,6 +587,8 @@ def evaluate_gravity(p: Mapping[str, np.ndarray]) -> Theory:
     doc = dict(c["doc"])
     derived["lam2_over_nu"] = lam**2 / nu
     doc["lam2_over_nu"] = "lam^2 / nu (Theorem 2 needs 1)"
+    _radius(derived, doc, "theorem2", ln.ok & (K > 0) & c["use_mu"], 2.0,
+            "region (1.22) of Theorem 2: 2 where lam^2 = nu, alpha > 0 and mu is on")
     return Theory(preds, derived, doc, main="theorem2")
 
 
@@ -590,6 +608,8 @@ def evaluate_gyrostat(p: Mapping[str, np.ndarray]) -> Theory:
     doc = dict(c["doc"])
     derived["h_over_lam_m1"] = h / (lam * axis_roles(I)[0])
     doc["h_over_lam_m1"] = "h / (lam m1) (Theorem 3 needs > 1)"
+    _radius(derived, doc, "theorem3", th3.ok, np.inf, "Theorem 3 as claimed: every start (inf) where h > lam m1")
+    _radius(derived, doc, "theorem3_local", th3.ok, c["l"], "its valid local form [D]: l of (1.18) with K = h")
     return Theory(preds, derived, doc, main="theorem3")
 
 
@@ -615,4 +635,7 @@ def evaluate_gyrostat_gravity(p: Mapping[str, np.ndarray]) -> Theory:
     derived["h44_exact"] = bound_44(I, Jw, lam, nu, exact=True)
     doc["h44_printed"] = "bound of (4.4) as printed (+nu J_i)"
     doc["h44_exact"] = "exact bound of (4.4) (-nu J_i) [D]"
+    _radius(derived, doc, "theorem4", th4.ok, np.inf, "Theorem 4 as claimed: every start (inf) where (4.4) holds")
+    _radius(derived, doc, "theorem4_local", pe.ok & c["use_mu"] & torque_ok, c["l"],
+            "its valid local form [D]: exact (4.4), closer than the nearest steady spin")
     return Theory(preds, derived, doc, main="theorem4")

@@ -1,0 +1,503 @@
+"""The ``[shock]`` table of a spec: what is shocked, in which norm, from which attractor, and how hard to search.
+
+A minimal fatal shock (:mod:`stabjax.explore.shock`) perturbs *initial-condition parameters* (``kind =
+"initial"``: ``x0``, ``dw0``, one entry ``"dw0[1]"``) of the spec's start, which is put on the attractor (e.g.
+Saakyan's target motion: ``S0 = H``, ``dw0 = 0``). A shock is a vector ``delta`` over the scalar entries of those
+components; it is measured by
+
+* ``space = "params"`` (default): ``delta`` itself, grouped by component; or
+* ``space = "state"``: the shift of the start *state*, ``initial_state(base + delta) - initial_state(base)``,
+  grouped by the system's state components (``System.state``). For a model whose state is its initial-condition
+  parameters the two agree; where the model maps parameters onto a manifold (Saakyan's ``S0`` is normalised onto
+  the unit sphere) only the state shift is the quantity a theorem's region is stated in. ``unit = ["s0"]`` puts a
+  shocked vector back on the unit sphere (normalised) before the system sees it, for a model that refuses a
+  direction that is not a unit vector; the shift is then best measured in the state.
+
+Norm: ``norm = "euclidean"`` (default) is ``sqrt(sum_i (w_i d_i)^2)`` over every measured entry; ``norm = "max"``
+is the largest of the blocks' weighted Euclidean norms (``blocks = [["w"], ["S"]]``; default: one block per
+component), so that a region made of two balls, ``|w1| < lam l`` and ``|delta| < l`` ((1.18) of Saakyan), is the
+one ball ``max(|w1|/lam, |delta|) < l``. A weight is a number or an expression of the scalar parameters
+(``"1/lam"``), evaluated at each grid point.
+
+Fields (``stabjax.explore.shock`` says what the search does with them):
+
+=================  =====================================================================================
+``components``     initial-condition parameters shocked (required): ``["x0", "v0"]``, ``["dw0", "S0"]``, ``"J0[1]"``
+``unit``           shocked vector parameters put back on the unit sphere (e.g. ``["s0"]``)
+``settle``         shock the state the spec's start reaches at t1 (a template's start, say), not the start itself
+``space``          ``"params"`` (default) or ``"state"``: what the norm measures
+``norm``           ``"euclidean"`` (default) or ``"max"`` over ``blocks``
+``blocks``         with ``norm = "max"``: lists of component (or state component) names
+``weights``        name -> number or expression of the scalar parameters (``{w = "1/lam"}``)
+``attractor``      the outcome the unshocked start must reach (default: whatever it reaches)
+``target``         only these outcomes are fatal (the excitability threshold into their basins)
+``excitability``   a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
+``max_radius``     the largest shock searched, in the norm's units (required)
+``directions``     directions scanned (64), ``radii``: radii per direction and rungs of CMA-ES's ladder (8)
+``resolution``     bracket width to reach, absolute; or ``rel_resolution``, a fraction of delta* (0.01)
+``refine``         ``"cma"`` (default) or ``"none"``; ``popsize`` (pycma's default 4 + 3 ln d), ``generations`` (40)
+``seed``           of the directions and of CMA-ES (0)
+``theory``         the system's theorems to hold against the result: predicates or derived radii
+=================  =====================================================================================
+
+Here too: the start to shock at each grid point (:func:`base_points`, :func:`settle`). Kept apart from the search so
+that the table can be checked (``stabjax sweep`` refuses a bad table before anything
+is integrated or written) and the norm evaluated without the runner.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .. import validate as V
+from ..errors import ValidationError
+
+SHOCK_KEYS = ("components", "unit", "settle", "space", "norm", "weights", "blocks", "attractor", "target", "excitability",
+              "directions", "radii", "max_radius", "resolution", "rel_resolution", "refine", "popsize",
+              "generations", "seed", "theory")
+SPACES = ("params", "state")
+NORMS = ("euclidean", "max")
+REFINERS = ("cma", "none")
+INCONCLUSIVE = ("undecided", "unclassified")  # the classifier could not decide: never fatal, never safe
+LEFT, STAYED = "left", "stayed"  # the two outcomes of an excitability search
+_ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+(?:\s*,\s*\d+)*)\])?$")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One scalar entry of a shocked initial-condition parameter."""
+
+    param: str
+    index: tuple[int, ...] | None  # None: a scalar parameter
+    component: str  # the component (as written in ``components``) it belongs to
+
+    @property
+    def key(self) -> str:
+        """The grid key that sweeps it (``"x0"``, ``"dw0[1]"``)."""
+        return self.param if self.index is None else f"{self.param}[{','.join(map(str, self.index))}]"
+
+
+@dataclass(frozen=True)
+class ShockConfig:
+    """The validated ``[shock]`` table."""
+
+    components: tuple[str, ...]
+    entries: tuple[Entry, ...]
+    unit: tuple[str, ...]  # vector components put back on the unit sphere after the shock
+    settle: bool  # the base start is first integrated to t1: its final state is the attractor's state shocked
+    space: str
+    norm: str
+    blocks: tuple[tuple[str, ...], ...]  # names in the measured space (components, or state components)
+    weights: Mapping[str, Any]  # name -> number or expression text
+    attractor: str | None
+    target: tuple[str, ...] | None
+    excitability: str | None
+    directions: int
+    radii: int
+    max_radius: float
+    resolution: float | None
+    rel_resolution: float
+    refine: str
+    popsize: int | None
+    generations: int
+    seed: int
+    theory: tuple[str, ...] = field(default=())
+
+    @property
+    def dim(self) -> int:
+        return len(self.entries)
+
+    def tol(self, best: np.ndarray) -> np.ndarray:
+        """The bracket width to reach at each grid point (``best``: the smallest fatal norm found so far)."""
+        if self.resolution is not None:
+            return np.full(np.shape(best), self.resolution)
+        return self.rel_resolution * np.where(np.isfinite(best), best, self.max_radius)
+
+
+def _names(raw, fld: str) -> list[str]:
+    if isinstance(raw, str):
+        raw = [raw]
+    if not isinstance(raw, list) or not raw or not all(isinstance(x, str) for x in raw):
+        raise ValidationError(fld, f"must be a non-empty list of names, got {raw!r}")
+    return list(raw)
+
+
+def _entries(plan, comps: list[str]) -> list[Entry]:
+    """The scalar entries of the shocked components, each checked against the system's parameters."""
+    prm = plan.system.params.by_name
+    swept = {ax.param.name: ax.key for ax in plan.grid}
+    out: list[Entry] = []
+    for i, c in enumerate(comps):
+        fld = f"shock.components[{i}]"
+        m = _ENTRY.match(c.strip())
+        if not m or m.group(1) not in prm:
+            raise ValidationError(fld, f"{c!r} is not a parameter of {plan.system.name}; initial conditions: "
+                                       f"{', '.join(p.name for p in plan.system.params if p.kind == 'initial') or 'none'}")
+        p = prm[m.group(1)]
+        if p.kind != "initial":
+            raise ValidationError(fld, f"{p.name} is a model parameter, not an initial condition (kind = \"initial\"): "
+                                       "a shock perturbs the start, not the model")
+        if p.choices is not None:
+            raise ValidationError(fld, f"{p.name} takes only the values {p.choices} (a switch): it cannot be shocked")
+        if p.name in swept:
+            raise ValidationError(fld, f"{p.name} is swept by grid.{swept[p.name]}: the shock moves it from the "
+                                       "spec's start; fix it in [params]")
+        if m.group(2) is not None:
+            idx = tuple(int(x) for x in m.group(2).split(","))
+            if len(idx) != len(p.shape) or any(a >= s for a, s in zip(idx, p.shape)):
+                raise ValidationError(fld, f"index {idx} out of range for {p.name} of shape {p.shape}")
+            new = [Entry(p.name, idx, c)]
+        elif p.shape:
+            new = [Entry(p.name, tuple(int(x) for x in ix), c) for ix in np.ndindex(p.shape)]
+        else:
+            new = [Entry(p.name, None, c)]
+        for e in new:
+            if any(o.param == e.param and (o.index is None or e.index is None or o.index == e.index) for o in out):
+                raise ValidationError(fld, f"{e.key} is shocked twice")
+        out += new
+    return out
+
+
+def _positive(raw, key: str, default, integer: bool = False):
+    if key not in raw:
+        return default
+    if integer:
+        return V.integer(raw[key], f"shock.{key}", lo=1, hi=1 << 24)
+    v = V.number(raw[key], f"shock.{key}")
+    if not v > 0:
+        raise ValidationError(f"shock.{key}", f"must be > 0, got {v:g}")
+    return v
+
+
+def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
+    """Validate ``[shock]`` (default: ``plan.spec["shock"]``) against the plan, field by field."""
+    raw = plan.spec.get("shock") if raw is None else raw
+    if raw is None:
+        raise ValidationError("shock", "the spec has no [shock] section")
+    V.table(raw, "shock")
+    unknown = sorted(set(raw) - set(SHOCK_KEYS))
+    if unknown:
+        raise ValidationError(f"shock.{unknown[0]}", f"unknown field; known: {', '.join(SHOCK_KEYS)}")
+    if "refine" in plan.spec:
+        raise ValidationError("refine", "a spec runs either a [refine] or a [shock] search, not both")
+    if plan.n_sample:
+        raise ValidationError("sample", "a shock search chooses its own starts: remove [sample] (the start to shock "
+                                        "is the spec's, set in [params])")
+    for ax in plan.grid:
+        if ax.values.ndim != 1:
+            raise ValidationError(f"grid.{ax.key}", "a shock search needs scalar axes (sweep one entry like \"J[0]\")")
+    if "components" not in raw:
+        raise ValidationError("shock.components", "required: the initial-condition parameters the shock perturbs, "
+                                                  "e.g. [\"x0\", \"v0\"]")
+    comps = _names(raw["components"], "shock.components")
+    entries = _entries(plan, comps)
+    unit = tuple(_names(raw["unit"], "shock.unit")) if "unit" in raw else ()
+    for i, u in enumerate(unit):
+        prm = plan.system.params.by_name.get(u)
+        if u not in comps or prm is None or len(prm.shape) != 1:
+            raise ValidationError(f"shock.unit[{i}]", f"{u!r} is not a shocked vector parameter (a whole one of "
+                                                      f"{', '.join(comps)}): only those are put back on the sphere")
+    space = V.string(raw.get("space", "params"), "shock.space", SPACES)
+    norm = V.string(raw.get("norm", "euclidean"), "shock.norm", NORMS)
+    measured = list(comps) if space == "params" else [n for n, _ in plan.system.state]
+    where = "shocked components" if space == "params" else f"state components of {plan.system.name}"
+    blocks: list[tuple[str, ...]]
+    if "blocks" in raw:
+        if norm != "max":
+            raise ValidationError("shock.blocks", "blocks belong to norm = \"max\" (the Euclidean norm is one block)")
+        bl = raw["blocks"]
+        if not isinstance(bl, list) or not bl:
+            raise ValidationError("shock.blocks", f"must be a list of lists of names, got {bl!r}")
+        blocks = [tuple(_names(b, f"shock.blocks[{i}]")) for i, b in enumerate(bl)]
+    else:
+        used = measured if space == "state" else comps
+        blocks = [tuple(used)] if norm == "euclidean" else [(n,) for n in used]
+    seen: set[str] = set()
+    for i, b in enumerate(blocks):
+        for n in b:
+            if n not in measured:
+                raise ValidationError(f"shock.blocks[{i}]", f"{n!r} is not one of the {where}: {', '.join(measured)}")
+            if n in seen:
+                raise ValidationError(f"shock.blocks[{i}]", f"{n!r} is in two blocks")
+            seen.add(n)
+    weights = V.table(raw.get("weights", {}), "shock.weights")
+    scalars = tuple(p.name for p in plan.system.params if not p.shape)
+    for k, w in weights.items():
+        if k not in seen:
+            raise ValidationError(f"shock.weights.{k}", f"not a component of the norm ({', '.join(sorted(seen))})")
+        if isinstance(w, str):
+            from ..model.outcomes import parse
+
+            parse(w, (), scalars, f"shock.weights.{k}", boolean=False)
+        else:
+            v = V.number(w, f"shock.weights.{k}")
+            if not v > 0:
+                raise ValidationError(f"shock.weights.{k}", f"must be > 0, got {v:g}")
+
+    names = _outcome_names(plan)
+    attractor = raw.get("attractor")
+    if attractor is not None:
+        attractor = V.string(attractor, "shock.attractor")
+        if names is not None and attractor not in names:
+            raise ValidationError("shock.attractor", f"no outcome {attractor!r}; outcomes: {', '.join(names)}")
+    target = None
+    if "target" in raw:
+        target = tuple(_names(raw["target"], "shock.target"))
+        for t in target:
+            if names is not None and t not in names:
+                raise ValidationError("shock.target", f"no outcome {t!r}; outcomes: {', '.join(names)}")
+            if t == attractor:
+                raise ValidationError("shock.target", f"{t!r} is the attractor itself")
+    excit = raw.get("excitability")
+    if excit is not None:
+        from ..model.outcomes import _names as rule_names, parse
+
+        if attractor is not None or target is not None:
+            raise ValidationError("shock.excitability", "leaving a neighbourhood replaces the outcomes: give no "
+                                                        "attractor or target with it")
+        obs, sc = rule_names(plan.system)
+        parse(V.string(excit, "shock.excitability"), obs, sc, "shock.excitability")
+    directions = _positive(raw, "directions", 64, integer=True)
+    radii = _positive(raw, "radii", 8, integer=True)
+    if "max_radius" not in raw:
+        raise ValidationError("shock.max_radius", "required: the largest shock searched, in the norm's units")
+    max_radius = _positive(raw, "max_radius", None)
+    if "resolution" in raw and "rel_resolution" in raw:
+        raise ValidationError("shock.resolution", "give resolution (absolute) or rel_resolution, not both")
+    resolution = _positive(raw, "resolution", None)
+    rel = _positive(raw, "rel_resolution", 0.01)
+    if rel >= 1:
+        raise ValidationError("shock.rel_resolution", f"must be below 1 (a fraction of the shock), got {rel:g}")
+    refine = V.string(raw.get("refine", "cma"), "shock.refine", REFINERS)
+    popsize = _positive(raw, "popsize", None, integer=True)
+    if popsize is not None and popsize < 2:
+        raise ValidationError("shock.popsize", f"must be >= 2, got {popsize}")
+    generations = V.integer(raw.get("generations", 40), "shock.generations", lo=0, hi=10_000)
+    seed = V.integer(raw.get("seed", 0), "shock.seed", lo=0, hi=2**63 - 1)
+    theory = tuple(_names(raw["theory"], "shock.theory")) if "theory" in raw else ()
+    if theory:
+        _check_theory(plan, theory)
+    settle_ = V.boolean(raw.get("settle", False), "shock.settle")
+    return ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, settle=settle_, space=space, norm=norm, blocks=tuple(blocks),
+                       weights=dict(weights), attractor=attractor, target=target, excitability=excit,
+                       directions=directions, radii=radii, max_radius=max_radius, resolution=resolution,
+                       rel_resolution=rel, refine=refine, popsize=popsize, generations=generations, seed=seed,
+                       theory=theory)
+
+
+def _outcome_names(plan) -> tuple[str, ...] | None:
+    """The outcome names a shock can end in, or None where discovery names them after the run."""
+    sch = plan.scheme
+    if sch.decl is not None and sch.decl.discover:
+        return None
+    return tuple(sch.names)
+
+
+def _check_theory(plan, names: tuple[str, ...]) -> None:
+    """Each name is a predicate (a margin over the initial conditions) or a derived radius of the system's theory."""
+    p = plan.system.check(plan.params_for(0, 1))
+    th = plan.system.theory(p)
+    known = sorted(th.predicates) + sorted(th.derived)
+    for i, n in enumerate(names):
+        if n not in th.predicates and n not in th.derived:
+            raise ValidationError(f"shock.theory[{i}]", f"{plan.system.name} states no predicate or derived radius "
+                                                        f"{n!r}; known: {', '.join(known) or 'none'}")
+
+
+# ---- the start shocked -----------------------------------------------------------------------------
+
+
+def base_points(plan) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every parameter of the unshocked start at each grid point (checked), and the grid axes' values (G, n_axes)."""
+    G = plan.size
+    base = plan.system.check(plan.params_for(0, G))
+    if plan.grid:
+        idx = np.unravel_index(np.arange(G), tuple(ax.size for ax in plan.grid))
+        gv = np.stack([ax.values[i] for ax, i in zip(plan.grid, idx)], axis=1).astype(float)
+    else:
+        gv = np.zeros((G, 0))
+    return {k: np.asarray(v) for k, v in base.items()}, gv
+
+
+def settle(plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``[shock] settle = true``: the start moved onto its attractor -- integrated to t1 (the plan's solver and
+    tolerances) and its final state written back into the shocked entries. Needs entries that *are* state entries
+    (``initial_state`` copies each into one state entry, and every state entry comes from one): checked on the
+    Jacobian of ``initial_state``. For a forced system the final state is on the attractor at t1's phase; the shock
+    is applied at t0, so choose t1 a whole number of forcing periods."""
+    import jax
+
+    from ..engines.simulate import simulate
+
+    sysm = plan.system
+    d = cfg.dim
+
+    def y0(v, p):
+        q = dict(p)
+        for j, e in enumerate(cfg.entries):
+            q[e.param] = v[j] if e.index is None else q[e.param].at[e.index].set(v[j])
+        return jax.numpy.ravel(sysm.initial_state(q))
+
+    p0 = {k: jax.numpy.asarray(np.asarray(v)[0]) for k, v in base.items()}
+    vals = np.array([float(np.asarray(base[e.param][0]) if e.index is None else np.asarray(base[e.param][0])[e.index])
+                     for e in cfg.entries])
+    J = np.asarray(jax.jacfwd(y0)(jax.numpy.asarray(vals), p0))  # (n_state, d)
+    if not (J.shape[0] == d and np.allclose(np.abs(J), np.eye(d)[np.argmax(np.abs(J), axis=0)].T)
+            and np.allclose(np.abs(J).sum(axis=0), 1) and np.allclose(np.abs(J).sum(axis=1), 1)):
+        raise ValidationError("shock.settle", "needs shocked components that set the whole state one entry each "
+                                              f"(the state of {sysm.name} has {J.shape[0]} entries); put the start "
+                                              "on the attractor in [params] instead")
+    row = np.argmax(np.abs(J), axis=0)  # the state entry of each shocked entry
+    out = {k: np.array(v, copy=True) for k, v in base.items()}
+    G = len(next(iter(base.values())))
+    for g in range(G):
+        p = {k: np.asarray(v)[g] for k, v in base.items()}
+        ic = plan.icfg
+        ds = simulate(sysm, p, t1=ic.t1, t0=ic.t0, ts=[ic.t1], solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
+                      max_steps=ic.max_steps)
+        yf = np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in sysm.state])
+        for j, e in enumerate(cfg.entries):
+            v = yf[row[j]] * np.sign(J[row[j], j])
+            if e.index is None:
+                out[e.param][g] = v
+            else:
+                out[e.param][(g, *e.index)] = v
+    return sysm.check(out)
+
+
+# ---- the norm --------------------------------------------------------------------------------------
+
+
+class Norm:
+    """``N(delta)`` at each grid point: see the module docstring. ``measure(g, deltas)``: norms (M,) of shocks
+    ``deltas`` (M, d) applied at grid points ``g`` (M,) (indices into the base parameters)."""
+
+    def __init__(self, plan, cfg: ShockConfig, base: Mapping[str, np.ndarray]):
+        self.plan, self.cfg, self.base = plan, cfg, base
+        n = len(next(iter(base.values())))
+        from ..model.outcomes import parse
+
+        scalars = tuple(p.name for p in plan.system.params if not p.shape)
+        self.w = {}  # name -> (G,) weights
+        for k, w in cfg.weights.items():
+            if isinstance(w, str):
+                val = parse(w, (), scalars, f"shock.weights.{k}", boolean=False)(
+                    None, lambda name: np.asarray(base[name], float).reshape(n))
+                val = np.broadcast_to(np.asarray(val, float), (n,))
+                if not (np.all(np.isfinite(val)) and np.all(val > 0)):
+                    raise ValidationError(f"shock.weights.{k}", f"{w!r} is not a positive number at every grid point")
+                self.w[k] = val
+            else:
+                self.w[k] = np.full(n, float(w))
+        if cfg.space == "params":
+            cols = {c: [i for i, e in enumerate(cfg.entries) if e.component == c] for c in cfg.components}
+        else:
+            cols, i = {}, 0
+            for name, shape in plan.system.state:
+                k = int(np.prod(shape)) if shape else 1
+                cols[name] = list(range(i, i + k))
+                i += k
+            self._y0 = _state_fn(plan.system)
+            self.y_base = self._states(np.arange(n), np.zeros((n, cfg.dim)))
+        self.cols = cols
+
+    def params(self, g: np.ndarray, deltas: np.ndarray) -> dict[str, np.ndarray]:
+        """Every parameter of the shocked starts (checked: normalised as the system does)."""
+        p = {k: np.asarray(v)[g].copy() for k, v in self.base.items()}
+        for j, e in enumerate(self.cfg.entries):
+            if e.index is None:
+                p[e.param] = p[e.param] + deltas[:, j]
+            else:
+                p[e.param][(slice(None), *e.index)] += deltas[:, j]
+        for name in self.cfg.unit:  # a direction: the shocked vector is put back on the sphere (a retraction)
+            p[name] = p[name] / np.linalg.norm(p[name], axis=-1, keepdims=True)
+        return p
+
+    def _states(self, g, deltas):
+        p = self.plan.system.check(self.params(g, deltas))
+        return self._y0(p)
+
+    def deviation(self, g: np.ndarray, deltas: np.ndarray) -> np.ndarray:
+        """What the norm measures: ``deltas`` (params) or the start state's shift (state), (M, n)."""
+        g = np.asarray(g, np.int64)
+        deltas = np.asarray(deltas, float).reshape(len(g), self.cfg.dim)
+        if self.cfg.space == "params":
+            return deltas
+        return self._states(g, deltas) - self.y_base[g]
+
+    def __call__(self, g: np.ndarray, deltas: np.ndarray) -> np.ndarray:
+        g = np.asarray(g, np.int64)
+        dev = self.deviation(g, deltas)
+        parts = []
+        for b in self.cfg.blocks:
+            s = np.zeros(len(g))
+            for name in b:
+                w = self.w[name][g] if name in self.w else 1.0
+                s = s + (w * w) * np.sum(dev[:, self.cols[name]] ** 2, axis=1)
+            parts.append(np.sqrt(s))
+        return np.max(np.stack(parts), axis=0) if len(parts) > 1 else parts[0]
+
+    def shift(self, g: np.ndarray, u: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Shocks along directions ``u`` (M, d) of norm ``radius`` (M,): ``r u`` with ``N(r u) = radius``.
+
+        A norm of the parameters is homogeneous (r = radius / N(u)); a norm of the state shift is found by
+        bisection on r (it grows along a ray for the models here: monotonicity is assumed, not checked). A
+        radius the ray never reaches (a state norm saturating, as an angle on a sphere does) gives NaN."""
+        g = np.asarray(g, np.int64)
+        u = np.asarray(u, float)
+        radius = np.asarray(radius, float)
+        if self.cfg.space == "params":
+            return u * (radius / self(g, u))[:, None]
+        lo = np.zeros(len(g))
+        hi = np.maximum(radius, 1e-12) / np.maximum(np.linalg.norm(u, axis=1), 1e-300)
+        for _ in range(64):  # grow hi until the ray's norm passes the radius (or it never will)
+            short = self(g, u * hi[:, None]) < radius
+            if not short.any() or hi.max() > 1e12:
+                break
+            hi = np.where(short, 2 * hi, hi)
+        reach = self(g, u * hi[:, None]) >= radius
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            below = self(g, u * mid[:, None]) < radius
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        return np.where(reach[:, None], u * hi[:, None], np.nan)
+
+
+def _state_fn(system):
+    """Start states of a batch of (checked) parameter dicts: ``initial_state`` vmapped, compiled once per padded size."""
+    import jax
+
+    from ..config import setup_jax
+
+    setup_jax()
+    f = jax.jit(jax.vmap(lambda p: jax.numpy.ravel(system.initial_state(p))))
+
+    def y0(p):
+        n = len(next(iter(p.values())))
+        m = max(8, 1 << (n - 1).bit_length())  # a few shapes, not one per call
+        padded = {k: np.concatenate([np.asarray(v, float), np.repeat(np.asarray(v, float)[-1:], m - n, axis=0)])
+                  for k, v in p.items()}
+        return np.asarray(f(padded))[:n]
+
+    return y0
+
+
+def describe_norm(cfg: ShockConfig) -> str:
+    """The norm in words, e.g. ``max(|w| * 1/lam, |S|)`` (recorded with every result)."""
+    def term(names):
+        parts = [f"{n} * {cfg.weights[n]}" if n in cfg.weights else n for n in names]
+        return "|" + ", ".join(parts) + "|"
+
+    body = ", ".join(term(b) for b in cfg.blocks)
+    what = "parameters" if cfg.space == "params" else "start state"
+    return (f"max({body})" if len(cfg.blocks) > 1 else body) + f" of the shift of the {what}"
+
+
+def fraction_bound(n: int, confidence: float = 0.95) -> float:
+    """Largest share of directions that could hold a smaller fatal shock although none of ``n`` i.i.d. uniform
+    ones did, at ``confidence``: 1 - (1 - confidence)^(1/n) (about 3/n at 95 %)."""
+    return 1.0 - (1.0 - confidence) ** (1.0 / max(n, 1)) if n else math.nan
