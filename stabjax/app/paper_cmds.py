@@ -49,7 +49,7 @@ def bench(
                               "pendulum case (N = 10^4, t = 1000), traj-steps/s per core"),
     force: bool = ForceOpt,
 ):
-    """Benchmark against named baselines in one process (figures in the README and docs/performance.md).
+    """Benchmark against named baselines in one process (figures in docs/guide/benchmarks.md and docs/performance.md).
 
     The benchmarks are research code kept beside the tests in a source checkout (``benchmarks/``), not
     in the installed package: run this from the top of a clone."""

@@ -150,7 +150,7 @@ def _installed_roots() -> tuple[Path, ...]:
         roots |= set(site.getsitepackages())
     with contextlib.suppress(AttributeError):
         roots.add(site.getusersitepackages())
-    roots.add(str(Path(__file__).parents[1]))  # the stabjax package
+    roots.add(str(Path(sys.modules[__package__.partition(".")[0]].__file__).parent))  # the stabjax package
     return tuple(Path(os.path.realpath(r)) for r in roots if r)
 
 

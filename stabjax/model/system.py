@@ -48,7 +48,34 @@ class Theory:
 
 
 class System:
-    """Base class. Subclasses set the class attributes and implement the abstract methods."""
+    """The interface every model implements: a first-order ODE ``dy/dt = rhs(t, y, p)`` on a flat float64 state.
+
+    Subclass it, set the class attributes below and write :meth:`initial_state`, :meth:`rhs` and
+    :meth:`observe`. Those three are traced by JAX for one trajectory (``jnp`` functions; ``jnp.where``
+    instead of a Python ``if`` on values); the engines call them vmapped over a batch of parameter dicts.
+    The host-side members (:meth:`check`, :meth:`theory`) see NumPy batches. A model is checked before use
+    (:mod:`stabjax.model.loading`): a member of the wrong shape or dtype is an error naming it.
+
+    Attributes:
+        name: the name it is known by (set by the registry or the loader: a file's model is ``file.py:Class``).
+        title: one line describing the model (``stabjax systems``).
+        paper: the source, for the papers' systems.
+        params: the parameters, a :class:`ParamSet` of :class:`Param` (``kind="initial"`` marks initial
+            conditions); each can be fixed, swept on a grid or sampled.
+        state: the layout of the flat state vector, ``((name, shape), ...)``.
+        observables: the names of what :meth:`observe` returns at the checkpoints; outcomes are decided from
+            them alone. For the attitude systems entry 0 is the error metric, entry 1 a size that detects blow-up.
+        observable_doc: one line per observable: its meaning and unit.
+        verdict: the attitude classifier's thresholds (:class:`~stabjax.config.VerdictConfig`), which a spec's
+            ``[verdict]`` overrides.
+        default_t1: the horizon when a spec gives no ``[integrate] t1``.
+        outcomes: an :class:`~stabjax.model.outcomes.Outcomes` declaration (rules, templates, escape);
+            ``VERDICTS`` where the attitude verdicts are the outcomes; None: the attractors are discovered.
+        classify: optional, a system-specific classifier ``classify(ts, obs, solver_ok, vcfg, t0) -> summaries``
+            replacing the generic one (such a system runs on the diffrax engine only).
+        escape_radius: optional: stop a trajectory once an accepted state has max_i |y_i| above it (the escape
+            outcome; ``[integrate] escape_radius`` overrides it).
+    """
 
     name: str = ""
     title: str = ""
@@ -90,12 +117,15 @@ class System:
         return dict(p)
 
     def initial_state(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
+        """The state at t0 from one trajectory's parameters (flat, ``state_size`` entries). Traced."""
         raise NotImplementedError
 
     def rhs(self, t, y, args) -> jnp.ndarray:
+        """dy/dt at time ``t`` and state ``y``; ``args`` is :meth:`prepare`'s result. Traced."""
         raise NotImplementedError
 
     def observe(self, t, y, args) -> jnp.ndarray:
+        """The observables at a checkpoint, one entry per name of ``observables``. Traced."""
         raise NotImplementedError
 
     def equilibrium(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
@@ -109,7 +139,7 @@ class System:
         if self.outcomes is VERDICTS:
             from ..config import VERDICT_NAMES
 
-            return [(n, "verdict (see README: Verdicts)") for n in VERDICT_NAMES]
+            return [(n, "verdict (see the user guide: Outcomes and verdicts)") for n in VERDICT_NAMES]
         if self.outcomes is None:
             rows = [("fixed_point_k, limit_cycle_k, chaotic_k", "discovered: grouped late-window features, "
                                                                "typed by spread and Lyapunov exponent")]

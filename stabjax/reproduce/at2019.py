@@ -9,7 +9,7 @@
 * The alpha-sweep at sigma = 4/3, mu = 3/2 with the Theorem 1 bound alpha > 2/3 drawn: ONE run to
   t1 = 1e6 classified at the horizons 1e3, 1e4, 1e5, 1e6 (prefixes of the same trajectories,
   :mod:`stabjax.fold.verdict`), the empirical alpha-boundary bracketed at each horizon
-  (``alpha_boundary.md``, the README's table) and the verdict map over (alpha, horizon).
+  (``alpha_boundary.md``, the table of docs/models/monoaxial.md) and the verdict map over (alpha, horizon).
 * Decay laws (issue 16, item 3): the late decay exponent of the error, fitted above the noise floor
   with its standard error, against sigma at alpha = 1 (where Theorem 1 reads 2 sigma > mu + 1) for
   mu = 3/2 and 2, with the proof's estimates 1/(mu - 1) and 1/(2 sigma - 2) drawn.
