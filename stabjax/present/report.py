@@ -328,14 +328,17 @@ def render(ds: xr.Dataset, source: str = "") -> str:
 
 
 def write_report(ds: xr.Dataset, out: str | Path, source: str = "") -> Path:
-    """Write the page atomically (a half-written page is never left behind)."""
+    """Write the page atomically (a half-written page is never left behind), sealed with its digest
+    (:func:`stabjax.present.stamps.seal`: edited later, it is no longer a page of ours to replace)."""
     import os
+
+    from .stamps import seal
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
-        tmp.write_text(render(ds, source), encoding="utf-8")
+        tmp.write_text(seal(render(ds, source)), encoding="utf-8")
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)

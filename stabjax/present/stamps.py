@@ -11,7 +11,9 @@ recognised). It is written where each format keeps text that no viewer shows:
 * PNG: text chunks (``stabjax-source``; ``stabjax-spec`` as before);
 * SVG: the Dublin Core ``description`` of the figure's metadata;
 * PDF: the document's ``Keywords``;
-* HTML: ``<meta name="stabjax-source" content="...">`` in the head.
+* HTML: ``<meta name="stabjax-source" content="... sha=DIGEST">`` in the head, with the digest of the whole
+  page (:func:`seal`): a page a user has edited since (notes added to a report) no longer matches, and is a
+  user's file again.
 
 :func:`shows` decides: an existing file may be replaced without ``--force`` when its stamp names the same
 result file or the same spec (a result of the same computation); a file without a stamp is a user's.
@@ -26,6 +28,8 @@ from pathlib import Path
 KEY = "stabjax-source"
 PNG_SPEC_KEY = "stabjax-spec"  # the sweep's maps before this module: the spec digest alone
 _STAMP = re.compile(rb"stabjax-source ([0-9a-f]{16}|-) ([0-9a-f]{16}|-)")
+_SEAL = re.compile(rb" sha=([0-9a-f]{16})")
+_UNSEALED = b" sha=" + b"-" * 16
 _READ_LIMIT = 64 << 20  # a figure or a page of ours is far smaller: a larger file is no output of ours
 
 
@@ -70,8 +74,18 @@ def metadata(path, ds, source=None) -> dict | None:
 
 
 def html_meta(ds, source=None) -> str:
-    """The ``<meta>`` element that stamps a page."""
-    return f'<meta name="{KEY}" content="{text(ds, source)}">'
+    """The ``<meta>`` element that stamps a page; :func:`seal` fills in the page's digest once it is whole."""
+    return f'<meta name="{KEY}" content="{text(ds, source)}{_UNSEALED.decode()}">'
+
+
+def seal(page: str) -> str:
+    """The page with the digest of its bytes (taken with the digest's place blank) written into its stamp."""
+    data = page.encode("utf-8")
+    return data.replace(_UNSEALED, b" sha=" + _digest(data).encode(), 1).decode("utf-8")
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def read(path) -> tuple[str | None, str | None] | None:
@@ -91,8 +105,15 @@ def read(path) -> tuple[str | None, str | None] | None:
                 return _parts(m)
             spec = info.get(PNG_SPEC_KEY)
             return (None, str(spec)) if spec else None
-        m = _STAMP.search(path.read_bytes())
-        return _parts(m) if m else None
+        data = path.read_bytes()
+        m = _STAMP.search(data)
+        if m is None:
+            return None
+        if path.suffix.lower() in (".html", ".htm"):  # a page edited since it was written is the user's
+            sealed = _SEAL.search(data, m.end(), m.end() + 32)
+            if sealed is None or _digest(data[:sealed.start()] + _UNSEALED + data[sealed.end():]) != sealed[1].decode():
+                return None
+        return _parts(m)
     except Exception:  # noqa: BLE001 -- unreadable, or not an image PIL knows: no stamp of ours
         return None
 

@@ -184,8 +184,9 @@ def test_report_of_a_discovery_says_where_each_attractor_lies(discovery, tmp_pat
 def test_report_replaces_its_own_page_and_no_other_file(results, tmp_path, capsys):
     """Issue 29: `stabjax report R.nc` replaced any R.html (a user's notes among them) because "its own
     previous page" was decided from the file name. Now from the page's stamp: a user's R.html is refused
-    (exit 2, unchanged), replaced with --force; a page the report wrote of this result is replaced; a page
-    it wrote of another result is not."""
+    (exit 2, unchanged), replaced with --force; a page the report wrote of this result is replaced, but not
+    once notes were added to it (the stamp's digest of the page no longer matches); a page it wrote of
+    another result is not replaced."""
     import shutil
 
     res = tmp_path / "R.nc"
@@ -199,6 +200,10 @@ def test_report_replaces_its_own_page_and_no_other_file(results, tmp_path, capsy
     capsys.readouterr()
     assert run_cli("report", str(res)) == 0  # its own page, stamped: replaced without --force
     assert "replaced the previous file" in capsys.readouterr().out
+    notes.write_text(notes.read_text().replace("</body>", "<p>my notes on this run</p></body>"))
+    assert run_cli("report", str(res)) == 2  # edited since: the user's page now
+    assert "my notes on this run" in notes.read_text()
+    assert run_cli("report", str(res), "--force") == 0
     other = tmp_path / "other.html"
     assert run_cli("report", str(results["basin"]), "--out", str(other)) == 0
     page = other.read_text()

@@ -340,17 +340,18 @@ def _listening(port: int) -> list[str]:
 
 def _browser_or_skip():
     """Playwright's sync API with the system's Chromium; skipped where either is missing, except in CI (``CI``
-    set), where a missing browser is a failure: the page's only end-to-end check must not vanish silently."""
+    set), where a missing browser is a failure: the page's only end-to-end check must not vanish silently
+    (the reasons carry the words tests/ci_tools.py turns into failures in CI, where that hook is installed)."""
     try:
         from playwright import sync_api
     except ImportError:
         sync_api = None
-    missing = ("the playwright package (pip install playwright)" if sync_api is None else
-               "Chromium (apt-get install chromium, or STABJAX_CHROMIUM=PATH)" if CHROMIUM is None else None)
+    missing = ("could not import playwright (pip install playwright)" if sync_api is None else
+               "no Chromium found (apt-get install chromium, or STABJAX_CHROMIUM=PATH)" if CHROMIUM is None else None)
     if missing is not None:
         if os.environ.get("CI"):
-            pytest.fail(f"the browser test needs {missing}; CI must install it")
-        pytest.skip(f"no {missing}: browser test skipped")
+            pytest.fail(f"CI is set and the browser test cannot run: {missing}")
+        pytest.skip(f"{missing}: browser test skipped")
     return sync_api
 
 
