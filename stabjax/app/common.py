@@ -1,6 +1,7 @@
 """What the commands share: option declarations, usage checks (``--set``, integer lists), the output-path
 check that refuses to lose a file, the readers that tell a previous result of ours from a user's file (the stamps
-themselves are :mod:`stabjax.present.stamps`), and the consoles. What a command may write over is decided in :mod:`stabjax.run.outputs`."""
+themselves are :mod:`stabjax.present.stamps`), and the consoles. What a command may write over is decided in
+:mod:`stabjax.run.outputs`."""
 from __future__ import annotations
 
 import json

@@ -66,7 +66,7 @@ KINDS: tuple[Kind, ...] = (
     Kind("refine", "boundary refinement", lambda ds: ds.attrs.get("kind") == "refine" or "segment" in ds.dims,
          "refinement:plot_refine", "refinement:format_summary"),
     # regions of attraction (issue 31): minimal fatal shocks and their witnesses, drawn by present/shock.py
-    Kind("shock", "minimal fatal shocks", lambda ds: ds.attrs.get("kind") == "shock",
+    Kind("shock", "minimal fatal shocks", lambda ds: ds.attrs.get("kind") == "shock" or "shock_norm" in ds,
          "shock:plot_shock", "shock:format_summary"),
     # a finished discovery has its attractors; a running one has trajectories without outcomes yet
     Kind("discovery", "discovered attractors",

@@ -186,8 +186,11 @@ def undecided_warnings(ds: xr.Dataset) -> list[str]:
                 continue
             order = over[np.argsort(-flat[over], kind="stable")]
             idx = np.unravel_index(order[:POINTS_NAMED], share.shape)
-            points = [", ".join(f"{d} = {float(ds[d].values[i[j]]):.4g}" if d in ds.coords else f"{d} #{i[j]}"
-                                for d, i in zip(grid, idx)) + f" ({100 * flat[p]:.1f}%)" for j, p in enumerate(order[:POINTS_NAMED])]
+            points = []
+            for j, p in enumerate(order[:POINTS_NAMED]):
+                where = ", ".join(f"{d} = {float(ds[d].values[i[j]]):.4g}" if d in ds.coords else f"{d} #{i[j]}"
+                                  for d, i in zip(grid, idx))
+                points.append(f"{where} ({100 * flat[p]:.1f}%)")
             more = f", and {over.size - POINTS_NAMED} more" if over.size > POINTS_NAMED else ""
             out.append(f"At {over.size:,} of {flat.size:,} grid points more than {100 * UNCLASSIFIED_WARN:g}% of the "
                        f"trajectories are '{bad}': {'; '.join(points)}{more}. The other fractions there are lower "

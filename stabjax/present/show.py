@@ -7,6 +7,7 @@ module (``present/shock.py``) is there.
 """
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -58,10 +59,12 @@ def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, titl
         from .stamps import metadata
 
         meta = metadata(out, ds, source or path)
-    kw = {"metadata": meta}
+    draw = kit.function(k.draw)
+    takes = inspect.signature(draw).parameters
+    kw = {"metadata": meta} if "metadata" in takes else {}  # a draw function without it writes no stamp
     if title is not None:
         kw["title"] = title
-    return kit.function(k.draw)(ds, out, **kw)
+    return draw(ds, out, **kw)
 
 
 def summary(ds: xr.Dataset) -> str:

@@ -260,7 +260,8 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
     if fr is not None:
         ffr = figure(title=f"basin stability S along {fr['dim']}" + (f" at {fr['where']}" if fr["where"] else "")
                      + " (bands: 95% Wilson intervals)", width=620, height=320,
-                     x_axis_label=axis_label(r.ds, fr["dim"], math=False), y_axis_label="basin stability S", y_range=(-0.02, 1.02),
+                     x_axis_label=axis_label(r.ds, fr["dim"], math=False), y_axis_label="basin stability S",
+                     y_range=(-0.02, 1.02),
                      name="fractions", tools="pan,wheel_zoom,box_zoom,reset,save")
         for k, (n, c) in enumerate(zip(names, colors)):
             if not np.any(r.ds["basin_fraction"].isel(outcome_name=k).values > 0):
