@@ -29,7 +29,7 @@ from .version import __version__
 # public name -> the module that defines it
 _API = {
     # run
-    "run_spec": "run.sweep", "run_plan": "run.sweep", "open_result": "run.sweep",
+    "run_spec": "run.sweep", "run_plan": "run.sweep", "open_result": "present.kit",
     "make_plan": "plan.spec", "load_spec": "plan.spec",
     "simulate": "engines.simulate", "solve_batch": "engines.simulate",
     "refine_spec": "explore.refine", "refine_plan": "explore.refine",
@@ -37,7 +37,7 @@ _API = {
     "witness_replay": "explore.shock_result",
     "horizon_check": "run.horizon",
     # see
-    "write_report": "present.report", "serve": "present.view",
+    "plot": "present.show", "write_report": "present.report", "serve": "present.view",
     # write a model
     "System": "model.system", "Predicate": "model.system", "Theory": "model.system",
     "Param": "model.params", "ParamSet": "model.params",
@@ -79,7 +79,9 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from .model.registry import list_systems
     from .model.system import Predicate, System, Theory
     from .plan.spec import load_spec, make_plan
+    from .present.kit import open_result
     from .present.report import write_report
+    from .present.show import plot
     from .present.view import serve
     from .run.horizon import horizon_check
-    from .run.sweep import open_result, run_plan, run_spec
+    from .run.sweep import run_plan, run_spec

@@ -10,11 +10,11 @@ VERDICT_MAP = {
     "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 5}, "sigma": [1.2, 1.3, 1.4, 1.5]},
     "integrate": {"t1": 400.0, "n_checkpoints": 128},
 }
-BASIN = {
+BASIN = {  # every trajectory runs to t1 (no early stop): its stored features are those of the whole run
     "system": f"{ROOT / 'stabjax' / 'examples' / 'pendulum' / 'model.py'}:Pendulum", "name": "tiny_pendulum",
     "sample": {"n": 48, "seed": 1, "theta0": {"dist": "uniform", "low": -2.6, "high": 3.6},
                "omega0": {"dist": "uniform", "low": -10.0, "high": 10.0}},
-    "integrate": {"t1": 150.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 400},
+    "integrate": {"t1": 150.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 400, "early_stop": False},
 }
 BASIN_ALONG = {  # a swept parameter with samples at each value: basin fractions along it
     "system": f"{ROOT / 'stabjax' / 'examples' / 'pendulum' / 'model.py'}:Pendulum", "name": "tiny_pendulum_T",

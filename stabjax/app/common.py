@@ -1,6 +1,7 @@
 """What the commands share: option declarations, usage checks (``--set``, integer lists), the output-path
-check that refuses to lose a file, the stamps and readers that tell a previous result of ours from a user's file,
-and the consoles. What a command may write over is decided in :mod:`stabjax.run.outputs`."""
+check that refuses to lose a file, the readers that tell a previous result of ours from a user's file (the stamps
+themselves are :mod:`stabjax.present.stamps`), and the consoles. What a command may write over is decided in
+:mod:`stabjax.run.outputs`."""
 from __future__ import annotations
 
 import json
@@ -102,9 +103,6 @@ def result_spec(path: Path):
         return None
 
 
-PNG_KEY = "stabjax-spec"  # PNG text chunk: digest of the spec a map was drawn from
-
-
 def spec_hash(spec_dict) -> str:
     from ..plan.identity import spec_digest
 
@@ -112,28 +110,11 @@ def spec_hash(spec_dict) -> str:
 
 
 def png_spec(path: Path) -> str | None:
-    """The spec digest stamped into a map by :func:`stamp_png` (None for any other image)."""
-    try:
-        from PIL import Image
+    """The spec digest stamped into a figure of ours (:mod:`stabjax.present.stamps`; None for any other image)."""
+    from ..present.stamps import read
 
-        with Image.open(path) as im:
-            return im.info.get(PNG_KEY)
-    except Exception:  # noqa: BLE001 - not a readable PNG: not a map of ours
-        return None
-
-
-def stamp_png(path: Path, ds) -> None:
-    """Record in the map which spec it shows, so a re-run of the same sweep may replace it (a shipped
-    map of the same spec too) while any other image at that path needs --force."""
-    if path.suffix.lower() != ".png" or "spec_json" not in ds.attrs:
-        return
-    from PIL import Image, PngImagePlugin
-
-    info = PngImagePlugin.PngInfo()
-    info.add_text(PNG_KEY, spec_hash(json.loads(ds.attrs["spec_json"])))
-    with Image.open(path) as im:
-        im.load()
-        im.save(path, pnginfo=info)
+    found = read(path)
+    return found[1] if found else None
 
 
 def trajectory_system(path: Path) -> str | None:
@@ -148,19 +129,11 @@ def trajectory_system(path: Path) -> str | None:
 
 
 def open_result_file(file: Path):
-    from ..errors import ValidationError
-    from ..run.sweep import open_result
+    """The result a command shows (:func:`stabjax.present.kit.open_result`): a netCDF file or a finished
+    sweep's store; anything else is refused naming ``file``."""
+    from ..present.kit import open_result
 
-    if file.is_dir():
-        raise ValidationError("file", f"{file} is a directory, not a sweep result")
-    if file.exists() and not file.is_file():  # a FIFO would block the open forever
-        raise ValidationError("file", f"{file} is not a regular file (a pipe, device or socket)")
-    try:
-        return open_result(file)
-    except ValidationError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - netCDF/HDF5 raise several types for a foreign file
-        raise ValidationError("file", f"{file} is not a netCDF sweep result ({type(exc).__name__})") from None
+    return open_result(file, field="file", partial=False)
 
 
 def jsonable(x: Any):

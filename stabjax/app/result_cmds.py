@@ -9,17 +9,35 @@ import typer
 from rich.table import Table
 
 from ..run.outputs import input_files, write_image
-from .common import stamp_png, ForceOpt, IMAGE_SUFFIXES, check_output, open_result_file, warn_changed_model, console, jsonable
+from .common import ForceOpt, IMAGE_SUFFIXES, check_output, open_result_file, warn_changed_model, console, jsonable
+
+
+def _default_out(file: Path, suffix: str) -> Path:
+    """FILE with another extension; for a store ``R.nc.zarr``, that of the result file it is written to."""
+    from ..present.kit import finished_file
+
+    return (finished_file(file) if file.is_dir() and finished_file(file) else file).with_suffix(suffix)
+
+
+def _ours(ds, file: Path):
+    """Whether an existing output is a figure or page of ours showing this result (its stamp, not its name)."""
+    from ..present.stamps import shows
+
+    return lambda p: shows(p, ds, file)
 
 
 def plot_cmd(
-    file: Path = typer.Argument(..., help="sweep result (netCDF)"),
+    file: Path = typer.Argument(..., help="a result (netCDF, or a finished sweep's store): a sweep, an example's "
+                                          "basin result, a discovery or a refinement"),
     out: Optional[Path] = typer.Option(None, help="PNG, PDF or SVG (default: FILE with the --format extension)"),
     fmt: Optional[str] = typer.Option(None, "--format", help="png | svg | pdf: vector output (svg, pdf) for a paper, "
                                                             "beside the PNG (default: from --out, else png)"),
     force: bool = ForceOpt,
 ):
-    """Draw the verdict map with the theoretical boundary (or the named outcomes and basin fractions); print counts."""
+    """Draw any result and print its summary: a verdict map with the theoretical boundary and its counts, named
+    outcomes or discovered attractors with basin fractions (along an axis, per cell), or a refinement's points
+    and bracketed boundary. An existing image is replaced only when it is a figure stabjax drew of this result
+    (or of one of the same spec), else with --force."""
     if fmt is not None:
         from ..errors import ValidationError
 
@@ -28,52 +46,31 @@ def plot_cmd(
         fmt = fmt.lower().lstrip(".")
         if out is not None and out.suffix.lower() != f".{fmt}":
             raise ValidationError("--format", f"--out {out} does not end in .{fmt}")
-        out = out or file.with_suffix(f".{fmt}")
+        out = out or _default_out(file, f".{fmt}")
     ds = open_result_file(file)
-    if "shock_norm" in ds:  # a minimal-fatal-shock search (stabjax.present.shock)
-        return _plot_shock(ds, file, out, force)
-    if "verdict" not in ds and "outcome" not in ds:  # a model's own outcomes carry no attitude verdicts
-        from ..errors import ValidationError
-
-        raise ValidationError("file", f"{file} is not a sweep result (no 'outcome' or 'verdict' variable)")
     warn_changed_model(ds)
-    out = out or file.with_suffix(".png")
-    # the map of FILE (FILE with an image extension) is replaced when drawn again; any other image needs --force
+    out = out or _default_out(file, ".png")
+    # a figure of ours of this result (its stamp says so) is replaced when drawn again; any other file needs --force
     replacing = check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
-                              same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix),
-                              what=f"the map of {file}")
+                              same=_ours(ds, file), what=f"a figure stabjax drew of {file} (or of a result of its spec)")
     print_result(ds, out, replaced=replacing, result=file)
 
 
-def _plot_shock(ds, file: Path, out: Optional[Path], force: bool) -> None:
-    from ..present.shock import format_summary, plot_shock
-
-    out = out or file.with_suffix(".png")
-    check_output(out, "--out", IMAGE_SUFFIXES, inputs=input_files(file), force=force,
-                 same=lambda p: p.resolve() == file.resolve().with_suffix(p.suffix), what=f"the figure of {file}")
-    write_image(out, lambda tmp: plot_shock(ds, tmp), file)
-    console.print(format_summary(ds), highlight=False, markup=False, soft_wrap=True)
-    console.print(f"wrote {out}", markup=False)
-
-
 def report_cmd(
-    file: Path = typer.Argument(..., help="a result (netCDF): a sweep, an example's basin result or a refinement"),
+    file: Path = typer.Argument(..., help="a result (netCDF, or a finished sweep's store): a sweep, an example's "
+                                          "basin result, a discovery or a refinement"),
     out: Optional[Path] = typer.Option(None, help="HTML page to write (default: FILE with .html)"),
     force: bool = ForceOpt,
 ):
     """Write one self-contained HTML page of a result: what was run, outcomes with S ± SE and Wilson
-    intervals, figures, the theory's agreement and the warnings (for a lab notebook)."""
+    intervals, figures, the theory's agreement and the warnings (for a lab notebook). An existing page is
+    replaced only when it is a report stabjax wrote of this result (or of one of the same spec), else with --force."""
     from ..present.report import write_report
 
     ds = open_result_file(file)
-    if "verdict" not in ds and "outcome" not in ds and "point_label" not in ds and "shock_norm" not in ds:
-        from ..errors import ValidationError
-
-        raise ValidationError("file", f"{file} is not a stabjax result (no verdict, outcome or refinement points)")
-    out = out or file.with_suffix(".html")
-    replacing = check_output(out, "--out", (".html",), inputs=(file,), force=force,
-                              same=lambda p: p.resolve() == file.resolve().with_suffix(".html"),
-                              what=f"the report of {file}")
+    out = out or _default_out(file, ".html")
+    replacing = check_output(out, "--out", (".html",), inputs=input_files(file), force=force,
+                              same=_ours(ds, file), what=f"a report stabjax wrote of {file} (or of a result of its spec)")
     write_report(ds, out, source=str(file))
     console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False,
                   soft_wrap=True)
@@ -88,17 +85,14 @@ def view_cmd(
 ):
     """Explore a result in the browser: its map, a click re-simulates that trajectory (time series with the late
     window, phase portrait, why it got its outcome), feature space, fractions with Wilson bands. Serves on
-    127.0.0.1 only; a running sweep's store refreshes as chunks land. Needs: pip install 'stabjax[view]'."""
+    127.0.0.1 only; a running sweep's store refreshes as chunks land, and the page turns to the result file
+    when its sweep finishes. Needs: pip install 'stabjax[view]'."""
     from .. import validate
     from ..present.view import serve
 
     validate.integer(port, "--port", lo=0, hi=65535)
     if quit_after is not None:
         validate.number(quit_after, "--quit-after", lo=0.0, lo_open=True)
-    if not result.exists():
-        from ..errors import ValidationError
-
-        raise ValidationError("result", f"not found: {result}")
     serve(result, port=port, show=browser, quit_after=quit_after,
           announce=lambda text: console.print(text, markup=False, highlight=False, soft_wrap=True))
 
@@ -148,26 +142,15 @@ def horizon_check_cmd(
 
 
 def print_result(ds, png: Optional[Path], replaced: bool = False, result: Optional[Path] = None):
-    """The CLI summary and plot of a result: named outcomes with basin fractions, or verdicts vs theory.
+    """The CLI summary and figure of a result of any kind (:func:`stabjax.present.show.summary`, ``plot``).
 
-    The map is drawn into a temporary file beside ``png`` and renamed over it, so a full disk leaves the
-    previous map (or nothing), never half an image, and is reported in one line (exit 1) with the way
-    to draw it again; ``result``: the netCDF file the map is drawn from, for that message."""
-    from ..present.maps import format_confusion, plot_sweep
+    The figure is drawn into a temporary file beside ``png`` and renamed over it, so a full disk leaves the
+    previous one (or nothing), never half an image, and is reported in one line (exit 1) with the way
+    to draw it again; ``result``: the file the figure is drawn from, for that message and the figure's stamp."""
+    from ..present.show import plot, summary
 
-    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
-        from ..present.basins import format_summary, plot_basin
-
-        console.print(format_summary(ds), highlight=False, markup=False)
-        draw = plot_basin
-    else:
-        console.print(format_confusion(ds), highlight=False, markup=False)
-        if "basin_fraction" in ds:
-            from ..present.basins import format_summary
-
-            console.print(format_summary(ds), highlight=False, markup=False)
-        draw = plot_sweep
+    console.print(summary(ds), highlight=False, markup=False, soft_wrap=True)
     if png is None:
         return
-    write_image(png, lambda tmp: (draw(ds, tmp), stamp_png(tmp, ds)), result)
+    write_image(png, lambda tmp: plot(ds, tmp, source=result), result)
     console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)

@@ -9,7 +9,7 @@ from typing import Optional
 import numpy as np
 import typer
 
-from ..run.outputs import write_image, check_store_path, input_files
+from ..run.outputs import check_store_path, input_files
 from .result_cmds import print_result
 from .common import ForceOpt, IMAGE_SUFFIXES, RESULT_SUFFIXES, check_output, png_spec, result_spec, spec_hash, console, err_console
 
@@ -117,16 +117,11 @@ def _refine(plan, out: Path, plot: bool, **run) -> int:
     summary; the exit status. ``run``: the sweep runner's options, as for any sweep."""
     from ..explore.refine import refine_plan
     from ..explore.refine_config import refine_config
-    from ..present.refinement import format_summary, plot_refine
 
     refine_config(plan)  # every field checked before anything is integrated or written
     ds = refine_plan(plan, out, **run)
     console.print(f"wrote {out}  ({ds.attrs['wall_time_s']:.1f} s)", markup=False)
-    console.print(format_summary(ds), highlight=False, markup=False)
-    if plot:
-        png = out.with_suffix(".png")
-        write_image(png, lambda tmp: plot_refine(ds, tmp), out)
-        console.print(f"wrote {png}", markup=False)
+    print_result(ds, out.with_suffix(".png") if plot else None, result=out)
     return run_status(ds, out)
 
 
@@ -135,17 +130,12 @@ def _shock(plan, out: Path, plot: bool, **run) -> int:
     summary (red flags with the command replaying their witness); exit 0 (a red flag is a finding, not an error)."""
     from ..explore.shock import shock_plan
     from ..explore.shock_config import shock_config
-    from ..present.shock import format_summary, plot_shock
 
     shock_config(plan)  # every field checked before anything is integrated or written
     ds = shock_plan(plan, out, **run)
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']:,} trajectories, {ds.attrs['wall_time_s']:.1f} s)",
                   markup=False)
-    console.print(format_summary(ds), highlight=False, markup=False, soft_wrap=True)
-    if plot:
-        png = out.with_suffix(".png")
-        write_image(png, lambda tmp: plot_shock(ds, tmp), out)
-        console.print(f"wrote {png}", markup=False)
+    print_result(ds, out.with_suffix(".png") if plot else None, result=out)
     return 0
 
 

@@ -6,81 +6,76 @@
 * two grid axes + samples: the dominant outcome of each cell, shaded by its fraction;
 * a grid without samples: one trajectory per cell, coloured by outcome (a basin picture when
   the axes are initial conditions).
+
+Discovered attractors are named in the legends with where they lie (:func:`stabjax.present.kit.attractors`),
+and so are they in the printed summary (:func:`format_summary`), so that ``fixed_point_1`` is told from
+``fixed_point_2``.
 """
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-import xarray as xr
-from matplotlib.colors import BoundaryNorm, ListedColormap, to_rgb
-from matplotlib.patches import Patch
 
-from ..model.outcomes import PALETTE
+from ..errors import ValidationError
+from . import kit
+from .labels import attractor_label, axis_label, heading
 from .maps import cell_edges
 
-
-def outcome_names(ds: xr.Dataset) -> list[str]:
-    return str(ds["outcome"].attrs["flag_meanings"]).split()
-
-
-def outcome_colors(ds: xr.Dataset) -> list[str]:
-    """The colours stored with the outcome (``flag_colors``), else the verdict colours."""
-    cols = str(ds["outcome"].attrs.get("flag_colors", "")).split()
-    if len(cols) == len(outcome_names(ds)):
-        return cols
-    from ..fold import verdict as V
-
-    return (list(V.COLORS) + list(PALETTE))[: len(outcome_names(ds))]
+if TYPE_CHECKING:
+    import xarray as xr
 
 
-def _legend(ax, names, colors, codes=None):
-    """Legend of the outcomes that occur in ``codes`` (all of them without)."""
+def _legend(ax, names, colors, codes=None, where=None):
+    """Legend of the outcomes that occur in ``codes`` (all of them without); a discovered attractor is named
+    with where it lies (``where``: :func:`stabjax.present.kit.where_of`)."""
+    from matplotlib.patches import Patch
+
     present = [codes is None or bool((np.asarray(codes) == k).any()) for k in range(len(names))]
-    handles = [Patch(color=c, label=n) for n, c, p in zip(names, colors, present) if p]
-    ax.legend(handles=handles, fontsize=8, loc="upper right", framealpha=0.8)
+    handles = [Patch(color=c, label=attractor_label(n, where or {})) for n, c, p in zip(names, colors, present) if p]
+    if where:  # entries with locations are long: under the axes, off the data
+        ax.legend(handles=handles, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
+    else:
+        ax.legend(handles=handles, fontsize=8, loc="upper right", framealpha=0.8)
 
 
-def _label(ds: xr.Dataset, name: str) -> str:
-    """An axis in words with its symbol and unit: a grid axis (its coordinate's description) or a
-    sampled parameter (``<name>_sample``'s); the bare name only when the result has no description."""
-    from .labels import symbol, words
-    from .maps import axis_label
-
-    if name in ds.coords:
-        return axis_label(ds, name)
-    doc = str(ds[f"{name}_sample"].attrs.get("long_name", "")) if f"{name}_sample" in ds else ""
-    return words(doc.removeprefix("sampled "), symbol(name))
-
-
-def _title(ds, what: str) -> str:
-    name = ds.attrs.get("sweep_name", "")
+def _title(ds, what: str, head: str | None = None) -> str:
+    """``head`` (default: the result's heading, its description, else the system and the run's name), then
+    what is drawn."""
     n = int(ds.sizes.get("sample", 0))
-    return f"{ds.attrs.get('system', '')}: {what}" + (f"  [{name}]" if name else "") + (f"\nN = {n} samples per point"
-                                                                                      if n else "")
+    return f"{head or heading(ds)}\n{what}" + (f"; N = {n} samples per point" if n else "")
 
 
-def plot_basin(ds: xr.Dataset, out: str | Path) -> Path:
-    """Draw the outcome picture that fits the dataset's shape (see the module docstring)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    names, colors = outcome_names(ds), outcome_colors(ds)
+def plot_basin(ds: xr.Dataset, out: str | Path | None = None, title: str | None = None,
+               metadata: dict | None = None):
+    """Draw the outcome picture that fits the dataset's shape (see the module docstring); write it to ``out``
+    (with ``metadata`` in the file) when given. ``title``: what it shows, in words (default: the spec's
+    description). Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    if "outcome" not in ds:
+        raise ValidationError("result", "this result holds no outcomes yet (a discovery assigns them when "
+                                            "the sweep has finished): show it when the sweep has finished")
+    names, colors = kit.names_colors(ds)
     grid = [d for d in ds["outcome"].dims if d != "sample"]
     has_sample = "sample" in ds["outcome"].dims
     if has_sample and not grid:
-        fig = _samples_only(ds, names, colors)
+        fig = _samples_only(ds, names, colors, title)
     elif has_sample and len(grid) == 1:
-        fig = _fractions_along(ds, grid[0], names, colors)
+        fig = _fractions_along(ds, grid[0], names, colors, title)
     elif has_sample and len(grid) == 2:  # the second grid axis horizontal, as on the verdict map (plotting)
-        fig = _dominant_map(ds, grid[::-1], names, colors)
+        fig = _dominant_map(ds, grid[::-1], names, colors, title)
     elif not has_sample and len(grid) in (1, 2):
-        fig = _outcome_map(ds, grid[::-1], names, colors)
+        fig = _outcome_map(ds, grid[::-1], names, colors, title)
     else:
-        fig = _bars_only(ds, names, colors)
-    fig.savefig(out, dpi=130, bbox_inches="tight")
-    plt.close(fig)
-    return out
+        fig = _bars_only(ds, names, colors, title)
+    if out is not None:
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=130, bbox_inches="tight", metadata=metadata)
+        plt.close(fig)
+    return fig
 
 
 def _bar(ax, ds, names, colors, sel=None):
@@ -102,25 +97,30 @@ def _sampled_axes(ds):
     return keys[:2]
 
 
-def _samples_only(ds, names, colors):
+def _samples_only(ds, names, colors, head=None):
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
     keys = _sampled_axes(ds)
     if len(keys) < 2:
-        return _bars_only(ds, names, colors)
+        return _bars_only(ds, names, colors, head)
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw=dict(width_ratios=[1.2, 1]))
     code = np.asarray(ds["outcome"].values)
     cmap = ListedColormap(colors)
     a0.scatter(ds[f"{keys[0]}_sample"].values, ds[f"{keys[1]}_sample"].values, c=code, cmap=cmap,
                norm=BoundaryNorm(np.arange(len(names) + 1) - 0.5, len(names)), s=4, linewidths=0)
-    a0.set_xlabel(_label(ds, keys[0]))
-    a0.set_ylabel(_label(ds, keys[1]))
+    a0.set_xlabel(axis_label(ds, keys[0]))
+    a0.set_ylabel(axis_label(ds, keys[1]))
     a0.set_title("sampled starts, coloured by outcome (one dot = one trajectory)", fontsize=9)
-    _legend(a0, names, colors, code)
+    _legend(a0, names, colors, code, kit.where_of(ds))
     _bar(a1, ds, names, colors)
-    fig.suptitle(_title(ds, "basin stability"), fontsize=10, y=1.03)
+    fig.suptitle(_title(ds, "basin stability", head), fontsize=10, y=1.03)
     return fig
 
 
-def _bars_only(ds, names, colors):
+def _bars_only(ds, names, colors, head=None):
+    import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(6, 4))
     if "basin_fraction" in ds and ds["basin_fraction"].ndim == 1:
         _bar(ax, ds, names, colors)
@@ -128,11 +128,14 @@ def _bars_only(ds, names, colors):
         code = np.asarray(ds["outcome"].values).ravel()
         ax.bar(np.arange(len(names)), [(code == k).mean() for k in range(len(names))], color=colors)
         ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right", fontsize=8)
-    fig.suptitle(_title(ds, "outcome fractions"), fontsize=10)
+    fig.suptitle(_title(ds, "outcome fractions", head), fontsize=10)
     return fig
 
 
-def _fractions_along(ds, dim, names, colors):
+def _fractions_along(ds, dim, names, colors, head=None):
+    import matplotlib.pyplot as plt
+
+    where = kit.where_of(ds)
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     x = np.asarray(ds[dim].values, float)
     for k, (n, c) in enumerate(zip(names, colors)):
@@ -140,19 +143,23 @@ def _fractions_along(ds, dim, names, colors):
         if not np.any(f > 0):
             continue
         lo, hi = ds["basin_ci_low"].isel(outcome_name=k).values, ds["basin_ci_high"].isel(outcome_name=k).values
-        ax.errorbar(x, f, yerr=np.vstack([f - lo, hi - f]), color=c, marker="o", ms=3, capsize=2, label=n)
-    ax.set_xlabel(_label(ds, dim))
+        ax.errorbar(x, f, yerr=np.vstack([f - lo, hi - f]), color=c, marker="o", ms=3, capsize=2,
+                    label=attractor_label(n, where))
+    ax.set_xlabel(axis_label(ds, dim))
     ax.set_ylabel("basin stability S (95% Wilson interval)")
     ax.set_ylim(-0.02, 1.02)
     if int(ds[dim].attrs.get("log_axis", 0)):
         ax.set_xscale("log")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.suptitle(_title(ds, "basin stability along " + dim), fontsize=10)
+    fig.suptitle(_title(ds, "basin stability along " + axis_label(ds, dim), head), fontsize=10)
     return fig
 
 
-def _dominant_map(ds, dims, names, colors):
+def _dominant_map(ds, dims, names, colors, head=None):
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
     fr = ds["basin_fraction"].transpose(dims[1], dims[0], "outcome_name").values  # (ny, nx, K)
     dom = fr.argmax(axis=-1)
     share = fr.max(axis=-1)
@@ -165,14 +172,17 @@ def _dominant_map(ds, dims, names, colors):
         for i in range(fr.shape[0]):
             for j in range(fr.shape[1]):
                 ax.text(float(x[j]), float(y[i]), f"{share[i, j]:.2f}", ha="center", va="center", fontsize=6)
-    ax.set_xlabel(_label(ds, dims[0]))
-    ax.set_ylabel(_label(ds, dims[1]))
-    _legend(ax, names, colors, dom)
-    fig.suptitle(_title(ds, "dominant outcome per cell (shade and number: its fraction S)"), fontsize=10)
+    ax.set_xlabel(axis_label(ds, dims[0]))
+    ax.set_ylabel(axis_label(ds, dims[1]))
+    _legend(ax, names, colors, dom, kit.where_of(ds))
+    fig.suptitle(_title(ds, "dominant outcome per cell (shade and number: its fraction S)", head), fontsize=10)
     return fig
 
 
-def _outcome_map(ds, dims, names, colors):
+def _outcome_map(ds, dims, names, colors, head=None):
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
     code = ds["outcome"].transpose(*dims[::-1]).values
     fig, ax = plt.subplots(figsize=(7.5, 5.5 if len(dims) == 2 else 2.5))
     cmap = ListedColormap(colors)
@@ -186,10 +196,10 @@ def _outcome_map(ds, dims, names, colors):
         x, y = ds[dims[0]].values, ds[dims[1]].values
         ax.imshow(code, origin="lower", aspect="auto", cmap=cmap, norm=norm, extent=_extent(x, y),
                   interpolation="nearest")
-        ax.set_ylabel(_label(ds, dims[1]))
-    ax.set_xlabel(_label(ds, dims[0]))
-    _legend(ax, names, colors, code)
-    fig.suptitle(_title(ds, "outcome (one cell = one trajectory)"), fontsize=10)
+        ax.set_ylabel(axis_label(ds, dims[1]))
+    ax.set_xlabel(axis_label(ds, dims[0]))
+    _legend(ax, names, colors, code, kit.where_of(ds))
+    fig.suptitle(_title(ds, "outcome (one cell = one trajectory)", head), fontsize=10)
     return fig
 
 
@@ -211,7 +221,7 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
     if "basin_fraction" in ds and grid:
         npts = int(np.prod([ds.sizes[d] for d in grid]))
         if npts <= max_points:
-            names = outcome_names(ds)
+            names = kit.names_colors(ds)[0]
             keep = [k for k in range(len(names)) if float(ds["basin_count"].isel(outcome_name=k).sum()) > 0]
             lines.append("per grid point: S ± SE")
             lines.append(" ".join(f"{d:>10}" for d in grid) + "".join(f"{names[k]:>22}" for k in keep))
@@ -222,6 +232,14 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 cells = "".join(f"{float(pt['basin_fraction'][k]):>13.4f} ± {float(pt['basin_se'][k]):.4f}"
                                 for k in keep)
                 lines.append(head + cells)
+    found = kit.attractors(ds)
+    if found:
+        lines.append("attractors found (where: the representative trajectory's state at t1; for one that moves, "
+                     "the late-window range of each observable):")
+        w = max(len(a["name"]) for a in found) + 2
+        for a in found:
+            lam = f", largest Lyapunov exponent {a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else ""
+            lines.append(f"  {a['name']:<{w}}{a['count']:>9d} trajectories{lam}; {a['where'] or 'where: not recorded'}")
     if "start_label_mcc" in ds:
         lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
                      f"Matthews correlation {float(ds['start_label_mcc']):.4f} "

@@ -9,54 +9,28 @@ also gets the empirical boundary of the converged region at each horizon drawn o
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-import xarray as xr
-from matplotlib import patheffects
-from matplotlib.colors import BoundaryNorm, ListedColormap
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 
-from ..fold import verdict as V
-from .labels import categories, category_axis, cell_note, fixed_note, symbol
+from ..errors import ValidationError
+from .labels import (axis_label, categories, category_axis, cell_note, error_words, fixed_note, heading,
+                     main_predicate, symbol, theory_words)
 
-
-def axis_label(ds: xr.Dataset, dim: str) -> str:
-    """The axis in words a reader knows, with its symbol and unit: "perturbation order sigma ($\\sigma$)"."""
-    from .labels import words
-
-    a = ds[dim].attrs if dim in ds.coords else {}
-    key = str(a.get("spec_key", dim))
-    # an entry of a vector parameter by the spec's name for it (A[1]: entry 1), not the coordinate's (A_1)
-    return words(str(a.get("long_name", "")), symbol(key if "[" in key else dim), str(a.get("units", "")))
+if TYPE_CHECKING:
+    import xarray as xr
 
 
-def theory_words(ds: xr.Dataset, main: str) -> str:
-    """What the theory's main predicate says, in words (its description, not its variable name)."""
-    from .labels import words
+def _verdicts(ds: xr.Dataset, what: str) -> None:
+    """Refuse a result without attitude verdicts (a user model's named outcomes, a discovery, a
+    refinement) by name, pointing to the entry point that draws every kind."""
+    if "verdict" not in ds:
+        from .kit import kind_of
 
-    doc = str(ds[f"theory_{main}"].attrs.get("long_name", "")) if f"theory_{main}" in ds else ""
-    return words(doc, "", limit=60) or main
-
-
-def error_words(ds: xr.Dataset, metric: str) -> str:
-    """The y axis of a 1-D map in words: which error (the system's error observable, with its unit) and
-    when -- "largest late angle between s and r [rad]" for ``error_max_late``, not the variable name."""
-    import re
-
-    from ..model.loading import resolve as get_system
-
-    try:
-        obs = str(get_system(ds.attrs.get("system", "")).observable_doc[0])
-    except Exception:  # noqa: BLE001 -- an unknown system: say "error"
-        obs = "error"
-    m = re.search(r"\s*\[([^\]]+)\]\s*$", obs)
-    unit = f" [{m[1]}]" if m else ""
-    obs = (obs[: m.start()] if m else obs).split(",")[0].strip() or "error"
-    if metric == "error_max_late":
-        return f"largest late {obs}{unit}"
-    return f"{obs} at t1{unit}"
+        k = kind_of(ds)
+        raise ValidationError("result", f"{what} needs attitude verdicts; this result holds "
+                                        f"{k.words if k else 'no verdicts'}: draw it with stabjax.plot(result) "
+                                        "(or stabjax plot FILE), which draws every kind of result")
 
 
 def wrap(label: str, width: int = 48) -> str:
@@ -98,6 +72,8 @@ def legend_below(ax, handles, ncol: int = 2, fontsize: float = 8, width: int = 4
 
 
 def grid_dims(ds: xr.Dataset) -> list[str]:
+    """The verdict map's grid axes (without ``sample`` and ``horizon``)."""
+    _verdicts(ds, "a verdict map")
     return [d for d in ds["verdict"].dims if d not in ("sample", "horizon")]
 
 
@@ -107,6 +83,8 @@ def at_t1(ds: xr.Dataset) -> xr.Dataset:
 
 
 def _converged_indicator(ds: xr.Dataset):
+    from ..fold import verdict as V
+
     conv = (ds["verdict"] == V.CONVERGED).astype(float)
     return conv.mean("sample") if "sample" in conv.dims else conv
 
@@ -117,6 +95,8 @@ def horizon_boundaries(ds: xr.Dataset, dim: str | None = None) -> dict[float, li
     Returns ``{T: [(lo, hi), ...]}``: adjacent grid values between which the verdict changes from
     converged to not converged or back (with samples: the converged fraction crosses 1/2).
     """
+    from .kit import t1_of
+
     dims = grid_dims(ds)
     dim = dim or dims[0]
     hs = ds["horizon"].values if "horizon" in ds.dims else [None]
@@ -128,7 +108,7 @@ def horizon_boundaries(ds: xr.Dataset, dim: str | None = None) -> dict[float, li
         if other:
             c = c.mean(other)
         x, v = sub[dim].values, c.values >= 0.5
-        key = float(T) if T is not None else float(_t1(ds))
+        key = float(T) if T is not None else t1_of(ds)
         out[key] = [(float(x[i]), float(x[i + 1])) for i in range(len(x) - 1) if v[i] != v[i + 1]]
     return out
 
@@ -165,6 +145,8 @@ def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
     runs are still undecided and their edge is noise."""
     if "horizon" not in full.dims or full.sizes["horizon"] < 2:
         return []
+    from matplotlib.lines import Line2D
+
     handles = []
     hs = full["horizon"].values
     for j, T in list(enumerate(hs))[-2:-1] if len(dims) == 2 else enumerate(hs):
@@ -193,13 +175,13 @@ def _draw_horizons(ax, full: xr.Dataset, dims: list[str], log: dict):
     return handles
 
 
-def main_predicate(ds: xr.Dataset) -> str | None:
-    main = ds.attrs.get("theory_main") or ""
-    return main if f"margin_{main}" in ds else None
 
 
 def confusion(ds: xr.Dataset) -> dict:
     """Counts of (theory guarantees stability?) x (empirical verdict at t1)."""
+    from ..fold import verdict as V
+
+    _verdicts(ds, "the theory x simulation table")
     ds = at_t1(ds)
     main = main_predicate(ds)
     v = ds["verdict"].values.ravel()
@@ -218,6 +200,8 @@ def confusion(ds: xr.Dataset) -> dict:
 
 def converged_fraction(ds: xr.Dataset):
     """Fraction converged (at t1) over the ``sample`` dim and its standard error sqrt(p(1-p)/n)."""
+    from ..fold import verdict as V
+
     ds = at_t1(ds)
     conv = (ds["verdict"] == V.CONVERGED).astype(float)
     n = ds.sizes["sample"]
@@ -227,6 +211,10 @@ def converged_fraction(ds: xr.Dataset):
 
 
 def verdict_cmap():
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    from ..fold import verdict as V
+
     return ListedColormap(V.COLORS), BoundaryNorm(np.arange(-0.5, len(V.NAMES) + 0.5), len(V.NAMES))
 
 
@@ -289,33 +277,14 @@ def _guaranteed_spans(x, ok, crossings) -> list[tuple[float, float]]:
 
 
 def _title(ds: xr.Dataset, title: str | None = None) -> str:
-    """Two lines: what the map is (``title``, in words; by default the spec's ``description``, else the system
-    and the sweep's name, which name a user's own run) with its horizon, then the fixed parameters that matter and what one cell is."""
+    """Two lines: what the map is (``title``, in words; by default the result's heading: the spec's
+    ``description``, else the system and the sweep's name) with its horizon, then the fixed parameters that
+    matter and what one cell is."""
+    from .kit import t1_of
+
     fixed = fixed_note(ds)
     second = "; ".join(x for x in (fixed, cell_note(ds)) if x)
-    first = title or _described(ds) or f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '')}"
-    return f"{first}  (t1 = {_t1(ds):g})\n{second}"
-
-
-def _described(ds: xr.Dataset) -> str:
-    """The spec's ``description`` (the user's own words for the run), or ""."""
-    import json
-
-    try:
-        d = json.loads(ds.attrs.get("spec_json", "{}")).get("description", "")
-    except ValueError:
-        return ""
-    d = str(d or "").strip()
-    return d[:1].upper() + d[1:] if d else ""
-
-
-def _t1(ds):
-    import json
-
-    try:
-        return json.loads(ds.attrs["integrate_json"])["t1"]
-    except (KeyError, ValueError):
-        return float("nan")
+    return f"{title or heading(ds)}  (t1 = {t1_of(ds):g})\n{second}"
 
 
 def zero_crossings(x, m):
@@ -329,14 +298,23 @@ def zero_crossings(x, m):
     return out
 
 
-def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None):
+def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None,
+               metadata: dict | None = None):
     """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions) at t1,
     with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's.
     ``title``: what the map shows, in words (default: the spec's description, else the system and the
-    sweep's name)."""
+    sweep's name); ``metadata``: written into the image file (:mod:`stabjax.present.stamps`).
+    A result without verdicts is refused with a pointer to :func:`stabjax.plot`, which draws every kind."""
+    import matplotlib.pyplot as plt
+    from matplotlib import patheffects
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    from ..fold import verdict as V
+
     dims = grid_dims(ds)
     if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
-        return _facets(ds, dims, out, title)
+        return _facets(ds, dims, out, title, metadata)
     full, ds = ds, at_t1(ds)
     main = main_predicate(ds)
     sampled = "sample" in ds["verdict"].dims
@@ -462,21 +440,26 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: st
         ax.bar(V.NAMES, fr, yerr=se, color=V.COLORS, capsize=4)
         ax.set_ylabel(f"fraction of {n} trajectories (± SE)")
     ax.set_title(_title(ds, title), fontsize=10)
-    return save(fig, out, own)
+    return save(fig, out, own, metadata=metadata)
 
 
-def save(fig, out, own: bool = True):
-    """Write ``fig`` to ``out`` (folders made) if given; close it if this module made it."""
+def save(fig, out, own: bool = True, dpi: int = 110, metadata: dict | None = None, **kw):
+    """Write ``fig`` to ``out`` (folders made) if given, with ``metadata`` in the file (the stamp that names
+    the result it shows); close it if this module made it."""
     if out is not None:
+        import matplotlib.pyplot as plt
+
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=110)
+        fig.savefig(out, dpi=dpi, metadata=metadata, **kw)
         if own:
             plt.close(fig)
     return fig
 
 
-def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None):
+def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None, metadata: dict | None = None):
+    import matplotlib.pyplot as plt
+
     d0 = dims[0]
     n = ds.sizes[d0]
     ncol = 2 if n == 4 else min(n, 3)
@@ -498,16 +481,13 @@ def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None):
             leg.remove()
             legend_below(ax, handles, fontsize=7.5)
     fig.suptitle(_title(ds, title), fontsize=11)
-    if out is not None:
-        out = Path(out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=100)
-        plt.close(fig)
-    return fig
+    return save(fig, out, dpi=100, metadata=metadata)
 
 
 def format_confusion(ds: xr.Dataset) -> str:
     """Plain-text table (also used by the CLI through rich)."""
+    from ..fold import verdict as V
+
     full, ds = ds, at_t1(ds)
     c = confusion(ds)
     cols = c["columns"]

@@ -6,76 +6,47 @@ plotted as well as a fresh one.
 from __future__ import annotations
 
 import json
-
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import xarray as xr
 
-from ..fold import verdict as V
+from . import kit
+from .labels import axis_label, fixed_note, theory_words
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 # the bracketed (empirical) boundary: the colour of the converged region's edge on the sweep maps, apart
 # from the theorem's black line
 EDGE = "#CC79A7"
 
 
-def _system(ds: xr.Dataset):
-    from ..model.loading import resolve
-
-    try:
-        return resolve(ds.attrs.get("system", ""))
-    except Exception:  # noqa: BLE001 -- a result of an unknown system: labels from the names
-        return None
-
-
-def axis_words(ds: xr.Dataset, name: str) -> str:
-    """A refined axis in words with its symbol and unit, from the system's parameter (as on the sweep map)."""
-    from .labels import symbol, words
-
-    unit = str(ds[name + "_mid"].attrs.get("units", "")) if name + "_mid" in ds else ""
-    S = _system(ds)
-    try:
-        prm = S.params[name.split("[")[0]]
-    except Exception:  # noqa: BLE001 -- no such parameter (another version's result): the symbol alone
-        return words("", symbol(name), unit)
-    return words(prm.doc, symbol(name), unit or prm.unit)
-
-
-def theory_words(ds: xr.Dataset) -> str:
-    """What the theorem's main predicate says, in words (its description at the defaults), not its name."""
-    from .labels import words
-
-    main = ds.attrs.get("theory_main", "")
-    S = _system(ds)
-    try:
-        doc = S.theory(S.check(S.params.resolve({}))).predicates[main].doc
-    except Exception:  # noqa: BLE001 -- a system without this predicate: its name is all there is
-        return main
-    return words(doc, "", limit=60) or main
-
-
-def title(ds: xr.Dataset) -> str:
+def refine_title(ds: xr.Dataset, head: str | None = None) -> str:
     """What was refined, in words, and how much of the lattice it cost; the fixed parameters that matter."""
-    from .labels import fixed_note
-
     pair = ds.attrs.get("pair", "").split()
     between = (f"{pair[0]} and not {pair[0]}" if pair[1:] == ["*"] else " and ".join(pair)) if pair else \
         f"{ds.attrs.get('label', 'label')}s"
-    t1 = json.loads(ds.attrs.get("integrate_json", "{}")).get("t1", float("nan"))
+    t1 = kit.t1_of(ds)
     hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs.get("horizon")]))
     when = f"horizons T = {', '.join(f'{h:g}' for h in hs)}" if len(hs) > 1 else f"horizon T = {hs[0]:g}"
-    first = (f"Refined boundary between {between}: {ds.attrs['n_points']:,} of {ds.attrs['full_grid_points']:,} "
-             f"lattice points run")
+    first = head or (f"Refined boundary between {between}: {ds.attrs['n_points']:,} of "
+                     f"{ds.attrs['full_grid_points']:,} lattice points run")
     # the spec's fixed parameters (the refinement's own variables name no theorem's parameters)
     fixed = fixed_note(ds[[]], exclude=ds.attrs["axes"].split())
     second = "; ".join(x for x in (fixed, f"{when}, t1 = {t1:g}") if x)
     return f"{first}\n{second}"
 
 
-def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
-    """Evaluated points (coloured by label), bracketed boundary midpoints, and the theorem's boundary."""
-    from .maps import plt
+def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None,
+                metadata: dict | None = None):
+    """Evaluated points (coloured by label), bracketed boundary midpoints, and the theorem's boundary; written
+    to ``out`` (with ``metadata`` in the file) when given. ``title``: the first line of the title, in words
+    (default: what was refined and what it cost). Returns the figure."""
+    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+
+    from ..fold import verdict as V
 
     names = ds.attrs["axes"].split()
     lnames = ds.attrs["label_names"].split()
@@ -106,8 +77,8 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
                 ax.contour(ds[f"{xd}_theory"].values, ds[f"{yd}_theory"].values, m, levels=[0.0], colors="k",
                            linewidths=2.0)
                 handles.append(Line2D([], [], color="k", lw=2, label=f"theory boundary: {said}"))
-        ax.set_xlabel(axis_words(ds, xd))
-        ax.set_ylabel(axis_words(ds, yd))
+        ax.set_xlabel(axis_label(ds, xd))
+        ax.set_ylabel(axis_label(ds, yd))
     else:
         xd = names[0]
         x = ds[f"point_{xd}"].values
@@ -125,20 +96,20 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None):
             for i, xc in enumerate(zero_crossings(ds[f"{xd}_theory"].values, ds["theory_margin"].values)):
                 ax.axvline(xc, color="k", lw=2, label=f"theory boundary: {said}" if i == 0 else None)
         ax.set_yticks(range(len(lnames)), lnames)
-        ax.set_xlabel(axis_words(ds, xd))
+        ax.set_xlabel(axis_label(ds, xd))
         handles = ax.get_legend_handles_labels()[0]
     from .maps import legend_below, save
 
     if handles:
         legend_below(ax, handles, ncol=3 if len(names) == 2 else 2, width=60)
-    ax.set_title(title(ds), fontsize=9)
+    ax.set_title(refine_title(ds, title), fontsize=9)
 
-    return save(fig, out, own)
+    return save(fig, out, own, metadata=metadata)
 
 
 def _horizon_styles(ds: xr.Dataset):
     """(horizon, colour, legend suffix) per bracketed horizon: grey/black alone, a colour per horizon otherwise."""
-    from .maps import plt
+    import matplotlib.pyplot as plt
 
     hs = np.atleast_1d(ds.attrs.get("horizons", [ds.attrs.get("horizon")]))
     if len(hs) == 1:

@@ -9,10 +9,13 @@ agreement with the theory, and the warnings that change how far the numbers can 
 (unclassified share, solver failures, verdicts that still change with the horizon, a model file
 edited since).
 
-Three kinds of result are understood (:func:`kind`): verdict maps (paper sweeps: every
-trajectory has a verdict, outcomes are the verdicts), basin results (named outcomes from a user
-model, with per-point basin fractions) and refinement results (boundary segments from
-``[refine]``). The same classification is used by :mod:`stabjax.present.view`.
+Every kind of result the kit knows (:func:`stabjax.present.kit.kind`) is understood: verdict maps
+(paper sweeps: every trajectory has a verdict, outcomes are the verdicts), named outcomes from a user
+model (with per-point basin fractions), discovered attractors (with where each lies) and refinement
+results (boundary segments from ``[refine]``); its figures are those of :func:`stabjax.present.show.plot`.
+Warnings are per grid point: a share of unclassified trajectories that is large at a few points is named
+there, not averaged away over the grid. The page carries a stamp naming the result it shows
+(:mod:`stabjax.present.stamps`), so ``stabjax report`` replaces its own page and no other file.
 """
 from __future__ import annotations
 
@@ -20,32 +23,20 @@ import base64
 import html
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
-import xarray as xr
 
-from ..fold import verdict as V
+from .kit import json_attr as _json_attr
+from .kit import kind
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 # a share of undecided/unclassified trajectories above this is called out: the classifier could
 # not decide for that many, so the outcome fractions are lower bounds
 UNCLASSIFIED_WARN = 0.05
-
-
-def kind(ds: xr.Dataset) -> str:
-    """``"refine"`` (boundary segments), ``"basin"`` (named outcomes of a user model) or ``"verdicts"``."""
-    if ds.attrs.get("kind") == "refine" or "segment" in ds.dims:
-        return "refine"
-    if "outcome" in ds and not int(ds.attrs.get("outcomes_from_verdicts", 1)):
-        return "basin"
-    return "verdicts"
-
-
-def _json_attr(ds: xr.Dataset, key: str, default: Any = None) -> Any:
-    try:
-        return json.loads(ds.attrs[key])
-    except (KeyError, ValueError, TypeError):
-        return default
+POINTS_NAMED = 8  # grid points named in one warning (the rest counted)
 
 
 # ---- what the page says -------------------------------------------------------------------------
@@ -84,6 +75,8 @@ def outcome_table(ds: xr.Dataset) -> tuple[list[str], list[list[str]], str]:
     fraction is an estimate of anything: the table counts points per label and says so.
     """
     from ..model.outcomes import basin_stats
+    from .kit import codes as all_codes
+    from .kit import grid_dims, names_colors
 
     k = kind(ds)
     if k == "refine":
@@ -92,18 +85,12 @@ def outcome_table(ds: xr.Dataset) -> tuple[list[str], list[list[str]], str]:
         rows = [[n, f"{int((lab == i).sum()):,}"] for i, n in enumerate(names)]
         return (["label", "points"], rows,
                 "points are chosen by the refinement (near the boundary), not at random: counts, not fractions")
-    if "outcome" in ds:
-        names = str(ds["outcome"].attrs["flag_meanings"]).split()
-        codes = np.asarray(ds["outcome"].values).ravel()
-        what = "outcome"
-    else:
-        names = list(V.NAMES)
-        codes = np.asarray(V.at_t1(ds["verdict"]).values).ravel()
-        what = "verdict at t1"
+    names, codes = names_colors(ds)[0], all_codes(ds)
+    what = "outcome" if "outcome" in ds else "verdict at t1"
     st = basin_stats(codes[None, :], len(names))
     rows = [[n, f"{int(st['count'][0, i]):,}", f"{st['fraction'][0, i]:.4f} ± {st['se'][0, i]:.4f}",
              f"[{st['ci_low'][0, i]:.4f}, {st['ci_high'][0, i]:.4f}]"] for i, n in enumerate(names)]
-    grid = [d for d in ds["verdict" if "verdict" in ds else "outcome"].dims if d not in ("sample", "horizon")]
+    grid = grid_dims(ds)
     note = (f"all {codes.size:,} trajectories pooled" + (f" over the grid ({' x '.join(grid)}); per-point fractions "
                                                          "are in the figures" if grid else ""))
     return [what, "count", "S ± SE", "95% Wilson interval"], rows, note
@@ -149,18 +136,7 @@ def warnings(ds: xr.Dataset) -> list[str]:
             if bad in names and (lab == names.index(bad)).any():
                 out.append(f"{int((lab == names.index(bad)).sum())} refinement points are '{bad}'.")
     else:
-        if "outcome" in ds:
-            names = str(ds["outcome"].attrs["flag_meanings"]).split()
-            codes = np.asarray(ds["outcome"].values).ravel()
-        else:
-            names, codes = list(V.NAMES), np.asarray(V.at_t1(ds["verdict"]).values).ravel()
-        n = max(codes.size, 1)
-        for bad in ("unclassified", "undecided"):
-            if bad in names:
-                share = float((codes == names.index(bad)).sum()) / n
-                if share > UNCLASSIFIED_WARN:
-                    out.append(f"{100 * share:.1f}% of the trajectories are '{bad}' (over {100 * UNCLASSIFIED_WARN:g}%): "
-                               "the other fractions are lower bounds; a longer t1 or other thresholds may decide them.")
+        out += undecided_warnings(ds)
         if "solver_status" in ds:
             st = np.asarray(ds["solver_status"].values).ravel()
             from ..fold.status import ESCAPED as STATUS_ESCAPED
@@ -185,6 +161,61 @@ def warnings(ds: xr.Dataset) -> list[str]:
     return out
 
 
+def undecided_warnings(ds: xr.Dataset) -> list[str]:
+    """The shares of 'unclassified' and 'undecided' trajectories above :data:`UNCLASSIFIED_WARN`, per grid
+    point when the result samples starts at each point (the points named, with their share), else over the
+    whole result (each grid cell is one trajectory: the map shows where they are)."""
+    from .kit import codes as all_codes
+    from .kit import grid_dims, names_colors, outcome_codes
+
+    da = outcome_codes(ds)
+    if da is None:
+        return []
+    names = names_colors(ds)[0]
+    grid = grid_dims(ds)
+    out = []
+    for bad in ("unclassified", "undecided"):
+        if bad not in names:
+            continue
+        code = names.index(bad)
+        if "sample" in da.dims and grid:
+            share = (da == code).mean("sample").transpose(*grid)
+            flat = np.asarray(share.values).ravel()
+            over = np.flatnonzero(flat > UNCLASSIFIED_WARN)
+            if not over.size:
+                continue
+            order = over[np.argsort(-flat[over], kind="stable")]
+            idx = np.unravel_index(order[:POINTS_NAMED], share.shape)
+            points = []
+            for j, p in enumerate(order[:POINTS_NAMED]):
+                where = ", ".join(f"{d} = {float(ds[d].values[i[j]]):.4g}" if d in ds.coords else f"{d} #{i[j]}"
+                                  for d, i in zip(grid, idx))
+                points.append(f"{where} ({100 * flat[p]:.1f}%)")
+            more = f", and {over.size - POINTS_NAMED} more" if over.size > POINTS_NAMED else ""
+            out.append(f"At {over.size:,} of {flat.size:,} grid points more than {100 * UNCLASSIFIED_WARN:g}% of the "
+                       f"trajectories are '{bad}': {'; '.join(points)}{more}. The other fractions there are lower "
+                       "bounds; a longer t1 or other thresholds may decide them.")
+        else:
+            c = all_codes(ds)
+            share = float((c == code).sum()) / max(c.size, 1)
+            if share > UNCLASSIFIED_WARN:
+                out.append(f"{100 * share:.1f}% of the trajectories are '{bad}' (over {100 * UNCLASSIFIED_WARN:g}%): "
+                           "the other fractions are lower bounds; a longer t1 or other thresholds may decide them.")
+    return out
+
+
+def attractor_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]]] | None:
+    """(header, rows) of the attractors a discovery found, with where each lies; None for other results."""
+    from .kit import attractors
+
+    found = attractors(ds)
+    if not found:
+        return None
+    rows = [[a["name"], a["type"].replace("_", " "), f"{a['count']:,}",
+             f"{a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else "-", a["where"] or "-"] for a in found]
+    return ["attractor", "type", "trajectories", "largest Lyapunov exponent", "where (representative)"], rows
+
+
 # ---- figures -------------------------------------------------------------------------------------
 
 
@@ -192,36 +223,27 @@ def figures(ds: xr.Dataset) -> list[tuple[str, bytes]]:
     """(caption, PNG bytes) of the result's figures: the same pictures `stabjax plot` draws."""
     import tempfile
 
-    from .maps import plt
+    import matplotlib.pyplot as plt
 
+    from .show import plot
+
+    captions = {"refine": "Evaluated points coloured by label, bracketed boundary and the theorem's boundary.",
+                "basin": "Outcomes and basin stability S with 95% Wilson intervals.",
+                "discovery": "Discovered attractors (named with where they lie) and basin stability S with 95% "
+                             "Wilson intervals.",
+                "verdicts": "Verdicts at t1 with the theory's boundary (the map of `stabjax plot`)."}
     out = []
     k = kind(ds)
     with tempfile.TemporaryDirectory() as tmp:
-        if k == "refine":
-            from .refinement import plot_refine
-
-            p = Path(tmp) / "map.png"
-            plot_refine(ds, p)
-            out.append(("Evaluated points coloured by label, bracketed boundary and the theorem's boundary.",
-                        p.read_bytes()))
-        elif k == "basin":
+        p = Path(tmp) / "figure.png"
+        plot(ds, p)
+        out.append((captions.get(k, "The result (the figure of `stabjax plot`)."), p.read_bytes()))
+        if k == "verdicts" and "basin_fraction" in ds:
             from .basins import plot_basin
 
-            p = Path(tmp) / "basin.png"
-            plot_basin(ds, p)
-            out.append(("Outcomes and basin stability S with 95% Wilson intervals.", p.read_bytes()))
-        else:
-            from .maps import plot_sweep
-
-            p = Path(tmp) / "map.png"
-            plot_sweep(ds, p)
-            out.append(("Verdicts at t1 with the theory's boundary (the map of `stabjax plot`).", p.read_bytes()))
-            if "basin_fraction" in ds:
-                from .basins import plot_basin
-
-                q = Path(tmp) / "basin.png"
-                plot_basin(ds, q)
-                out.append(("Basin stability S per outcome with 95% Wilson intervals.", q.read_bytes()))
+            q = Path(tmp) / "basin.png"
+            plot_basin(ds, q)
+            out.append(("Basin stability S per outcome with 95% Wilson intervals.", q.read_bytes()))
     plt.close("all")
     return out
 
@@ -252,12 +274,17 @@ def _table(header: list[str] | None, rows: list[list[str]], numeric: bool = True
 
 
 def render(ds: xr.Dataset, source: str = "") -> str:
-    """The HTML page of ``ds`` (``source``: the file it was read from, shown in the heading)."""
+    """The HTML page of ``ds`` (``source``: the file it was read from, shown in the heading and stamped in the
+    page's head, :mod:`stabjax.present.stamps`)."""
+    from .kit import kind_of
+    from .labels import heading
+    from .stamps import html_meta
+
     e = html.escape
-    title = f"{ds.attrs.get('system', '')}: {ds.attrs.get('sweep_name', '') or 'result'}"
-    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8><title>{e(title)} - stabjax report</title>"
-             f"<style>{_CSS}</style></head><body>",
-             f"<h1>{e(title)}</h1><p class=muted>{e(kind(ds))} result"
+    title = heading(ds)
+    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8>{html_meta(ds, source or None)}"
+             f"<title>{e(title)} - stabjax report</title><style>{_CSS}</style></head><body>",
+             f"<h1>{e(title)}</h1><p class=muted>{e(kind_of(ds).words)} ({e(kind(ds))} result)"
              + (f" read from <code>{e(source)}</code>" if source else "") + "; page written by <code>stabjax report</code>"
              "</p>"]
     parts.append("<h2>What was run</h2>" + _table(None, [list(r) for r in provenance_rows(ds)], numeric=False))
@@ -281,6 +308,12 @@ def render(ds: xr.Dataset, source: str = "") -> str:
         from .refinement import format_summary
 
         parts.append(f"<pre>{e(format_summary(ds))}</pre>")
+    att = attractor_section(ds)
+    if att is not None:
+        parts.append("<h2>Attractors found</h2>" + _table(att[0], att[1], numeric=False)
+                     + "<p class=muted>where: the state at t1 of the trajectory nearest the group's median features "
+                       "(a fixed point), or the range of each observable over the late window (an attractor that "
+                       "moves).</p>")
     th = theory_section(ds)
     parts.append("<h2>Theory agreement</h2>")
     if th is None:
@@ -296,21 +329,24 @@ def render(ds: xr.Dataset, source: str = "") -> str:
     parts.append("<h2>Warnings</h2>")
     ws = warnings(ds)
     parts.append("".join(f"<div class=warn>{e(w)}</div>" for w in ws) if ws else
-                 "<div class=ok>None: no unclassified excess, no solver failures, verdicts stable at the last "
-                 "horizon.</div>")
+                 "<div class=ok>None: no unclassified excess at any grid point, no solver failures, verdicts stable "
+                 "at the last horizon.</div>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
 
 def write_report(ds: xr.Dataset, out: str | Path, source: str = "") -> Path:
-    """Write the page atomically (a half-written page is never left behind)."""
+    """Write the page atomically (a half-written page is never left behind), sealed with its digest
+    (:func:`stabjax.present.stamps.seal`: edited later, it is no longer a page of ours to replace)."""
     import os
+
+    from .stamps import seal
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
-        tmp.write_text(render(ds, source), encoding="utf-8")
+        tmp.write_text(seal(render(ds, source)), encoding="utf-8")
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -101,9 +101,13 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
 _TH_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))))
 
 
-def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None):
-    """The figure of a shock result (see the module docstring); written to ``out`` if given. Returns the figure."""
-    from .maps import legend_below, plt
+def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None,
+               metadata: dict | None = None):
+    """The figure of a shock result (see the module docstring); written to ``out`` if given, with ``metadata`` (the
+    stamp naming the result it shows, :mod:`stabjax.present.stamps`). Returns the figure."""
+    import matplotlib.pyplot as plt
+
+    from .maps import legend_below, save
 
     plane = ds.sizes.get("component", 0) == 2 and "direction_scale" in ds
     fig, axs = plt.subplots(1, 2 if plane else 1, figsize=(12.5 if plane else 6.8, 5.4), constrained_layout=True,
@@ -125,10 +129,7 @@ def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset 
 
     fig.suptitle(textwrap.fill(title or f"Minimal fatal shock: {ds.attrs.get('system', '')} "
                                         f"({ds.attrs.get('sweep_name', '')})", 80), fontsize=10)
-    if out is not None:
-        fig.savefig(out, dpi=100)
-        plt.close(fig)
-    return fig
+    return save(fig, out, dpi=100, metadata=metadata)
 
 
 def _unit(ds):
@@ -177,7 +178,7 @@ def _single(ax, ds):
 
 
 def _curve(ax, ds, dim):
-    from .maps import axis_label
+    from .labels import axis_label
 
     x = ds[dim].values
     hi, lo = ds["shock_norm"].values, ds["shock_norm_lo"].values
@@ -195,7 +196,7 @@ def _curve(ax, ds, dim):
 
 
 def _map(fig, ax, ds, dims):
-    from .maps import axis_label
+    from .labels import axis_label
 
     v = ds["shock_norm"].transpose(dims[1], dims[0]).values
     m = ax.pcolormesh(ds[dims[0]].values, ds[dims[1]].values, v, shading="nearest", cmap="viridis")
@@ -284,7 +285,7 @@ def report_parts(ds: xr.Dataset) -> list[tuple[str, str]]:
     import html
     import io
 
-    from .maps import plt
+    import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
     fig = plot_shock(ds)

@@ -138,7 +138,8 @@ def alpha_horizons(out_dir: Path, quick: bool = False) -> list[Path]:
     axs[0].set_title(r"verdicts at t1 = " f"{ds.horizon.values[-1]:.0e}" r" ($\sigma$ = 4/3, $\mu$ = 3/2; "
                      r"Theorem 1 needs $\alpha$ > 2/3)" "\ndashed: edge of the converged region at each horizon T",
                      fontsize=9)
-    from ..present.maps import axis_label, legend_below, verdict_cmap, cell_edges
+    from ..present.labels import axis_label
+    from ..present.maps import cell_edges, legend_below, verdict_cmap
 
     legend_below(axs[0], axs[0].get_legend_handles_labels()[0], ncol=2, fontsize=7.5)
 

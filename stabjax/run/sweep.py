@@ -425,7 +425,9 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
 
 
 def open_result(path: str | Path) -> xr.Dataset:
-    """A result file (netCDF) read into memory; a missing file is a ValidationError naming it."""
+    """A result file (netCDF) read into memory; a missing file is a ValidationError naming it. The public
+    :func:`stabjax.open_result` (:func:`stabjax.present.kit.open_result`) also opens a sweep's chunk store,
+    running or finished, and refuses a file that is no stabjax result by name."""
     path = Path(path)
     if not path.exists():
         raise ValidationError("file", f"not found: {path}")

@@ -30,16 +30,17 @@ def test_each_layout_draws(layout, grid, sample, tmp_path):
     layout draws nothing of an outcome, or the table's numbers are not those of the outcome codes."""
     from scipy.stats import binomtest
 
-    from stabjax.present.basins import outcome_colors, outcome_names
+    from stabjax.present.kit import names_colors
 
     spec = {"system": f"{MODEL}:Oscillator", "grid": grid, "integrate": {"t1": 40.0, "n_checkpoints": 64}}
     if sample:
         spec["sample"] = sample
     ds = run_plan(make_plan(spec))
-    png = plot_basin(ds, tmp_path / "p.png")
+    png = tmp_path / "p.png"
+    plot_basin(ds, png)
     img = mpimg.imread(png)
     assert img.shape[0] > 200 and img.shape[1] > 300
-    names, colors = outcome_names(ds), outcome_colors(ds)
+    names, colors = names_colors(ds)
     code = np.asarray(ds["outcome"].values).ravel()
     pixels = img[..., :3].reshape(-1, 3)
     # the dominant-outcome map shows each cell's most frequent outcome only; the other layouts every outcome

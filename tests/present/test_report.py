@@ -10,15 +10,8 @@ import pytest
 
 from clirun import status  # noqa: E402
 from stabjax.model.outcomes import basin_stats
-from stabjax.present.report import kind, warnings
-from stabjax.run.sweep import open_result
-
-from see_results import build
-
-
-@pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    return build(tmp_path_factory.mktemp("report"))
+from stabjax.present.kit import kind, open_result
+from stabjax.present.report import warnings
 
 
 def run_cli(*args):
@@ -85,17 +78,28 @@ def test_report_outcome_table_has_s_se_and_wilson_of_the_result(results, tmp_pat
 
 
 def test_report_theory_agreement_counts_match_the_map(results, tmp_path):
-    from stabjax.present.maps import confusion
-
+    """The page's theory x simulation table, red flags and conservative count are those of the result's own
+    variables, counted here with plain numpy: the verdict at t1 (the last horizon) against the main
+    predicate's flag (theory_guaranteed), over every grid cell."""
     out = tmp_path / "v.html"
     assert run_cli("report", str(results["verdicts"]), "--out", str(out)) == 0
-    c = confusion(open_result(results["verdicts"]))
+    ds = open_result(results["verdicts"])
+    assert ds.attrs["theory_main"] == "guaranteed"
+    v = np.asarray(ds["verdict"].values)[..., -1].ravel()  # verdict at t1
+    ok = np.asarray(ds["theory_guaranteed"].values).ravel().astype(bool)
+    names = ["converged", "flipped", "diverged", "undecided", "failed"]
+    rows = {"theory: guaranteed": [int(((v == i) & ok).sum()) for i in range(5)],
+            "theory: silent": [int(((v == i) & ~ok).sum()) for i in range(5)]}
+    red = int((ok & ((v == names.index("flipped")) | (v == names.index("diverged")))).sum())
+    conservative = int((~ok & (v == names.index("converged"))).sum())
+    assert sum(map(sum, rows.values())) == v.size == 20
     _, text = _page(out)
     text = re.sub(r"\s+", " ", text)
-    for row, vals in c["rows"].items():
-        assert f"{row} " + " ".join(str(v) for v in vals) in text, row
-    assert f"Red flags (theory guarantees stability, simulation flipped or diverged): {c['red_flags']}" in text
-    assert f"Theory conservative (silent, simulation converged): {c['conservative']}" in text
+    assert "theory \\ simulation " + " ".join(names) in text
+    for row, vals in rows.items():
+        assert f"{row} " + " ".join(str(x) for x in vals) in text, row
+    assert f"Red flags (theory guarantees stability, simulation flipped or diverged): {red}" in text
+    assert f"Theory conservative (silent, simulation converged): {conservative}" in text
 
 
 def test_report_warnings_name_unclassified_failures_and_horizon_changes(results):
@@ -135,3 +139,73 @@ def test_report_refuses_what_it_must_not_overwrite(results, tmp_path, capsys):
     capsys.readouterr()
     assert run_cli("report", str(foreign)) == 2
     assert capsys.readouterr().err.startswith("error: file:")
+
+
+def _with_unclassified(ds, per_point: dict[float, int]):
+    """The along-T basin result with every start 'fixed_point' except ``per_point[T]`` 'unclassified' ones."""
+    names = str(ds["outcome"].attrs["flag_meanings"]).split()
+    bad = ds.copy(deep=True)
+    code = np.full(bad["outcome"].shape, names.index("fixed_point"), bad["outcome"].dtype)
+    for T, n in per_point.items():
+        code[list(np.isclose(bad["T"].values, T)).index(True), :n] = names.index("unclassified")
+    bad["outcome"].values[...] = code
+    return bad
+
+
+def test_report_warns_per_grid_point_and_names_the_points(results):
+    """Issue 29: 12 % unclassified at one grid point printed "Warnings: None" because the share pooled over the
+    grid was small. Here 2 of 16 starts at T = 0.3 (12.5 %) and none elsewhere pool to 2 / 48 = 4.2 %, below
+    the 5 % threshold: the warning names T = 0.3 with its share; with 1 of 16 more at T = 0.7 (6.2 %) both
+    points are named, the larger share first; with 0 of 16 anywhere there is no warning."""
+    ds = open_result(results["along"])
+    assert ds.sizes["sample"] == 16 and list(ds["T"].values) == [0.3, 0.5, 0.7]
+    ws = [w for w in warnings(_with_unclassified(ds, {0.3: 2})) if "unclassified" in w]
+    assert len(ws) == 1 and "At 1 of 3 grid points more than 5% of the trajectories are 'unclassified': " \
+                            "T = 0.3 (12.5%)." in ws[0]
+    ws = [w for w in warnings(_with_unclassified(ds, {0.3: 2, 0.7: 1})) if "unclassified" in w]
+    assert len(ws) == 1 and "At 2 of 3 grid points" in ws[0] and "T = 0.3 (12.5%); T = 0.7 (6.2%)." in ws[0]
+    assert not [w for w in warnings(_with_unclassified(ds, {})) if "unclassified" in w]
+
+
+def test_report_of_a_discovery_says_where_each_attractor_lies(discovery, tmp_path):
+    """Two fixed points that only their location tells apart (the pendulum's rest point in two wells of the
+    cylinder, theta* = asin(T/K) and theta* + 2 pi): the page's table names each with its representative's state."""
+    from stabjax.present.report import write_report
+
+    out = write_report(discovery, tmp_path / "d.html", source="d.nc")
+    _, text = _page(out)
+    text = re.sub(r"\s+", " ", text)
+    n1, n2 = (int(c) for c in discovery["attractor_count"].values)
+    assert "Attractors found" in text
+    assert f"fixed_point_1 fixed point {n1} - at theta = 0.5236, omega = 0" in text  # pi/6
+    assert f"fixed_point_2 fixed point {n2} - at theta = 6.807, omega = 0" in text  # pi/6 + 2 pi
+
+
+def test_report_replaces_its_own_page_and_no_other_file(results, tmp_path, capsys):
+    """Issue 29: `stabjax report R.nc` replaced any R.html (a user's notes among them) because "its own
+    previous page" was decided from the file name. Now from the page's stamp: a user's R.html is refused
+    (exit 2, unchanged), replaced with --force; a page the report wrote of this result is replaced, but not
+    once notes were added to it (the stamp's digest of the page no longer matches); a page it wrote of
+    another result is not replaced."""
+    import shutil
+
+    res = tmp_path / "R.nc"
+    shutil.copy(results["verdicts"], res)
+    notes = res.with_suffix(".html")
+    notes.write_text("<html>my notes</html>")
+    assert run_cli("report", str(res)) == 2
+    assert "error: --out:" in capsys.readouterr().err and notes.read_text() == "<html>my notes</html>"
+    assert run_cli("report", str(res), "--force") == 0
+    assert "my notes" not in notes.read_text()
+    capsys.readouterr()
+    assert run_cli("report", str(res)) == 0  # its own page, stamped: replaced without --force
+    assert "replaced the previous file" in capsys.readouterr().out
+    notes.write_text(notes.read_text().replace("</body>", "<p>my notes on this run</p></body>"))
+    assert run_cli("report", str(res)) == 2  # edited since: the user's page now
+    assert "my notes on this run" in notes.read_text()
+    assert run_cli("report", str(res), "--force") == 0
+    other = tmp_path / "other.html"
+    assert run_cli("report", str(results["basin"]), "--out", str(other)) == 0
+    page = other.read_text()
+    assert run_cli("report", str(res), "--out", str(other)) == 2  # a page of another result
+    assert other.read_text() == page
