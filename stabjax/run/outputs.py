@@ -7,7 +7,12 @@
 * :func:`write_image` / :func:`write_reason`: maps are written to a temporary file and renamed, and a
   failed write (a full disk) is one line naming the file (:class:`stabjax.errors.OutputError`, exit 1);
 * :func:`reproduce_into`: ``stabjax reproduce`` computes in a staging folder and replaces only the
-  files it wrote there before, unchanged since (``.stabjax-reproduce.json``), unless ``--force``.
+  files it wrote there before, unchanged since (``.stabjax-reproduce.json``), unless ``--force``;
+* :func:`stamp_output` / :func:`output_stamp` / :func:`is_own_output`: an HTML page, PNG, SVG or PDF
+  drawn from a result carries a stamp naming that result and the digest of the rest of its bytes, so
+  that "this file is our own previous output of that result, unchanged since" is decided from the
+  file's content, never from its name (issue 29: ``stabjax report R.nc`` must not replace a user's
+  ``R.html``).
 
 The checks that compare an output with a previous result of the same command stay with the commands
 (:func:`stabjax.app.common.check_output`). Nothing heavy is imported at module level.
@@ -19,7 +24,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Optional
 
 from ..errors import OutputError, ValidationError
 
@@ -102,13 +107,17 @@ def write_reason(exc: BaseException, out: Path) -> str:
 
 
 def write_image(path: Path, draw, result: Optional[Path] = None) -> None:
-    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic)."""
+    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic).
+    ``result``: the result the image is drawn from; the image is then stamped with it
+    (:func:`stamp_output`), so that drawing it again may replace it and nothing else."""
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         draw(tmp)
+        if result is not None:
+            stamp_output(tmp, result)
         os.replace(tmp, path)
     except (OSError, RuntimeError) as exc:
         tmp.unlink(missing_ok=True)
@@ -200,3 +209,124 @@ def refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Path |
         kept = f"; the new files are kept in {staging}" if staging is not None else ""
         raise ValidationError("--out-dir", f"{dest} exists and was not written by this command (or was changed "
                                            f"since); pass --force to replace it, or choose another --out-dir{kept}")
+
+
+# ---- stamps: "our own previous output of this result, unchanged since", from the file's content -------------
+
+STAMP = "stabjax-output"  # the stamp's keyword: a PNG text chunk's key, the word opening an HTML/SVG/PDF comment
+STAMPED = {".png": "png", ".svg": "xml", ".html": "xml", ".htm": "xml", ".pdf": "pdf"}
+
+
+def stamp_output(path: str | Path, source: str | Path) -> None:
+    """Stamp the file at ``path``, just written by stabjax (before it is renamed into place), as drawn from
+    the result ``source``: the stamp names ``source`` (its resolved path) and holds the sha256 of the file's
+    other bytes, so a later edit (a user's notes added to a report) makes it a foreign file again.
+
+    Where the stamp goes, leaving the file valid for every reader: a PNG ``tEXt`` chunk right after
+    ``IHDR``; an HTML or SVG comment right after the ``<?xml ...?>`` or ``<!DOCTYPE ...>`` that opens it; a PDF comment
+    line after ``%%EOF``. Other extensions are left unstamped (:func:`is_own_output` is then False).
+
+    Use, for a command writing ``out`` from ``result`` (``write_image`` does the stamping itself when given
+    ``result``)::
+
+        check_output(out, "--out", (".html",), inputs=(result,), force=force,
+                     same=lambda p: is_own_output(p, result), what=f"the report of {result}")
+        write(tmp); stamp_output(tmp, result); os.replace(tmp, out)
+    """
+    path = Path(path)
+    kind = STAMPED.get(path.suffix.lower())
+    if kind is None:
+        return
+    data = path.read_bytes()
+    found = _find_stamp(kind, data)
+    if found is not None:  # stamped before (a file drawn by a stamping helper): one stamp, the new one
+        data = data[:found[0]] + data[found[1]:]
+    payload = json.dumps({"source": str(Path(source).resolve()), "sha256": hashlib.sha256(data).hexdigest()},
+                         ensure_ascii=True, sort_keys=True).replace("-", "\\u002d")  # "--" ends an XML comment
+    at = _stamp_offset(kind, data)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.stamp")
+    try:
+        tmp.write_bytes(data[:at] + _stamp_bytes(kind, payload.encode("ascii")) + data[at:])
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def output_stamp(path: str | Path) -> dict | None:
+    """The stamp of a file written by :func:`stamp_output` -- ``{"source": resolved path of the result it
+    was drawn from, "sha256": ...}`` -- or None: no stamp, not a file, unreadable, or changed since it was
+    stamped (the digest of its other bytes differs)."""
+    path = Path(path)
+    kind = STAMPED.get(path.suffix.lower())
+    if kind is None or not path.is_file():
+        return None
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    found = _find_stamp(kind, data)
+    if found is None:
+        return None
+    start, end, payload = found
+    try:
+        stamp = json.loads(payload)
+    except ValueError:
+        return None
+    if not isinstance(stamp, dict) or stamp.get("sha256") != hashlib.sha256(data[:start] + data[end:]).hexdigest():
+        return None
+    return stamp
+
+
+def is_own_output(path: str | Path, source: str | Path) -> bool:
+    """Whether ``path`` is an output stabjax drew from the result ``source`` (the same file, by resolved
+    path), unchanged since: the test a report or a plot passes to
+    :func:`stabjax.app.common.check_output` as ``same`` before replacing ``path`` without ``--force``."""
+    stamp = output_stamp(path)
+    return stamp is not None and stamp.get("source") == str(Path(source).resolve())
+
+
+def _stamp_bytes(kind: str, payload: bytes) -> bytes:
+    if kind == "png":
+        import zlib
+
+        body = b"tEXt" + STAMP.encode() + b"\0" + payload
+        return len(body[4:]).to_bytes(4, "big") + body + zlib.crc32(body).to_bytes(4, "big")
+    if kind == "xml":
+        return b"<!-- " + STAMP.encode() + b" " + payload + b" -->"
+    return b"\n%" + STAMP.encode() + b" " + payload + b"\n"  # pdf: a comment line
+
+
+def _stamp_offset(kind: str, data: bytes) -> int:
+    if kind == "png":  # after the signature (8) and IHDR (4 + 4 + 13 + 4): a text chunk may come anywhere before IEND
+        return 33 if data[12:16] == b"IHDR" else len(data)
+    if kind == "xml":  # after the declaration or the doctype that must open the document, else first
+        lead = len(data) - len(data.lstrip())
+        head = data[lead:lead + 9].lower()
+        close = b"?>" if head.startswith(b"<?xml") else b">" if head.startswith(b"<!doctype") else None
+        at = data.find(close, lead) if close else -1
+        return at + len(close) if at >= 0 else 0
+    return len(data)  # pdf: after %%EOF (readers look for it within the last 1024 bytes)
+
+
+def _find_stamp(kind: str, data: bytes) -> tuple[int, int, bytes] | None:
+    """(start, end, payload) of the stamp in ``data``, or None."""
+    if kind == "png":
+        at = data.find(b"tEXt" + STAMP.encode() + b"\0")
+        if at < 4:
+            return None
+        n = int.from_bytes(data[at - 4:at], "big")
+        return at - 4, at + 4 + n + 4, data[at + 4 + len(STAMP) + 1:at + 4 + n]
+    if kind == "xml":
+        opening = b"<!-- " + STAMP.encode() + b" "
+        at = data.find(opening)
+        end = data.find(b" -->", at)
+        if at < 0 or end < 0:
+            return None
+        return at, end + 4, data[at + len(opening):end]
+    opening = b"\n%" + STAMP.encode() + b" "
+    at = data.rfind(opening)
+    end = data.find(b"\n", at + len(opening))
+    if at < 0 or end < 0:
+        return None
+    return at, end + 1, data[at + len(opening):end]
