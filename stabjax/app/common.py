@@ -14,7 +14,9 @@ from rich.console import Console
 
 from ..run.outputs import same_file_as_any
 
-console = Console()
+# soft wrap: a line is never cut at the console's width, which rich takes as 80 columns where the output is not
+# a terminal (a pipe, a file, a CI log): "engine native" and a table's rows stay whole there
+console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
 
 

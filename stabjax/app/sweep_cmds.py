@@ -2,6 +2,7 @@
 status it deserves; write the netCDF file of a finished chunk store."""
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Optional
@@ -71,6 +72,7 @@ def sweep(
     if note:
         err_console.print(f"note: {note}", markup=False)
     executor = None
+    stack = contextlib.ExitStack()
     if scheduler is not None or workers is not None:
         import os
 
@@ -83,6 +85,7 @@ def sweep(
     try:
         if executor is not None:
             _start_executor(executor, scheduler, connect_timeout)
+        stack.enter_context(_warnings_in_one_line())
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.explore.refine)
             raise typer.Exit(_refine(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
                                      store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
@@ -95,6 +98,7 @@ def sweep(
                           style="yellow", markup=False)
         raise typer.Exit(status)
     finally:
+        stack.close()
         if executor is not None:
             executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
@@ -106,6 +110,32 @@ def sweep(
     status = run_status(ds, out)  # the last line: how many failed, when any did
     if status:
         raise typer.Exit(status)
+
+
+@contextlib.contextmanager
+def _warnings_in_one_line():
+    """A warning of stabjax's while a sweep runs (a store repaired on resume:
+    :class:`stabjax.run.store.StoreWarning`) is one line of stderr, ``warning: ...``, not Python's
+    ``FILE:LINE: Category: ...`` followed by a line of our source code. Other libraries' warnings are
+    shown as Python shows them."""
+    import warnings
+
+    import stabjax
+
+    ours = str(Path(stabjax.__file__).resolve().parent)
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if str(Path(filename).resolve()).startswith(ours):
+            err_console.print(f"warning: {message}", style="yellow", markup=False, highlight=False)
+        else:
+            previous(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous
 
 
 def _refine(plan, out: Path, plot: bool, **run) -> int:
