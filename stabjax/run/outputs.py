@@ -19,6 +19,7 @@ The checks that compare an output with a previous result of the same command sta
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import os
@@ -89,6 +90,42 @@ def check_store_path(store: Path, inputs, outputs=()) -> None:
             if inside and Path(f).exists():
                 raise ValidationError("--store", f"{store} holds {f}, an input of this command; a store directory "
                                                  "holds only what the sweep writes: choose another --store")
+
+
+def temp_beside(out: Path) -> Path:
+    """The temporary file a result is written to before it is renamed over ``out``:
+    ``.NAME.HOST-PID.tmp`` beside it, naming the process that writes it (:func:`clean_stale_temps`)."""
+    import socket
+
+    return out.with_name(f".{out.name}.{socket.gethostname()}-{os.getpid()}.tmp")
+
+
+def clean_stale_temps(out: Path) -> list[Path]:
+    """Remove the temporary files of ``out`` (:func:`temp_beside`) left by processes of this host that
+    are dead (a kill -9 while the file was written); the files removed. Any other file -- one of a live
+    process, of another host, or not of that exact form -- is left alone."""
+    import socket
+
+    from .lock import _pid_alive
+
+    host, gone = socket.gethostname(), []
+    prefix = f".{out.name}."
+    try:
+        found = list(out.parent.glob(f".{glob.escape(out.name)}.*.tmp"))
+    except OSError:
+        return gone
+    for f in found:
+        who = f.name[len(prefix):-len(".tmp")]
+        h, _, pid = who.rpartition("-")
+        if h != host or not pid.isdigit() or not pid.isascii() or int(pid) == os.getpid() or _pid_alive(int(pid)):
+            continue
+        if f.is_file() and not f.is_symlink():
+            try:
+                f.unlink()
+                gone.append(f)
+            except OSError:
+                pass
+    return gone
 
 
 def write_reason(exc: BaseException, out: Path) -> str:

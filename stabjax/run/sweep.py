@@ -36,7 +36,7 @@ from ..fold import verdict as V
 from ..config import setup_jax
 from ..engines.base import N_SUMMARY_FIELDS
 from ..errors import OutputError, ValidationError
-from .outputs import write_reason
+from .outputs import clean_stale_temps, temp_beside, write_reason
 from .progress import progress_bar
 from ..plan.spec import Plan, check_plan, load_spec, make_plan, static_params
 from .store import Chunking
@@ -406,7 +406,8 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    clean_stale_temps(out)  # a run killed while it wrote this file left its temporary file behind
+    tmp = temp_beside(out)
     try:
         with dask.config.set(scheduler="synchronous"):
             ds.to_netcdf(tmp, engine="netcdf4")

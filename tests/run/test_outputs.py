@@ -125,3 +125,42 @@ def test_write_image_stamps_the_map_with_its_result(tmp_path, result):
     write_image(out, draw, result)
     assert is_own_output(out, result)
     assert not list(tmp_path.glob(".*tmp*")) and not list(tmp_path.glob(".*stamp"))
+
+
+def test_the_next_write_removes_temporary_files_of_dead_writers_only(tmp_path):
+    """A kill -9 while the netCDF file is written leaves ``.NAME.HOST-PID.tmp``; the next write of that file
+    removes it when PID is dead on this host, and leaves every other file alone."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    import numpy as np
+    import xarray as xr
+
+    from stabjax.run.outputs import temp_beside
+    from stabjax.run.sweep import write
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        host = socket.gethostname()
+        out = tmp_path / "r.nc"
+        stale = tmp_path / f".r.nc.{host}-{dead.pid}.tmp"
+        kept = [tmp_path / f".r.nc.{host}-{live.pid}.tmp",   # a writer still running
+                tmp_path / f".r.nc.elsewhere-{dead.pid}.tmp",  # another host's: its pids are not ours to judge
+                tmp_path / f".r.nc.{dead.pid}.tmp",            # not of that form
+                tmp_path / ".r.nc.notes.tmp",
+                tmp_path / f".other.nc.{host}-{dead.pid}.tmp"]  # another output's
+        for f in [stale, *kept]:
+            f.write_bytes(b"partial")
+        assert temp_beside(out).name == f".r.nc.{host}-{os.getpid()}.tmp"
+        write(xr.Dataset({"x": ("i", np.arange(3.0))}), out)
+        assert not stale.exists()
+        assert all(f.read_bytes() == b"partial" for f in kept)
+        assert xr.load_dataset(out)["x"].values.tolist() == [0.0, 1.0, 2.0]
+        assert not temp_beside(out).exists()
+    finally:
+        live.kill()
+        live.wait()
