@@ -88,6 +88,7 @@ class Plan:
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.plan.starts), or None
+    starts_file: Path | None = None  # that FILE: an input of the sweep, never one of its outputs
     # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
     # the axes' cartesian product (a refinement round: an explorer's points through the sweep's runner)
     points: np.ndarray | None = None
@@ -438,6 +439,11 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
 
         from_file = ST.load(sample_spec, system, base_dir,
                             {re.sub(r"\[.*", "", k) for k in grid_spec})
+        for pname in given:  # as with [sample] NAME: the file's column would win, the fixed value be recorded
+            if pname in from_file[0]:
+                raise ValidationError(f"params.{pname}", f"is also a column of the starts file {from_file[2].name} "
+                                                         "(sample.from); a parameter is either fixed or read from the "
+                                                         "file: remove one of them")
         sample_spec = {"n": len(next(iter(from_file[0].values())))}
         # the file's content is part of what runs: a changed file is a different sweep (fingerprint)
         spec["sample"] = {**dict(spec["sample"]), "__sha256__": ST.sha256(from_file[2])}
@@ -551,7 +557,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         _check_attractor_stop(integrated, decl, grid, sample)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
-                start_labels=None if from_file is None else from_file[1])
+                start_labels=None if from_file is None else from_file[1],
+                starts_file=None if from_file is None else from_file[2])
     return plan
 
 
