@@ -53,7 +53,7 @@ def sweep(
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
-    inputs = input_files(spec, system=plan.system)
+    inputs = input_files(spec, plan.starts_file, system=plan.system)  # never written over, even with --force
     this_spec = json.loads(spec_json(plan.spec))
     replacing = check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
                               same=lambda p: result_spec(p) == this_spec,
