@@ -158,6 +158,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
     delay = os.environ.get("_STABJAX_TEST_CHUNK_SLEEP")  # tests only: widen the window for kill -9
     if delay:
         time.sleep(float(delay))
+    signals.wait_in_chunk(i)  # tests only: a signal sent while chunk i is in flight
     lo, hi = Chunking(plan.shape, batch).bounds(i)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
     res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
