@@ -14,10 +14,29 @@ from rich.console import Console
 
 from ..run.outputs import same_file_as_any
 
-# soft wrap: a line is never cut at the console's width, which rich takes as 80 columns where the output is not
-# a terminal (a pipe, a file, a CI log): "engine native" and a table's rows stay whole there
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
+class _Console(Console):
+    """Rich's console without its 80 columns where the output is not a terminal (a pipe, a file, a CI log):
+    there a line is never cut (soft wrap: "engine native" stays on the line of "wrote ...") and a table takes
+    the width its rows need, up to ``WIDE`` columns; on a terminal (or with ``$COLUMNS``) its width."""
+
+    WIDE = 240
+
+    @property
+    def size(self):
+        size = Console.size.fget(self)
+        if self._width is None and not self.is_terminal and not self._environ.get("COLUMNS"):
+            from rich.console import ConsoleDimensions
+
+            return ConsoleDimensions(max(size.width, self.WIDE), size.height)
+        return size
+
+    @size.setter
+    def size(self, new_size):
+        Console.size.fset(self, new_size)
+
+
+console = _Console(soft_wrap=True)
+err_console = _Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
 
 
 SetOpt = typer.Option(None, "--set", "-s", help="parameter override NAME=VALUE (vectors as comma lists); repeatable")
