@@ -70,6 +70,7 @@ OLD_FORMATS = {"stabjax-store/1": ["data"], "stabjax-store/2": None}
 MANIFEST = "manifest.json"
 LOCK = ".lock"
 ROOT = "zarr.json"
+PLACEHOLDER_BYTES = 64 << 20  # per-trajectory arrays up to this size are laid out without Dask (ChunkStore._layout)
 
 
 # ---- identity: stabjax.plan.identity (the one place a run's identity is computed) --------------------
@@ -500,15 +501,29 @@ class ChunkStore:
 
     def _layout(self, records: Mapping[str, tuple[np.dtype, tuple[int, ...]]]):
         """The store's dataset before any chunk: the per-trajectory records (name -> dtype, trailing
-        shape) as lazy placeholders, the basin statistics too; the coordinates and the variables of the
-        parameters alone (the "static" arrays) with their values."""
-        import dask.array as da
+        shape) as placeholders, the basin statistics too; the coordinates and the variables of the
+        parameters alone (the "static" arrays) with their values.
 
+        The placeholders are numpy arrays of zarr's fill value (NaN, 0) when they fit in
+        ``PLACEHOLDER_BYTES``: zarr writes no chunk equal to its fill value, so nothing of them reaches
+        the disk, and nothing needs Dask (whose array module takes ~0.7 s of CPU to import). Above, they
+        are lazy Dask arrays, never computed (no memory). The arrays' metadata is the same either way."""
         from . import dataset as D
 
         shape, block = self.chunking.shape, self.chunking.block
-        holders = {k: da.empty(shape + tuple(t), chunks=block + tuple(t), dtype=dt) for k, (dt, t) in records.items()}
-        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan), whole=False)
+        n = int(np.prod(shape)) if shape else 1
+        size = sum(n * int(np.prod(t)) * np.dtype(dt).itemsize for dt, t in records.values())
+        if size <= PLACEHOLDER_BYTES:
+            def empty(full, dtype, chunks=None):
+                return np.full(full, np.nan if np.dtype(dtype).kind in "fc" else 0, dtype=dtype)
+        else:
+            import dask.array as da
+
+            def empty(full, dtype, chunks=None):
+                return da.empty(full, chunks=chunks or full, dtype=dtype)
+        holders = {k: empty(shape + tuple(t), np.dtype(dt), block + tuple(t)) for k, (dt, t) in records.items()}
+        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan, empty=empty),
+                     whole=False)
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
         for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
             ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
@@ -516,20 +531,19 @@ class ChunkStore:
 
     def _static_names(self, ds) -> list[str]:
         """The variables of the layout written with their values when the store is created."""
+        lazy = set(self.manifest.get("arrays") or {}) | self._basin_names()
+        return sorted(str(k) for k in ds.variables if k not in lazy)
+
+    def _basin_names(self) -> set[str]:
         from . import dataset as D
 
-        lazy = set(self.manifest.get("arrays") or {}) | set(D.basin_placeholders(self.plan))
-        return sorted(str(k) for k in ds.variables if k not in lazy)
+        return set(D.basin_placeholders(self.plan, empty=lambda shape, dtype: None))
 
     def _create(self, rec: Mapping[str, np.ndarray]):
         """Create the dataset's arrays (from the first chunk's keys, dtypes and trailing shapes): the
         coordinates and the variables that depend on the parameters only are written now (and their
         checksums recorded: the manifest's ``static``), the per-trajectory ones are filled chunk by
         chunk, the basin statistics at the end."""
-        import zarr
-
-        from . import dataset as D
-
         shape, block = self.chunking.shape, self.chunking.block
         ds = self._layout({k: (v.dtype, v.shape[1:]) for k, v in rec.items()})
         names = [ROOT, *sorted(str(k) for k in ds.variables)]
@@ -543,11 +557,15 @@ class ChunkStore:
         enc = {k: {"chunks": block + tuple(v.shape[nd:])} for k, v in ds.variables.items()
                if nd and v.dims[:nd] == self.plan.dims}
         if "outcome" in rec and self._basin_per_chunk():  # basin statistics: one zarr chunk per sweep chunk's grid points
-            for k in D.basin_placeholders(self.plan):
+            for k in self._basin_names():
                 enc[k] = {"chunks": block[:-1] + tuple(ds[k].shape[nd - 1:])}
-        # every chunk of a static array has its file (one holding only the fill value too): a missing one is lost
-        with _quiet_zarr(), zarr.config.set({"array.write_empty_chunks": True}):
-            ds.to_zarr(self.path, mode="a", compute=False, zarr_format=3, consolidated=True, encoding=enc)
+        # zarr skips a chunk equal to its fill value: the placeholders write nothing, and a chunk of a static array
+        # holding only the fill value has no file (read back, it is that value: its checksum holds)
+        with _quiet_zarr():
+            # lazy placeholders are never computed (compute=False); with numpy ones there is nothing to defer, and
+            # xarray then needs no dask.delayed
+            lazy = any(not isinstance(v.data, np.ndarray) for v in ds.variables.values())
+            ds.to_zarr(self.path, mode="a", compute=not lazy, zarr_format=3, consolidated=True, encoding=enc)
         self._group = None
         self.manifest["arrays"] = {k: {"dtype": v.dtype.str, "trailing": list(v.shape[1:]),
                                        "dims": list(ds[k].dims[nd:])} for k, v in rec.items()}
@@ -564,14 +582,11 @@ class ChunkStore:
     def _rewrite_static(self, names: list[str]):
         """Write the static arrays ``names`` again from the plan (they hold the parameters' values alone:
         the same numbers as when the store was created) and record their checksums."""
-        import zarr
-
         arrays = self.manifest["arrays"]
         ds = self._layout({k: (np.dtype(a["dtype"]), tuple(a["trailing"])) for k, a in arrays.items()})
         g = self._data()
-        with zarr.config.set({"array.write_empty_chunks": True}):
-            for k in names:
-                g[k][...] = np.asarray(ds[k].values)
+        for k in names:
+            g[k][...] = np.asarray(ds[k].values)
         self.manifest["static"].update(self._sums(names))
 
     def _basin_per_chunk(self) -> bool:
@@ -629,14 +644,11 @@ class ChunkStore:
         try:
             if self.manifest.get("arrays") is None:  # a plan with no trajectory cannot happen; be explicit
                 raise StoreError(f"{self.path} has no arrays")
-            import zarr
-
             g = self._data()
             if "outcome" in self.manifest["arrays"]:
                 codes = g["outcome"][...]
-                with zarr.config.set({"array.write_empty_chunks": True}):
-                    for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
-                        g[k][...] = values
+                for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
+                    g[k][...] = values
                 extras = D.outcome_extras(self.plan, codes, list(self.plan.scheme.names))
                 if extras:  # need every code (starts-file agreement, basin entropy): added now
                     self._add_vars(extras, {})
@@ -660,7 +672,6 @@ class ChunkStore:
         :func:`stabjax.run.dataset.outcome_extras`), written as new arrays of the group, listed in the
         manifest first and placed in the dataset's order as :func:`stabjax.run.dataset.build` places them."""
         import xarray as xr
-        import zarr
 
         from . import dataset as D
 
@@ -678,7 +689,7 @@ class ChunkStore:
         self._save_manifest()
         existing = set(self._data().array_keys())
         extra = extra.drop_vars([k for k in extra.variables if k in existing and k not in data])
-        with _quiet_zarr(), zarr.config.set({"array.write_empty_chunks": True}):
+        with _quiet_zarr():
             extra.to_zarr(self.path, mode="a", zarr_format=3, consolidated=True)
         self._group = None
 
@@ -757,13 +768,6 @@ def verify_arrays(path: str | Path, manifest: Mapping[str, Any]) -> dict[str, st
         raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
     bad: dict[str, str] = {}
     for k, a in arr.items():
-        for idx in np.ndindex(*a.cdata_shape):
-            ck = a.metadata.encode_chunk_key(idx)
-            if not (Path(path) / k / ck).is_file():
-                bad[k] = f"{k}/{ck} is missing"
-                break
-        if k in bad:
-            continue
         try:
             values = a[...]
         except Exception as exc:  # noqa: BLE001 - a truncated or overwritten chunk file: which one
@@ -776,7 +780,10 @@ def verify_arrays(path: str | Path, manifest: Mapping[str, Any]) -> dict[str, st
                     break
             continue
         if checksum(values) != sums[k]:
-            bad[k] = f"{k} differs from its checksum"
+            # zarr writes no chunk equal to the fill value: a chunk without its file is lost only when the sum differs
+            gone = [ck for ck in (a.metadata.encode_chunk_key(i) for i in np.ndindex(*a.cdata_shape))
+                    if not (Path(path) / k / ck).is_file()]
+            bad[k] = f"{k}/{gone[0]} is missing" if gone else f"{k} differs from its checksum"
     return bad
 
 
@@ -810,13 +817,15 @@ def pending_mask(manifest: Mapping[str, Any]) -> np.ndarray:
     return pending
 
 
-def open_store(path: str | Path):
+def open_store(path: str | Path, *, dask: bool = True):
     """The dataset a store holds, as xarray reads it (``xr.open_zarr``), lazily; with the zarr
     encodings dropped and text coordinates as Python strings, so that it writes to netCDF exactly
-    as the dataset of a run without a store does."""
+    as the dataset of a run without a store does. ``dask``: its variables are Dask arrays (read chunk
+    by chunk when computed); else xarray's own lazy arrays, each read whole by ``load()`` -- the same
+    values, without Dask's import and task graph, for a dataset that is loaded anyway."""
     import xarray as xr
 
-    ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3)
+    ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3, chunks={} if dask else None)
     with contextlib.suppress(StoreError, TypeError, KeyError):
         order = (read_manifest(Path(path)) or {}).get("variables") or []
         names = [v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]

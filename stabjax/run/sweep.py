@@ -213,7 +213,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             return ds
         sink.finish(attrs)
         lazy = n > LAZY_ABOVE
-        ds = S.open_store(store_path)  # the netCDF file is a copy of the store, chunk by chunk
+        ds = S.open_store(store_path, dask=lazy)  # the netCDF file is a copy of the store (chunk by chunk: lazy)
         if not lazy:
             ds = ds.load()
         if out is None:
