@@ -30,7 +30,8 @@ def test_a_busy_port_is_a_usage_error_naming_the_option(tmp_path, capsys):
     assert "Traceback" not in out + err
 
 
-@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130),
+                                        pytest.param(signal.SIGTERM, 143, marks=pytest.mark.slow)])  # the same path
 def test_the_viewer_stopped_by_a_signal_exits_with_128_plus_the_signal(tmp_path, sig, status):
     result = tmp_path / "r.nc"
     run_plan(make_plan(tomllib.loads(TINY)), result)
