@@ -1,6 +1,6 @@
 """What the commands share: option declarations, usage checks (``--set``, integer lists), the output-path
 check that refuses to lose a file, the readers that tell a previous result of ours from a user's file (the stamps
-themselves are :mod:`stabjax.present.stamps`), and the consoles. What a command may write over is decided in
+on figures and pages are :func:`stabjax.run.outputs.stamp_output`), and the consoles. What a command may write over is decided in
 :mod:`stabjax.run.outputs`."""
 from __future__ import annotations
 
@@ -15,8 +15,29 @@ from rich.console import Console
 
 from ..run.outputs import same_file_as_any
 
-console = Console()
-err_console = Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
+class _Console(Console):
+    """Rich's console without its 80 columns where the output is not a terminal (a pipe, a file, a CI log):
+    there a line is never cut (soft wrap: "engine native" stays on the line of "wrote ...") and a table takes
+    the width its rows need, up to ``WIDE`` columns; on a terminal (or with ``$COLUMNS``) its width."""
+
+    WIDE = 240
+
+    @property
+    def size(self):
+        size = Console.size.fget(self)
+        if self._width is None and not self.is_terminal and not self._environ.get("COLUMNS"):
+            from rich.console import ConsoleDimensions
+
+            return ConsoleDimensions(max(size.width, self.WIDE), size.height)
+        return size
+
+    @size.setter
+    def size(self, new_size):
+        Console.size.fset(self, new_size)
+
+
+console = _Console(soft_wrap=True)
+err_console = _Console(stderr=True, soft_wrap=True)  # messages stay one line: greppable
 
 
 SetOpt = typer.Option(None, "--set", "-s", help="parameter override NAME=VALUE (vectors as comma lists); repeatable")
@@ -101,20 +122,6 @@ def result_spec(path: Path):
             return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
     except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
         return None
-
-
-def spec_hash(spec_dict) -> str:
-    from ..plan.identity import spec_digest
-
-    return spec_digest(spec_dict)
-
-
-def png_spec(path: Path) -> str | None:
-    """The spec digest stamped into a figure of ours (:mod:`stabjax.present.stamps`; None for any other image)."""
-    from ..present.stamps import read
-
-    found = read(path)
-    return found[1] if found else None
 
 
 def trajectory_system(path: Path) -> str | None:

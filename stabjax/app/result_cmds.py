@@ -1,6 +1,7 @@
 """``stabjax plot | report | view | horizon-check``: what a finished result (or a running store) shows."""
 from __future__ import annotations
 
+import errno
 import json
 from pathlib import Path
 from typing import Optional
@@ -9,7 +10,7 @@ import typer
 from rich.table import Table
 
 from ..run.outputs import input_files, write_image
-from .common import ForceOpt, IMAGE_SUFFIXES, check_output, open_result_file, warn_changed_model, console, jsonable
+from .common import ForceOpt, IMAGE_SUFFIXES, check_output, console, err_console, jsonable, open_result_file, warn_changed_model
 
 
 def _default_out(file: Path, suffix: str) -> Path:
@@ -21,9 +22,10 @@ def _default_out(file: Path, suffix: str) -> Path:
 
 def _ours(ds, file: Path):
     """Whether an existing output is a figure or page of ours showing this result (its stamp, not its name)."""
-    from ..present.stamps import shows
+    from ..run.outputs import is_own_output, spec_digest_of
 
-    return lambda p: shows(p, ds, file)
+    spec = spec_digest_of(ds)
+    return lambda p: is_own_output(p, file, spec=spec)
 
 
 def plot_cmd(
@@ -93,8 +95,44 @@ def view_cmd(
     validate.integer(port, "--port", lo=0, hi=65535)
     if quit_after is not None:
         validate.number(quit_after, "--quit-after", lo=0.0, lo_open=True)
-    serve(result, port=port, show=browser, quit_after=quit_after,
-          announce=lambda text: console.print(text, markup=False, highlight=False, soft_wrap=True))
+    if port:
+        _check_port(port)  # before the result is read and the server built: a usage error, exit 2
+    try:
+        serve(result, port=port, show=browser, quit_after=quit_after,
+              announce=lambda text: console.print(text, markup=False, highlight=False, soft_wrap=True))
+    except OSError as exc:
+        if port and exc.errno in (errno.EADDRINUSE, errno.EACCES):  # taken between the check and the server
+            raise _port_error(port, exc) from None
+        raise
+    except KeyboardInterrupt as exc:  # Ctrl-C (130), SIGTERM (143), SIGHUP (129): the README's exit statuses
+        status = getattr(exc, "status", 130)
+        by = f" by {exc.name}" if hasattr(exc, "name") else ""
+        err_console.print(f"stopped{by}: the viewer is closed", style="yellow", markup=False)
+        raise typer.Exit(status)
+
+
+def _check_port(port: int) -> None:
+    """Refuse a ``--port`` that the server could not listen on (another program holds it; a privileged
+    port) with the option named. The socket is bound as the server binds its own (SO_REUSEADDR), so a
+    port in TIME_WAIT after an earlier viewer is not refused."""
+    import socket
+
+    from ..present.view import LOOPBACK
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((LOOPBACK, port))
+        except OSError as exc:
+            raise _port_error(port, exc) from None
+
+
+def _port_error(port: int, exc: OSError):
+    from ..errors import ValidationError
+
+    why = "is in use by another program" if exc.errno == errno.EADDRINUSE else f"cannot be used ({exc.strerror or exc})"
+    return ValidationError("--port", f"port {port} on 127.0.0.1 {why}; choose another --port, or leave it out "
+                                     "for a free one")
 
 
 def horizon_check_cmd(
@@ -152,5 +190,7 @@ def print_result(ds, png: Optional[Path], replaced: bool = False, result: Option
     console.print(summary(ds), highlight=False, markup=False, soft_wrap=True)
     if png is None:
         return
-    write_image(png, lambda tmp: plot(ds, tmp, source=result), result)
+    from ..run.outputs import spec_digest_of
+
+    write_image(png, lambda tmp: plot(ds, tmp, stamp=False), result, spec=spec_digest_of(ds))
     console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)

@@ -2,6 +2,7 @@
 status it deserves; write the netCDF file of a finished chunk store."""
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Optional
@@ -9,9 +10,10 @@ from typing import Optional
 import numpy as np
 import typer
 
-from ..run.outputs import check_store_path, input_files
+from ..plan.identity import spec_digest
+from ..run.outputs import check_store_path, input_files, is_own_output
 from .result_cmds import print_result
-from .common import ForceOpt, IMAGE_SUFFIXES, RESULT_SUFFIXES, check_output, png_spec, result_spec, spec_hash, console, err_console
+from .common import ForceOpt, IMAGE_SUFFIXES, RESULT_SUFFIXES, check_output, result_spec, console, err_console
 
 
 def sweep(
@@ -53,7 +55,7 @@ def sweep(
     s = load_spec(spec)
     plan = make_plan(s, t1=t1)  # every field checked before any output path is looked at
     out = out or Path("results") / f"{plan.name}.nc"
-    inputs = input_files(spec, system=plan.system)
+    inputs = input_files(spec, plan.starts_file, system=plan.system)  # never written over, even with --force
     this_spec = json.loads(spec_json(plan.spec))
     replacing = check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
                               same=lambda p: result_spec(p) == this_spec,
@@ -61,7 +63,7 @@ def sweep(
     if plot:  # the map follows its result: replaced with it, else only with --force
         png = out.with_suffix(".png")
         check_output(png, "--out", IMAGE_SUFFIXES, inputs=inputs, force=force or replacing,
-                      same=lambda p: png_spec(p) == spec_hash(this_spec),
+                      same=lambda p: is_own_output(p, spec=spec_digest(this_spec)),
                       what="the map of a previous result of this spec")
     store = store or default_store(out)
     check_store_path(store, inputs, outputs=(out, out.with_suffix(".png") if plot else None))
@@ -72,6 +74,7 @@ def sweep(
     if note:
         err_console.print(f"note: {note}", markup=False)
     executor = None
+    stack = contextlib.ExitStack()
     if scheduler is not None or workers is not None:
         import os
 
@@ -84,6 +87,7 @@ def sweep(
     try:
         if executor is not None:
             _start_executor(executor, scheduler, connect_timeout)
+        stack.enter_context(_warnings_in_one_line())
         if "shock" in s:  # minimal fatal shocks at every grid point (stabjax.explore.shock)
             raise typer.Exit(_shock(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
                                     store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
@@ -99,6 +103,7 @@ def sweep(
                           style="yellow", markup=False)
         raise typer.Exit(status)
     finally:
+        stack.close()
         if executor is not None:
             executor.close()
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']} trajectories, {ds.attrs['total_steps']:,} steps, "
@@ -110,6 +115,32 @@ def sweep(
     status = run_status(ds, out)  # the last line: how many failed, when any did
     if status:
         raise typer.Exit(status)
+
+
+@contextlib.contextmanager
+def _warnings_in_one_line():
+    """A warning of stabjax's while a sweep runs (a store repaired on resume:
+    :class:`stabjax.run.store.StoreWarning`) is one line of stderr, ``warning: ...``, not Python's
+    ``FILE:LINE: Category: ...`` followed by a line of our source code. Other libraries' warnings are
+    shown as Python shows them."""
+    import warnings
+
+    import stabjax
+
+    ours = str(Path(stabjax.__file__).resolve().parent)
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if str(Path(filename).resolve()).startswith(ours):
+            err_console.print(f"warning: {message}", style="yellow", markup=False, highlight=False)
+        else:
+            previous(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous
 
 
 def _refine(plan, out: Path, plot: bool, **run) -> int:

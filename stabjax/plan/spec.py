@@ -9,15 +9,8 @@ Grid axis values: a list (scalars, or vectors for vector parameters), or
 ``{start, stop, num[, log]}``. A single entry of a vector/matrix parameter is addressed as
 ``"J[0]"`` / ``"D[1,1]"`` (quoted in TOML) and named ``J_0`` / ``D_1_1`` in datasets.
 
-Sample distributions (per parameter, ``n`` draws, ``seed``):
-``{dist="uniform", low, high}``, ``{dist="normal", mean, std}``, ``{dist="sphere"}``,
-``{dist="cap", center=[..] | "<param name>", half_angle}`` (uniform on a spherical cap),
-``{dist="ball", radius, center=[..]}`` (uniform in a ball), ``{dist="so3"}`` (uniform rotation matrices).
-
-Size (~560 lines): the :class:`Plan` and the one validation pass that builds it (:func:`make_plan`,
-with the grid-axis and sampling checks it calls), kept together so that every check runs, in order,
-before anything of the plan's size is allocated. The samplers (``_sample_args``, ``_sample``, ~90
-lines) could move to a module of their own if this file grows again.
+Sample distributions (per parameter, ``n`` draws, ``seed``): :mod:`stabjax.plan.samplers` (uniform,
+normal, sphere, cap, ball, so3). Starts from a file (``[sample] from``): :mod:`stabjax.plan.starts`.
 """
 from __future__ import annotations
 
@@ -39,6 +32,7 @@ from ..errors import ValidationError
 from ..model.params import Param, parse_value
 from ..model.loading import resolve as resolve_system
 from ..model.outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
+from .samplers import draw, sample_args
 from ..model.system import System
 
 # every top-level key is read by something: a section nothing reads (formerly ``[run]``, accepted with
@@ -88,6 +82,7 @@ class Plan:
     outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.plan.starts), or None
+    starts_file: Path | None = None  # that FILE: an input of the sweep, never one of its outputs
     # explicit grid points (P, n_axes): the plan runs these values of its grid axes, in this order, instead of
     # the axes' cartesian product (a refinement round: an explorer's points through the sweep's runner)
     points: np.ndarray | None = None
@@ -281,98 +276,6 @@ def _check_distinct(key: str, raw: Any, vals: np.ndarray) -> None:
                                                       "each value of an axis once")
 
 
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-_DISTS = {
-    "uniform": {"low", "high"}, "normal": {"mean", "std"}, "sphere": set(), "cap": {"center", "half_angle"},
-    "ball": {"radius", "center"}, "so3": set(),
-}
-_REQUIRED = {"uniform": {"low", "high"}, "normal": {"mean", "std"}, "cap": {"center", "half_angle"}, "ball": {"radius"}}
-
-
-def _sample_args(key: str, raw: Any, prm: Param, fixed: Mapping[str, np.ndarray], varied: set[str]) -> dict:
-    """Check one ``[sample]`` entry field by field (nothing drawn yet); returns its parsed arguments."""
-    field_name = f"sample.{key}"
-    V.table(raw, field_name)
-    if "dist" not in raw:
-        raise ValidationError(f"{field_name}.dist", f"required: one of {', '.join(_DISTS)}")
-    dist = V.string(raw["dist"], f"{field_name}.dist", tuple(_DISTS))
-    extra = set(raw) - _DISTS[dist] - {"dist"}
-    if extra:
-        raise ValidationError(f"{field_name}.{sorted(extra)[0]}", f"unknown key for dist={dist!r}; "
-                                                                 f"known: {', '.join(sorted(_DISTS[dist])) or 'none'}")
-    for k in sorted(_REQUIRED.get(dist, ())):
-        if k not in raw:
-            raise ValidationError(f"{field_name}.{k}", f"required for dist={dist!r}")
-    shape = prm.shape
-    if dist == "so3" and shape != (3, 3):
-        raise ValidationError(f"{field_name}.dist", f"dist='so3' needs a 3x3 parameter; {prm.name} has shape {shape}")
-    if dist in ("sphere", "ball", "cap") and shape != (3,):
-        raise ValidationError(f"{field_name}.dist", f"dist={dist!r} needs a 3-vector parameter; {prm.name} has shape {shape}")
-    a: dict[str, Any] = {"dist": dist}
-    if dist == "uniform":
-        a["low"] = V.number(raw["low"], f"{field_name}.low")
-        a["high"] = V.number(raw["high"], f"{field_name}.high")
-        if not a["high"] >= a["low"]:
-            raise ValidationError(f"{field_name}.high", f"must be >= low ({a['low']}), got {a['high']}")
-        # the draws are finite only if the width is: high - low overflows for |bounds| near 1.8e308
-        if not np.isfinite(a["high"] - a["low"]):
-            raise ValidationError(f"{field_name}.high", "high - low overflows")
-    elif dist == "normal":
-        a["mean"] = V.number(raw["mean"], f"{field_name}.mean")
-        a["std"] = V.number(raw["std"], f"{field_name}.std", lo=0.0, hi=1e300)
-    elif dist == "ball":
-        a["radius"] = V.number(raw["radius"], f"{field_name}.radius", lo=0.0, hi=1e300)
-        a["center"] = np.array(V.numbers(raw.get("center", [0.0, 0.0, 0.0]), f"{field_name}.center", length=3))
-    elif dist == "cap":
-        a["half_angle"] = V.number(raw["half_angle"], f"{field_name}.half_angle", lo=0.0, hi=float(np.pi))
-        c = raw["center"]
-        if isinstance(c, str):
-            if c not in fixed:
-                raise ValidationError(f"{field_name}.center", f"{c!r} is not a parameter; give a unit 3-vector or "
-                                                              "the name of a fixed 3-vector parameter")
-            if c in varied:
-                raise ValidationError(f"{field_name}.center", f"{c!r} is swept or sampled; the cap needs one fixed center")
-            c = fixed[c]
-        else:
-            c = np.array(V.numbers(c, f"{field_name}.center", length=3))
-        c = np.asarray(c, dtype=float)
-        if c.shape != (3,) or not np.isclose(np.linalg.norm(c), 1, atol=1e-6):
-            raise ValidationError(f"{field_name}.center", "must be a unit 3-vector or the name of one")
-        a["center"] = _unit(c)
-    return a
-
-
-def _sample(a: Mapping[str, Any], prm: Param, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Draw ``n`` values of ``prm`` from the checked distribution ``a`` (see :func:`_sample_args`)."""
-    dist, shape = a["dist"], prm.shape
-    if dist == "uniform":
-        return rng.uniform(a["low"], a["high"], size=(n, *shape))
-    if dist == "normal":
-        return a["mean"] + a["std"] * rng.standard_normal((n, *shape))
-    if dist == "so3":
-        from scipy.spatial.transform import Rotation
-
-        return Rotation.random(n, random_state=rng).as_matrix()
-    if dist == "sphere":
-        return _unit(rng.standard_normal((n, 3)))
-    if dist == "ball":
-        d = _unit(rng.standard_normal((n, 3)))
-        rad = a["radius"] * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3)
-        return a["center"] + rad * d
-    # cap: uniform on {x : angle(x, c) <= h}; cos(angle) uniform on [cos h, 1] (Archimedes)
-    h, c = a["half_angle"], a["center"]
-    z = rng.uniform(np.cos(h), 1.0, size=n)
-    phi = rng.uniform(0, 2 * np.pi, size=n)
-    e = np.array([1.0, 0, 0]) if abs(c[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = _unit(np.cross(c, e))
-    e2 = np.cross(c, e1)
-    rho = np.sqrt(np.maximum(1 - z * z, 0))
-    return z[:, None] * c + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-
-
 def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str | Path | None = None) -> Plan:
     """Validate a spec dict field by field and resolve it into a :class:`Plan` (nothing is integrated).
 
@@ -438,6 +341,11 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
 
         from_file = ST.load(sample_spec, system, base_dir,
                             {re.sub(r"\[.*", "", k) for k in grid_spec})
+        for pname in given:  # as with [sample] NAME: the file's column would win, the fixed value be recorded
+            if pname in from_file[0]:
+                raise ValidationError(f"params.{pname}", f"is also a column of the starts file {from_file[2].name} "
+                                                         "(sample.from); a parameter is either fixed or read from the "
+                                                         "file: remove one of them")
         sample_spec = {"n": len(next(iter(from_file[0].values())))}
         # the file's content is part of what runs: a changed file is a different sweep (fingerprint)
         spec["sample"] = {**dict(spec["sample"]), "__sha256__": ST.sha256(from_file[2])}
@@ -494,11 +402,11 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
             prm = system.params[key]
             if any(a.param.name == key for a in grid):
                 raise ValidationError(f"sample.{key}", "is also a grid axis")
-            checked[key] = _sample_args(key, raw, prm, fixed, varied - {key})
+            checked[key] = sample_args(key, raw, prm, fixed, varied - {key})
             V.check_allocation(f"sample.{key}", n_sample * 8 * prm.size, "the sampled values")
         rng = np.random.default_rng(seed)
         for key, a in checked.items():
-            sample[key] = _sample(a, system.params[key], n_sample, rng)
+            sample[key] = draw(a, system.params[key], n_sample, rng)
 
     icfg = engines.integrate_config(spec.get("integrate"), spec.get("engine"), default_t1=system.default_t1)
     if t1 is not None:
@@ -551,7 +459,8 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
         _check_attractor_stop(integrated, decl, grid, sample)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
                 sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
-                start_labels=None if from_file is None else from_file[1])
+                start_labels=None if from_file is None else from_file[1],
+                starts_file=None if from_file is None else from_file[2])
     return plan
 
 

@@ -3,7 +3,9 @@
 A user who has the starts of another tool (pyBasin's ``CsvSampler``, bSTAB, Attractors.jl) runs exactly
 those: one row per start, one column per parameter, named as the model's (scalar) parameters; the
 same rows at every grid point, as sampled starts are. Formats: ``.csv`` (a header row of names),
-``.npy`` (a structured array: field names), ``.nc`` (a netCDF file: 1-D variables along one dimension).
+``.npy`` (a 1-D structured array: field names), ``.nc`` (a netCDF file: 1-D variables along one dimension).
+Anything else is refused with the column named (a header naming a column twice, a variable along
+another dimension): a column read wrongly would run other starts than the file's without a word.
 A column ``label`` (or the one ``[sample] label = "NAME"`` names) holds the other tool's outcome of
 each start; it is not a parameter. The file's sha256 enters the sweep's identity (a resumed sweep
 whose file changed is refused like a changed spec).
@@ -45,6 +47,10 @@ def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
             if len(rows) < 2:
                 raise ValidationError(field, f"{path.name}: needs a header row and at least one start")
             head = [h.strip() for h in rows[0]]
+            twice = sorted({h for h in head if head.count(h) > 1})
+            if twice:  # a dict of columns would keep the last one and drop the other without a word
+                raise ValidationError(field, f"{path.name}: column {twice[0]!r} appears {head.count(twice[0])} times "
+                                             "in the header; each column once")
             body = [r for r in rows[1:] if any(c.strip() for c in r)]
             if any(len(r) != len(head) for r in body):
                 raise ValidationError(field, f"{path.name}: every row needs {len(head)} values")
@@ -54,12 +60,26 @@ def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
             if arr.dtype.names is None:
                 raise ValidationError(field, f"{path.name}: needs a structured array (its field names name the "
                                              "parameters)")
-            cols = {n: arr[n].ravel() for n in arr.dtype.names}
+            if arr.ndim != 1:
+                raise ValidationError(field, f"{path.name}: needs a 1-D structured array (one row per start), "
+                                             f"got shape {arr.shape}")
+            for n in arr.dtype.names:
+                if arr[n].ndim != 1:
+                    raise ValidationError(field, f"{path.name}: field {n!r} has shape {arr.dtype[n].shape} per "
+                                                 "start; each field holds one number per start")
+            cols = {n: arr[n] for n in arr.dtype.names}
         else:
             import xarray as xr
 
             with xr.open_dataset(path) as ds:
-                cols = {str(k): np.asarray(v.values).ravel() for k, v in ds.data_vars.items() if v.ndim == 1}
+                ones = [v.dims[0] for v in ds.data_vars.values() if v.ndim == 1]
+                start = max(ones, key=ones.count) if ones else None  # the dimension most variables run along
+                for k, v in ds.data_vars.items():  # a variable left out would leave its parameter at its default
+                    if v.dims != (start,):
+                        along = f" ({start!r})" if start else ""
+                        raise ValidationError(field, f"{path.name}: variable {str(k)!r} has dimensions {v.dims}; "
+                                                     f"every variable of a starts file is 1-D along the starts{along}")
+                cols = {str(k): np.asarray(v.values) for k, v in ds.data_vars.items()}
     except ValidationError:
         raise
     except Exception as exc:  # noqa: BLE001  (a broken file: say which and why)

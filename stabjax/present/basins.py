@@ -47,10 +47,9 @@ def _title(ds, what: str, head: str | None = None) -> str:
     return f"{head or heading(ds)}\n{what}" + (f"; N = {n} samples per point" if n else "")
 
 
-def plot_basin(ds: xr.Dataset, out: str | Path | None = None, title: str | None = None,
-               metadata: dict | None = None):
+def plot_basin(ds: xr.Dataset, out: str | Path | None = None, title: str | None = None):
     """Draw the outcome picture that fits the dataset's shape (see the module docstring); write it to ``out``
-    (with ``metadata`` in the file) when given. ``title``: what it shows, in words (default: the spec's
+    when given. ``title``: what it shows, in words (default: the spec's
     description). Returns the figure."""
     import matplotlib.pyplot as plt
 
@@ -73,7 +72,7 @@ def plot_basin(ds: xr.Dataset, out: str | Path | None = None, title: str | None 
     if out is not None:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=130, bbox_inches="tight", metadata=metadata)
+        fig.savefig(out, dpi=130, bbox_inches="tight")
         plt.close(fig)
     return fig
 

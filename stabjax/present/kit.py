@@ -51,7 +51,7 @@ def _outcomes_of_their_own(ds) -> bool:
 @dataclass(frozen=True)
 class Kind:
     """One kind of result: how to recognise it, what it is in words, and the functions (``module:function``
-    in :mod:`stabjax.present`) that draw it (``draw(ds, out=None, metadata=None) -> Figure``) and write its
+    in :mod:`stabjax.present`) that draw it (``draw(ds, out=None, title=None) -> Figure``) and write its
     summary text (``text(ds) -> str``)."""
 
     name: str

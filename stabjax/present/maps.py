@@ -298,12 +298,11 @@ def zero_crossings(x, m):
     return out
 
 
-def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None,
-               metadata: dict | None = None):
+def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None):
     """Draw the sweep's verdict map (1-D or 2-D grid; random samples as converged fractions) at t1,
     with the empirical boundary at each horizon (dataset dim ``horizon``) over the theory's.
     ``title``: what the map shows, in words (default: the spec's description, else the system and the
-    sweep's name); ``metadata``: written into the image file (:mod:`stabjax.present.stamps`).
+    sweep's name).
     A result without verdicts is refused with a pointer to :func:`stabjax.plot`, which draws every kind."""
     import matplotlib.pyplot as plt
     from matplotlib import patheffects
@@ -314,7 +313,7 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: st
 
     dims = grid_dims(ds)
     if len(dims) == 3 and ax is None:  # small multiples: one 2-D map per value of the first axis
-        return _facets(ds, dims, out, title, metadata)
+        return _facets(ds, dims, out, title)
     full, ds = ds, at_t1(ds)
     main = main_predicate(ds)
     sampled = "sample" in ds["verdict"].dims
@@ -440,24 +439,23 @@ def plot_sweep(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: st
         ax.bar(V.NAMES, fr, yerr=se, color=V.COLORS, capsize=4)
         ax.set_ylabel(f"fraction of {n} trajectories (± SE)")
     ax.set_title(_title(ds, title), fontsize=10)
-    return save(fig, out, own, metadata=metadata)
+    return save(fig, out, own)
 
 
-def save(fig, out, own: bool = True, dpi: int = 110, metadata: dict | None = None, **kw):
-    """Write ``fig`` to ``out`` (folders made) if given, with ``metadata`` in the file (the stamp that names
-    the result it shows); close it if this module made it."""
+def save(fig, out, own: bool = True, dpi: int = 110, **kw):
+    """Write ``fig`` to ``out`` (folders made) if given; close it if this module made it."""
     if out is not None:
         import matplotlib.pyplot as plt
 
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=dpi, metadata=metadata, **kw)
+        fig.savefig(out, dpi=dpi, **kw)
         if own:
             plt.close(fig)
     return fig
 
 
-def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None, metadata: dict | None = None):
+def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None):
     import matplotlib.pyplot as plt
 
     d0 = dims[0]
@@ -481,7 +479,7 @@ def _facets(ds: xr.Dataset, dims: list[str], out, title: str | None = None, meta
             leg.remove()
             legend_below(ax, handles, fontsize=7.5)
     fig.suptitle(_title(ds, title), fontsize=11)
-    return save(fig, out, dpi=100, metadata=metadata)
+    return save(fig, out, dpi=100)
 
 
 def format_confusion(ds: xr.Dataset) -> str:

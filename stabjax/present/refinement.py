@@ -38,10 +38,9 @@ def refine_title(ds: xr.Dataset, head: str | None = None) -> str:
     return f"{first}\n{second}"
 
 
-def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None,
-                metadata: dict | None = None):
+def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: str | None = None):
     """Evaluated points (coloured by label), bracketed boundary midpoints, and the theorem's boundary; written
-    to ``out`` (with ``metadata`` in the file) when given. ``title``: the first line of the title, in words
+    to ``out`` when given. ``title``: the first line of the title, in words
     (default: what was refined and what it cost). Returns the figure."""
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
@@ -104,7 +103,7 @@ def plot_refine(ds: xr.Dataset, out: str | Path | None = None, ax=None, title: s
         legend_below(ax, handles, ncol=3 if len(names) == 2 else 2, width=60)
     ax.set_title(refine_title(ds, title), fontsize=9)
 
-    return save(fig, out, own, metadata=metadata)
+    return save(fig, out, own)
 
 
 def _horizon_styles(ds: xr.Dataset):

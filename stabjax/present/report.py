@@ -15,7 +15,7 @@ model (with per-point basin fractions), discovered attractors (with where each l
 results (boundary segments from ``[refine]``); its figures are those of :func:`stabjax.present.show.plot`.
 Warnings are per grid point: a share of unclassified trajectories that is large at a few points is named
 there, not averaged away over the grid. The page carries a stamp naming the result it shows
-(:mod:`stabjax.present.stamps`), so ``stabjax report`` replaces its own page and no other file.
+(:func:`stabjax.run.outputs.stamp_output`), so ``stabjax report`` replaces its own page and no other file.
 """
 from __future__ import annotations
 
@@ -274,15 +274,13 @@ def _table(header: list[str] | None, rows: list[list[str]], numeric: bool = True
 
 
 def render(ds: xr.Dataset, source: str = "") -> str:
-    """The HTML page of ``ds`` (``source``: the file it was read from, shown in the heading and stamped in the
-    page's head, :mod:`stabjax.present.stamps`)."""
+    """The HTML page of ``ds`` (``source``: the file it was read from, shown in the heading)."""
     from .kit import kind_of
     from .labels import heading
-    from .stamps import html_meta
 
     e = html.escape
     title = heading(ds)
-    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8>{html_meta(ds, source or None)}"
+    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8>"
              f"<title>{e(title)} - stabjax report</title><style>{_CSS}</style></head><body>",
              f"<h1>{e(title)}</h1><p class=muted>{e(kind_of(ds).words)} ({e(kind(ds))} result)"
              + (f" read from <code>{e(source)}</code>" if source else "") + "; page written by <code>stabjax report</code>"
@@ -336,17 +334,19 @@ def render(ds: xr.Dataset, source: str = "") -> str:
 
 
 def write_report(ds: xr.Dataset, out: str | Path, source: str = "") -> Path:
-    """Write the page atomically (a half-written page is never left behind), sealed with its digest
-    (:func:`stabjax.present.stamps.seal`: edited later, it is no longer a page of ours to replace)."""
+    """Write the page atomically (a half-written page is never left behind), stamped with the result it shows
+    and the digest of its bytes (:func:`stabjax.run.outputs.stamp_output`: edited later, it is no longer a page
+    of ours to replace)."""
     import os
 
-    from .stamps import seal
+    from ..run.outputs import spec_digest_of, stamp_output
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")  # the suffix tells stamp_output the format
     try:
-        tmp.write_text(seal(render(ds, source)), encoding="utf-8")
+        tmp.write_text(render(ds, source), encoding="utf-8")
+        stamp_output(tmp, source or None, spec=spec_digest_of(ds))
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -101,10 +101,8 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
 _TH_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))))
 
 
-def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None,
-               metadata: dict | None = None):
-    """The figure of a shock result (see the module docstring); written to ``out`` if given, with ``metadata`` (the
-    stamp naming the result it shows, :mod:`stabjax.present.stamps`). Returns the figure."""
+def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None):
+    """The figure of a shock result (see the module docstring); written to ``out`` if given. Returns the figure."""
     import matplotlib.pyplot as plt
 
     from .maps import legend_below, save
@@ -129,7 +127,7 @@ def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset 
 
     fig.suptitle(textwrap.fill(title or f"Minimal fatal shock: {ds.attrs.get('system', '')} "
                                         f"({ds.attrs.get('sweep_name', '')})", 80), fontsize=10)
-    return save(fig, out, dpi=100, metadata=metadata)
+    return save(fig, out, dpi=100)
 
 
 def _unit(ds):

@@ -7,7 +7,6 @@ module (``present/shock.py``) is there.
 """
 from __future__ import annotations
 
-import inspect
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +30,7 @@ def _dataset(result) -> tuple[Any, Path | None]:
 
 
 def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, title: str | None = None,
-         source: str | Path | None = None):
+         source: str | Path | None = None, stamp: bool = True):
     """Draw any stabjax result -- the figure ``stabjax plot`` writes -- and return the matplotlib figure.
 
     ``result``: a dataset (:func:`stabjax.run_spec`, :func:`stabjax.open_result`) or the path of a result
@@ -40,8 +39,9 @@ def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, titl
     with their basin fractions, along an axis or per cell (:func:`stabjax.present.basins.plot_basin`, the
     attractors named with where they lie); a refinement's points and bracketed boundary
     (:func:`stabjax.present.refinement.plot_refine`). ``out``: also write it there (PNG, SVG or PDF; folders
-    made) and close it, stamped with the result it shows (:mod:`stabjax.present.stamps`; ``source``: the
-    result's file, when ``result`` is a dataset read from one). ``title``: what the figure shows, in words
+    made) and close it, stamped with the result it shows (:func:`stabjax.run.outputs.stamp_output`;
+    ``source``: the result's file, when ``result`` is a dataset read from one; ``stamp=False``: the caller
+    stamps). ``title``: what the figure shows, in words
     (default: the spec's description).
     """
     ds, path = _dataset(result)
@@ -54,17 +54,13 @@ def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, titl
     if k.name == "discovery" and "outcome" not in ds:
         raise ValidationError("result", "this discovery has no outcomes yet (they are assigned when every "
                                         "trajectory has run): draw it when the sweep has finished")
-    meta = None
-    if out is not None:
-        from .stamps import metadata
-
-        meta = metadata(out, ds, source or path)
     draw = kit.function(k.draw)
-    takes = inspect.signature(draw).parameters
-    kw = {"metadata": meta} if "metadata" in takes else {}  # a draw function without it writes no stamp
-    if title is not None:
-        kw["title"] = title
-    return draw(ds, out, **kw)
+    fig = draw(ds, out, **({"title": title} if title is not None else {}))
+    if out is not None and stamp:
+        from ..run.outputs import spec_digest_of, stamp_output
+
+        stamp_output(out, source or path, spec=spec_digest_of(ds))
+    return fig
 
 
 def summary(ds: xr.Dataset) -> str:

@@ -73,7 +73,7 @@ class Result:
     def _written_from_store(self) -> Path | None:
         """The netCDF file the sweep of this store wrote when it finished (it then removes the store), once
         the store is gone or emptied: written since this viewer opened the store, of the same spec."""
-        from .stamps import spec_of
+        from ..run.outputs import spec_digest_of as spec_of
 
         nc = kit.finished_file(self.store)
         if nc is None or not nc.is_file():

@@ -152,14 +152,18 @@ def _basin_layout(plan, st: Mapping[str, Any]) -> dict[str, tuple]:
     }
 
 
-def basin_placeholders(plan, chunks: bool = True) -> dict[str, tuple]:
-    """The basin variables' layout with lazy placeholders (the store creates them; filled at the end)."""
-    import dask.array as da
-
+def basin_placeholders(plan, chunks: bool = True, empty=None) -> dict[str, tuple]:
+    """The basin variables' layout with placeholders (the store creates them; filled at the end):
+    ``empty(shape, dtype)`` (default: lazy dask zeros, never computed)."""
     if not plan.n_sample:
         return {}
+    if empty is None:
+        import dask.array as da
+
+        def empty(shape, dtype):
+            return da.zeros(shape, dtype=dtype, chunks=shape)
     shape = grid_layout(plan)[1] + (len(plan.scheme.names),)
-    st = {k: da.zeros(shape, dtype=np.int64 if k == "count" else float, chunks=shape)
+    st = {k: empty(shape, np.dtype(np.int64 if k == "count" else float))
           for k in ("count", "fraction", "se", "ci_low", "ci_high")}
     return _basin_layout(plan, st)
 

@@ -7,19 +7,25 @@
 * :func:`write_image` / :func:`write_reason`: maps are written to a temporary file and renamed, and a
   failed write (a full disk) is one line naming the file (:class:`stabjax.errors.OutputError`, exit 1);
 * :func:`reproduce_into`: ``stabjax reproduce`` computes in a staging folder and replaces only the
-  files it wrote there before, unchanged since (``.stabjax-reproduce.json``), unless ``--force``.
+  files it wrote there before, unchanged since (``.stabjax-reproduce.json``), unless ``--force``;
+* :func:`stamp_output` / :func:`output_stamp` / :func:`is_own_output`: an HTML page, PNG, SVG or PDF
+  drawn from a result carries a stamp naming that result and the digest of the rest of its bytes, so
+  that "this file is our own previous output of that result, unchanged since" is decided from the
+  file's content, never from its name (issue 29: ``stabjax report R.nc`` must not replace a user's
+  ``R.html``).
 
 The checks that compare an output with a previous result of the same command stay with the commands
 (:func:`stabjax.app.common.check_output`). Nothing heavy is imported at module level.
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Optional
 
 from ..errors import OutputError, ValidationError
 
@@ -86,6 +92,42 @@ def check_store_path(store: Path, inputs, outputs=()) -> None:
                                                  "holds only what the sweep writes: choose another --store")
 
 
+def temp_beside(out: Path) -> Path:
+    """The temporary file a result is written to before it is renamed over ``out``:
+    ``.NAME.HOST-PID.tmp`` beside it, naming the process that writes it (:func:`clean_stale_temps`)."""
+    import socket
+
+    return out.with_name(f".{out.name}.{socket.gethostname()}-{os.getpid()}.tmp")
+
+
+def clean_stale_temps(out: Path) -> list[Path]:
+    """Remove the temporary files of ``out`` (:func:`temp_beside`) left by processes of this host that
+    are dead (a kill -9 while the file was written); the files removed. Any other file -- one of a live
+    process, of another host, or not of that exact form -- is left alone."""
+    import socket
+
+    from .lock import _pid_alive
+
+    host, gone = socket.gethostname(), []
+    prefix = f".{out.name}."
+    try:
+        found = list(out.parent.glob(f".{glob.escape(out.name)}.*.tmp"))
+    except OSError:
+        return gone
+    for f in found:
+        who = f.name[len(prefix):-len(".tmp")]
+        h, _, pid = who.rpartition("-")
+        if h != host or not pid.isdigit() or not pid.isascii() or int(pid) == os.getpid() or _pid_alive(int(pid)):
+            continue
+        if f.is_file() and not f.is_symlink():
+            try:
+                f.unlink()
+                gone.append(f)
+            except OSError:
+                pass
+    return gone
+
+
 def write_reason(exc: BaseException, out: Path) -> str:
     """Why a write failed, in words: the OS error, else the library's message with the free space
     (netCDF reports a full disk as ``RuntimeError: NetCDF: HDF error``)."""
@@ -101,14 +143,19 @@ def write_reason(exc: BaseException, out: Path) -> str:
     return f"{type(exc).__name__}: {exc}{space}"
 
 
-def write_image(path: Path, draw, result: Optional[Path] = None) -> None:
-    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic)."""
+def write_image(path: Path, draw, result: Optional[Path] = None, *, spec: str | None = None) -> None:
+    """``draw(tmp)`` into a temporary file beside ``path``, then rename it over ``path`` (atomic).
+    ``result``: the result file the image is drawn from, ``spec``: the digest of its spec
+    (:func:`spec_digest_of`); the image is then stamped with them (:func:`stamp_output`), so that drawing it
+    again may replace it and nothing else."""
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         draw(tmp)
+        if result is not None or spec is not None:
+            stamp_output(tmp, result, spec=spec)
         os.replace(tmp, path)
     except (OSError, RuntimeError) as exc:
         tmp.unlink(missing_ok=True)
@@ -200,3 +247,159 @@ def refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Path |
         kept = f"; the new files are kept in {staging}" if staging is not None else ""
         raise ValidationError("--out-dir", f"{dest} exists and was not written by this command (or was changed "
                                            f"since); pass --force to replace it, or choose another --out-dir{kept}")
+
+
+# ---- stamps: "our own previous output of this result, unchanged since", from the file's content -------------
+
+STAMP = "stabjax-output"  # the stamp's keyword: a PNG text chunk's key, the word opening an HTML/SVG/PDF comment
+STAMPED = {".png": "png", ".svg": "xml", ".html": "xml", ".htm": "xml", ".pdf": "pdf"}
+
+
+def stamp_output(path: str | Path, source: str | Path | None = None, *, spec: str | None = None) -> None:
+    """Stamp the file at ``path``, just written by stabjax (before it is renamed into place), as drawn from
+    the result ``source`` (a file; None for a dataset held in memory) computed from the spec whose digest is
+    ``spec`` (:func:`spec_digest_of`): the stamp names both and holds the sha256 of the file's other bytes, so a
+    later edit (a user's notes added to a report) makes it a foreign file again.
+
+    Where the stamp goes, leaving the file valid for every reader: a PNG ``tEXt`` chunk right after
+    ``IHDR``; an HTML or SVG comment right after the ``<?xml ...?>`` or ``<!DOCTYPE ...>`` that opens it; a PDF comment
+    line after ``%%EOF``. Other extensions are left unstamped (:func:`is_own_output` is then False).
+
+    Use, for a command writing ``out`` from ``result`` (``write_image`` does the stamping itself)::
+
+        check_output(out, "--out", (".html",), inputs=(result,), force=force,
+                     same=lambda p: is_own_output(p, result, spec=spec_digest_of(ds)), what=f"the report of {result}")
+        write(tmp); stamp_output(tmp, result, spec=spec_digest_of(ds)); os.replace(tmp, out)
+    """
+    path = Path(path)
+    kind = STAMPED.get(path.suffix.lower())
+    if kind is None:
+        return
+    data = path.read_bytes()
+    found = _find_stamp(kind, data)
+    if found is not None:  # stamped before (a file drawn by a stamping helper): one stamp, the new one
+        data = data[:found[0]] + data[found[1]:]
+    payload = json.dumps({"source": str(Path(source).resolve()) if source is not None else None, "spec": spec,
+                          "sha256": hashlib.sha256(data).hexdigest()},
+                         ensure_ascii=True, sort_keys=True).replace("-", "\\u002d")  # "--" ends an XML comment
+    at = _stamp_offset(kind, data)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.stamp")
+    try:
+        tmp.write_bytes(data[:at] + _stamp_bytes(kind, payload.encode("ascii")) + data[at:])
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def output_stamp(path: str | Path) -> dict | None:
+    """The stamp of a file written by :func:`stamp_output` -- ``{"source": resolved path of the result it
+    was drawn from, "sha256": ...}`` -- or None: no stamp, not a file, unreadable, or changed since it was
+    stamped (the digest of its other bytes differs)."""
+    path = Path(path)
+    kind = STAMPED.get(path.suffix.lower())
+    if kind is None or not path.is_file():
+        return None
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    found = _find_stamp(kind, data)
+    if found is None:
+        return None
+    start, end, payload = found
+    try:
+        stamp = json.loads(payload)
+    except ValueError:
+        return None
+    if not isinstance(stamp, dict) or stamp.get("sha256") != hashlib.sha256(data[:start] + data[end:]).hexdigest():
+        return None
+    return stamp
+
+
+def is_own_output(path: str | Path, source: str | Path | None = None, *, spec: str | None = None) -> bool:
+    """Whether ``path`` is an output stabjax drew from the result ``source`` (the same file, by resolved path)
+    or from a result of the same spec (digest ``spec``, :func:`spec_digest_of`: a re-run of the same
+    computation), unchanged since: the test a command passes to :func:`stabjax.app.common.check_output` as
+    ``same`` before replacing ``path`` without ``--force``. A map drawn before these stamps carries the spec's
+    digest alone (the PNG text ``stabjax-spec``), and is recognised by it."""
+    stamp = output_stamp(path)
+    if stamp is None:
+        return spec is not None and _legacy_png_spec(Path(path)) == spec
+    return ((source is not None and stamp.get("source") == str(Path(source).resolve()))
+            or (spec is not None and stamp.get("spec") == spec))
+
+
+def spec_digest_of(ds) -> str | None:
+    """The digest of the spec a result was computed from (its ``spec_json``), or None: what a stamp records so
+    that a re-run of the same spec replaces the figures and pages of the previous run."""
+    try:
+        spec = json.loads(ds.attrs["spec_json"])
+    except (KeyError, ValueError, TypeError, AttributeError):
+        return None
+    from ..plan.identity import spec_digest
+
+    return spec_digest(spec)
+
+
+LEGACY_PNG_KEY = "stabjax-spec"  # the sweep's maps before the stamps above: a PNG text chunk, the spec's digest
+
+
+def _legacy_png_spec(path: Path) -> str | None:
+    if path.suffix.lower() != ".png" or not path.is_file():
+        return None
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    at = data.find(b"tEXt" + LEGACY_PNG_KEY.encode() + b"\0")
+    if at < 4:
+        return None
+    n = int.from_bytes(data[at - 4:at], "big")
+    return data[at + 4 + len(LEGACY_PNG_KEY) + 1:at + 4 + n].decode("latin-1")
+
+
+def _stamp_bytes(kind: str, payload: bytes) -> bytes:
+    if kind == "png":
+        import zlib
+
+        body = b"tEXt" + STAMP.encode() + b"\0" + payload
+        return len(body[4:]).to_bytes(4, "big") + body + zlib.crc32(body).to_bytes(4, "big")
+    if kind == "xml":
+        return b"<!-- " + STAMP.encode() + b" " + payload + b" -->"
+    return b"\n%" + STAMP.encode() + b" " + payload + b"\n"  # pdf: a comment line
+
+
+def _stamp_offset(kind: str, data: bytes) -> int:
+    if kind == "png":  # after the signature (8) and IHDR (4 + 4 + 13 + 4): a text chunk may come anywhere before IEND
+        return 33 if data[12:16] == b"IHDR" else len(data)
+    if kind == "xml":  # after the declaration or the doctype that must open the document, else first
+        lead = len(data) - len(data.lstrip())
+        head = data[lead:lead + 9].lower()
+        close = b"?>" if head.startswith(b"<?xml") else b">" if head.startswith(b"<!doctype") else None
+        at = data.find(close, lead) if close else -1
+        return at + len(close) if at >= 0 else 0
+    return len(data)  # pdf: after %%EOF (readers look for it within the last 1024 bytes)
+
+
+def _find_stamp(kind: str, data: bytes) -> tuple[int, int, bytes] | None:
+    """(start, end, payload) of the stamp in ``data``, or None."""
+    if kind == "png":
+        at = data.find(b"tEXt" + STAMP.encode() + b"\0")
+        if at < 4:
+            return None
+        n = int.from_bytes(data[at - 4:at], "big")
+        return at - 4, at + 4 + n + 4, data[at + 4 + len(STAMP) + 1:at + 4 + n]
+    if kind == "xml":
+        opening = b"<!-- " + STAMP.encode() + b" "
+        at = data.find(opening)
+        end = data.find(b" -->", at)
+        if at < 0 or end < 0:
+            return None
+        return at, end + 4, data[at + len(opening):end]
+    opening = b"\n%" + STAMP.encode() + b" "
+    at = data.rfind(opening)
+    end = data.find(b"\n", at + len(opening))
+    if at < 0 or end < 0:
+        return None
+    return at, end + 1, data[at + len(opening):end]

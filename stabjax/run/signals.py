@@ -12,8 +12,11 @@ presses it wants the prompt back now.
 """
 from __future__ import annotations
 
+import os
 import signal
 import threading
+import time
+from pathlib import Path
 
 from ..errors import Interrupted
 
@@ -71,3 +74,22 @@ def checkpoint() -> None:
         _state["pending"] = None
         _state["raised"] = Interrupted(s)
         raise _state["raised"]
+
+
+TEST_HOOK = "_STABJAX_TEST_SIGNAL_IN_CHUNK"  # tests only: "K:DIR"
+
+
+def wait_in_chunk(i: int) -> None:
+    """Tests only (``$_STABJAX_TEST_SIGNAL_IN_CHUNK = "K:DIR"``): chunk K announces that it is in flight
+    (the file ``DIR/chunk-K``) and waits, at most 120 s, until a SIGTERM/SIGHUP is held; so a test's
+    signal lands inside a chunk whatever the machine's speed, not in the gap between two chunks."""
+    hook = os.environ.get(TEST_HOOK)
+    if not hook:
+        return
+    k, _, folder = hook.partition(":")
+    if not k.strip().isdigit() or int(k) != i or not folder:
+        return
+    Path(folder, f"chunk-{i}").touch()
+    deadline = time.monotonic() + 120
+    while _state["pending"] is None and time.monotonic() < deadline:
+        time.sleep(0.01)

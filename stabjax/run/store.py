@@ -6,8 +6,11 @@ Layout of a store directory (default ``<out>.zarr`` next to the netCDF output)::
     <variable>/       one zarr array per variable and coordinate of the sweep's dataset, with the
                       dataset's dims (``xr.open_zarr(store)`` gives the netCDF file's variables)
     manifest.json     the committed chunk record: identity, chunking, the entries above that the
-                      store wrote, and per finished chunk its engine, worker, time, steps and the
-                      sha256 of every array's block (replaced atomically)
+                      store wrote, per finished chunk its engine, worker, time, steps and the
+                      sha256 of every array's block, and the sha256 of every other array: the
+                      "static" ones written when the store is created (coordinates, samples, the
+                      parameters' variables) and the "derived" ones written when it finishes
+                      (basin statistics, a classification over the whole sweep) (replaced atomically)
     .lock             the writer holding the store: {"pid", "host", "started"} (O_CREAT|O_EXCL)
 
 Chunks (:class:`Chunking`) are blocks of the dataset's grid -- ``(1, ..., 1, m, full trailing
@@ -22,9 +25,10 @@ one can open (the group's metadata is written when the arrays are created, and i
 replaced atomically when the sweep finishes; a store whose metadata cannot be read starts over). A process killed at any moment leaves a manifest that
 lists only chunks whose data are complete; a chunk written but not yet listed is recomputed (to the
 same values) by the next run. Durability is against process death (kill -9, OOM); nothing is
-fsync'ed, so a power cut may lose recent chunks -- and a chunk file lost or damaged afterwards (a
-deleted file, a truncated one) is caught by its checksum: recomputed on resume, named in an error
-by ``export``, never read as the fill value.
+fsync'ed, so a power cut may lose recent chunks -- and a file of any array lost or damaged afterwards
+(a deleted file, a truncated one, a flipped byte) is caught by its checksum: recomputed on resume (a
+chunk integrated again, a static array written again from the plan, a derived one computed again
+when the sweep finishes), named in an error by ``export``, never read as the fill value.
 
 A store directory is only ever created, reused when it holds a store of the same computation, or
 refused: a directory holding anything else is refused untouched, and ``--restart`` (or removing the
@@ -33,12 +37,12 @@ store after the netCDF file is written) deletes only the entries the manifest li
 The manifest's identity (:mod:`stabjax.plan.identity`) is compared on every resume; any difference is
 refused with a message naming what changed (library versions: recorded and reported only).
 
-Size (~750 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
-integrity checks are one file format and change together; the writer lock is :mod:`stabjax.run.lock`.
-
-Size (~750 lines): :class:`ChunkStore` is one object guarding one invariant (a chunk is listed in the
-manifest only once all its blocks are on disk), with the reads that must honour the same layout
-(:func:`verify`, :func:`load_results`, :func:`open_store`); split, the layout would be known in two places.
+Size (~890 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
+integrity checks are one file format and change together: :class:`ChunkStore` guards one invariant
+(a chunk is listed in the manifest only once all its blocks are on disk, an array is read only
+against its checksum), with the reads that must honour the same layout (:func:`verify`,
+:func:`verify_arrays`, :func:`load_results`, :func:`open_store`); split, the layout would be known in
+two places. The writer lock is :mod:`stabjax.run.lock`.
 """
 from __future__ import annotations
 
@@ -60,11 +64,13 @@ import numpy as np
 from ..plan import identity as I
 from .lock import Lock, StoreError, StoreIOError, _pid_alive
 
-FORMAT = "stabjax-store/2"
-OLD_FORMATS = {"stabjax-store/1": ["data"]}  # earlier layouts: their entries besides the manifest (for --restart)
+FORMAT = "stabjax-store/3"  # /3: every array checksummed (the chunks' blocks, "static" and "derived" arrays)
+# earlier layouts: their entries besides the manifest (for --restart); None: the manifest lists them itself
+OLD_FORMATS = {"stabjax-store/1": ["data"], "stabjax-store/2": None}
 MANIFEST = "manifest.json"
 LOCK = ".lock"
 ROOT = "zarr.json"
+PLACEHOLDER_BYTES = 64 << 20  # per-trajectory arrays up to this size are laid out without Dask (ChunkStore._layout)
 
 
 # ---- identity: stabjax.plan.identity (the one place a run's identity is computed) --------------------
@@ -146,18 +152,20 @@ class Chunking:
 # ---- the manifest ------------------------------------------------------------------------------
 
 
-def read_manifest(path: Path) -> dict | None:
+def read_manifest(path: Path, hint: str | None = None) -> dict | None:
+    """The store's manifest, None without one; a :class:`StoreError` for one that cannot be used, ending
+    with ``hint`` (what the command can do; default: the sweep's ``--restart``)."""
     mf = Path(path) / MANIFEST
     if not mf.exists():
         return None
     try:
         m = json.loads(mf.read_text())
     except (OSError, ValueError) as exc:
-        raise StoreError(f"{mf} is unreadable ({exc}); pass --restart to start the sweep over") from None
+        raise StoreError(f"{mf} is unreadable ({exc}); {hint or 'pass --restart to start the sweep over'}") from None
     if not isinstance(m, dict) or m.get("format") != FORMAT:
         old = isinstance(m, dict) and m.get("format") in OLD_FORMATS
         raise StoreError(f"{mf} is {'a store of an earlier stabjax version' if old else 'not a stabjax store manifest'}; "
-                         "pass --restart to start over, or use another --out")
+                         f"{hint or 'pass --restart to start over, or use another --out'}")
     return m
 
 
@@ -203,8 +211,15 @@ def stored_batch(path: str | Path) -> int | None:
 
 
 def checksum(block: np.ndarray) -> str:
-    """sha256 of a block's dtype, shape and bytes (C order), 16 hex digits."""
-    b = np.ascontiguousarray(block)
+    """sha256 of a block's dtype, shape and bytes (C order), 16 hex digits. Text (a coordinate of names:
+    object, unicode or numpy's StringDType, as xarray writes and zarr reads it) by its values, so that the
+    sum of what was written equals the sum of what is read back."""
+    b = np.asarray(block)
+    if b.dtype.kind in "OUT":
+        h = hashlib.sha256(f"text{b.shape}".encode())
+        h.update(json.dumps([str(x) for x in b.ravel().tolist()]).encode())
+        return h.hexdigest()[:16]
+    b = np.ascontiguousarray(b)
     h = hashlib.sha256(f"{b.dtype.str}{b.shape}".encode())
     h.update(b.tobytes())
     return h.hexdigest()[:16]
@@ -317,7 +332,11 @@ class ChunkStore:
         except (OSError, ValueError):
             m = None  # our writes are atomic: a damaged manifest was cut short by hand or by the disk
         if isinstance(m, dict) and m.get("format") in OLD_FORMATS:
-            entries = [MANIFEST, *OLD_FORMATS[m["format"]]]
+            listed = OLD_FORMATS[m["format"]]
+            if listed is None:  # a manifest listing what it wrote: the rest of the directory is told apart
+                listed = [e for e in m.get("entries") or [] if isinstance(e, str) and e != MANIFEST]
+                return {"entries": [MANIFEST, *listed], "damaged": True}
+            entries = [MANIFEST, *listed]
         elif m is not None:
             raise StoreError(f"{mf} is not a stabjax store manifest: {self.path} is not a store, and nothing in it "
                              "was removed; use another --store")
@@ -409,25 +428,52 @@ class ChunkStore:
 
     # -- integrity
     def _check_chunks(self):
-        """Drop from the manifest every finished chunk whose data are missing or differ from their
-        checksum (they are recomputed), saying which; a store whose arrays are gone starts over."""
-        if not self.manifest["chunks"]:
+        """Every array the store holds against its checksums: a finished chunk whose block of some array
+        is missing or differs is dropped from the manifest (computed again); a damaged static array
+        (coordinates, samples, the parameters' variables) is written again from the plan; a damaged
+        derived one (basin statistics, a classification over the whole sweep) is computed again when
+        the sweep finishes. Each is said in a :class:`StoreWarning`; a store whose arrays cannot be
+        opened starts over."""
+        if self.manifest.get("arrays") is None:
             return
         try:
             bad = verify(self.path, self.manifest)
+            broken = verify_arrays(self.path, self.manifest)
         except StoreError as exc:  # an array's metadata is gone: every chunk is recomputed
             bad = {int(i): str(exc) for i in self.manifest["chunks"]}
+            broken = {}
             self.manifest["arrays"] = None
-        if not bad:
+        if not bad and not broken:
             return
         for i, why in sorted(bad.items()):
             del self.manifest["chunks"][str(i)]
-            self.repaired.append(f"chunk {i}: {why}")
+        static = sorted(k for k in broken if k in (self.manifest.get("static") or {}))
+        derived = sorted(k for k in broken if k not in static)
+        for k in derived:
+            del self.manifest["derived"][k]
         self.manifest["finished"] = False
         self._save_manifest()
-        warnings.warn(f"{self.path}: {len(bad)} finished chunk(s) are missing or damaged and are computed again: "
-                      + "; ".join(self.repaired[:5]) + (" ..." if len(self.repaired) > 5 else ""), StoreWarning,
-                      stacklevel=3)
+        if static:
+            if "template_features" in static:  # not read back: integrated again (or the caller's)
+                from . import dataset as D
+
+                self._tf = self._tf_given if self._tf_given is not None else D.template_features(self.plan)
+            try:
+                self._rewrite_static(static)
+            except OSError as exc:
+                raise self._io_error(", ".join(static), exc) from None
+            self._save_manifest()
+        said = [f"chunk {i}: {why}" for i, why in sorted(bad.items())] + [broken[k] for k in static + derived]
+        self.repaired.extend(said)
+        parts = []
+        if bad:
+            parts.append(f"{len(bad)} finished chunk(s) are missing or damaged and are computed again")
+        if static:
+            parts.append(f"{', '.join(static)} {'was' if len(static) == 1 else 'were'} written again from the spec")
+        if derived:
+            parts.append(f"{', '.join(derived)} {'is' if len(derived) == 1 else 'are'} computed again at the end")
+        warnings.warn(f"{self.path}: {'; '.join(parts)} ({'; '.join(said[:5])}{' ...' if len(said) > 5 else ''})",
+                      StoreWarning, stacklevel=3)
 
     # -- data
     def _data(self):
@@ -453,20 +499,53 @@ class ChunkStore:
                 self._tf = D.template_features(self.plan)
         return self._tf
 
-    def _create(self, rec: Mapping[str, np.ndarray]):
-        """Create the dataset's arrays (from the first chunk's keys, dtypes and trailing shapes): the
-        coordinates and the variables that depend on the parameters only are written now, the
-        per-trajectory ones are filled chunk by chunk, the basin statistics at the end."""
-        import dask.array as da
+    def _layout(self, records: Mapping[str, tuple[np.dtype, tuple[int, ...]]]):
+        """The store's dataset before any chunk: the per-trajectory records (name -> dtype, trailing
+        shape) as placeholders, the basin statistics too; the coordinates and the variables of the
+        parameters alone (the "static" arrays) with their values.
 
+        The placeholders are numpy arrays of zarr's fill value (NaN, 0) when they fit in
+        ``PLACEHOLDER_BYTES``: zarr writes no chunk equal to its fill value, so nothing of them reaches
+        the disk, and nothing needs Dask (whose array module takes ~0.7 s of CPU to import). Above, they
+        are lazy Dask arrays, never computed (no memory). The arrays' metadata is the same either way."""
         from . import dataset as D
 
         shape, block = self.chunking.shape, self.chunking.block
-        holders = {k: da.empty(shape + v.shape[1:], chunks=block + v.shape[1:], dtype=v.dtype) for k, v in rec.items()}
-        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan), whole=False)
+        n = int(np.prod(shape)) if shape else 1
+        size = sum(n * int(np.prod(t)) * np.dtype(dt).itemsize for dt, t in records.values())
+        if size <= PLACEHOLDER_BYTES:
+            def empty(full, dtype, chunks=None):
+                return np.full(full, np.nan if np.dtype(dtype).kind in "fc" else 0, dtype=dtype)
+        else:
+            import dask.array as da
+
+            def empty(full, dtype, chunks=None):
+                return da.empty(full, chunks=chunks or full, dtype=dtype)
+        holders = {k: empty(shape + tuple(t), np.dtype(dt), block + tuple(t)) for k, (dt, t) in records.items()}
+        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan, empty=empty),
+                     whole=False)
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
         for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
             ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
+        return ds
+
+    def _static_names(self, ds) -> list[str]:
+        """The variables of the layout written with their values when the store is created."""
+        lazy = set(self.manifest.get("arrays") or {}) | self._basin_names()
+        return sorted(str(k) for k in ds.variables if k not in lazy)
+
+    def _basin_names(self) -> set[str]:
+        from . import dataset as D
+
+        return set(D.basin_placeholders(self.plan, empty=lambda shape, dtype: None))
+
+    def _create(self, rec: Mapping[str, np.ndarray]):
+        """Create the dataset's arrays (from the first chunk's keys, dtypes and trailing shapes): the
+        coordinates and the variables that depend on the parameters only are written now (and their
+        checksums recorded: the manifest's ``static``), the per-trajectory ones are filled chunk by
+        chunk, the basin statistics at the end."""
+        shape, block = self.chunking.shape, self.chunking.block
+        ds = self._layout({k: (v.dtype, v.shape[1:]) for k, v in rec.items()})
         names = [ROOT, *sorted(str(k) for k in ds.variables)]
         # write-ahead: the manifest lists every entry before it exists, so --restart can remove them
         leftovers = [e for e in self.manifest["entries"] if e != MANIFEST]  # of a creation killed midway
@@ -478,15 +557,37 @@ class ChunkStore:
         enc = {k: {"chunks": block + tuple(v.shape[nd:])} for k, v in ds.variables.items()
                if nd and v.dims[:nd] == self.plan.dims}
         if "outcome" in rec and self._basin_per_chunk():  # basin statistics: one zarr chunk per sweep chunk's grid points
-            for k in D.basin_placeholders(self.plan):
+            for k in self._basin_names():
                 enc[k] = {"chunks": block[:-1] + tuple(ds[k].shape[nd - 1:])}
+        # zarr skips a chunk equal to its fill value: the placeholders write nothing, and a chunk of a static array
+        # holding only the fill value has no file (read back, it is that value: its checksum holds)
         with _quiet_zarr():
-            ds.to_zarr(self.path, mode="a", compute=False, zarr_format=3, consolidated=True, encoding=enc)
+            # lazy placeholders are never computed (compute=False); with numpy ones there is nothing to defer, and
+            # xarray then needs no dask.delayed
+            lazy = any(not isinstance(v.data, np.ndarray) for v in ds.variables.values())
+            ds.to_zarr(self.path, mode="a", compute=not lazy, zarr_format=3, consolidated=True, encoding=enc)
         self._group = None
         self.manifest["arrays"] = {k: {"dtype": v.dtype.str, "trailing": list(v.shape[1:]),
                                        "dims": list(ds[k].dims[nd:])} for k, v in rec.items()}
         self.manifest["variables"] = [str(k) for k in ds.data_vars]  # the dataset's order (zarr lists names sorted)
+        self.manifest["static"] = self._sums(self._static_names(ds))
+        self.manifest["derived"] = {}
         self._save_manifest()
+
+    def _sums(self, names) -> dict[str, str]:
+        """The checksums of whole arrays of the group, as they read back."""
+        g = self._data()
+        return {k: checksum(g[k][...]) for k in names}
+
+    def _rewrite_static(self, names: list[str]):
+        """Write the static arrays ``names`` again from the plan (they hold the parameters' values alone:
+        the same numbers as when the store was created) and record their checksums."""
+        arrays = self.manifest["arrays"]
+        ds = self._layout({k: (np.dtype(a["dtype"]), tuple(a["trailing"])) for k, a in arrays.items()})
+        g = self._data()
+        for k in names:
+            g[k][...] = np.asarray(ds[k].values)
+        self.manifest["static"].update(self._sums(names))
 
     def _basin_per_chunk(self) -> bool:
         """Whether each chunk holds every sample of its grid points (the sample axis is not split)."""
@@ -555,6 +656,10 @@ class ChunkStore:
                 self._add_vars(*D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
                                                    self.template_features()))
             _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
+            # everything else the store holds (basin statistics, a classification over the whole sweep):
+            # checksummed as written, so that export and a resume read nothing else
+            made = set(self.manifest.get("static") or {}) | set(self.manifest["arrays"])
+            self.manifest["derived"] = self._sums(sorted(set(self._data().array_keys()) - made))
             self.manifest["finished"] = True
             self._save_manifest()
         except OSError as exc:
@@ -643,6 +748,45 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
     return bad
 
 
+def verify_arrays(path: str | Path, manifest: Mapping[str, Any]) -> dict[str, str]:
+    """Array name -> what is wrong, for every whole-array checksum of the manifest (``static``: written
+    when the store was created; ``derived``: when it finished) whose array has a chunk file missing, is
+    unreadable, or differs from its checksum. Raises :class:`StoreError` when the arrays cannot be opened."""
+    import zarr
+
+    sums = {**(manifest.get("static") or {}), **(manifest.get("derived") or {})}
+    if not sums:
+        return {}
+    try:
+        with _quiet_zarr():
+            g = zarr.open_group(Path(path), mode="r", zarr_format=3)
+        arr = {}
+        for k in sums:
+            json.loads((Path(path) / k / ROOT).read_text())
+            arr[k] = g[k]
+    except Exception as exc:  # noqa: BLE001 - any damage to the metadata: the arrays are gone
+        raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
+    bad: dict[str, str] = {}
+    for k, a in arr.items():
+        try:
+            values = a[...]
+        except Exception as exc:  # noqa: BLE001 - a truncated or overwritten chunk file: which one
+            bad[k] = f"{k} is unreadable ({type(exc).__name__})"
+            for idx in np.ndindex(*a.cdata_shape):
+                try:
+                    a.blocks[idx]
+                except Exception as exc:  # noqa: BLE001
+                    bad[k] = f"{k}/{a.metadata.encode_chunk_key(idx)} is unreadable ({type(exc).__name__})"
+                    break
+            continue
+        if checksum(values) != sums[k]:
+            # zarr writes no chunk equal to the fill value: a chunk without its file is lost only when the sum differs
+            gone = [ck for ck in (a.metadata.encode_chunk_key(i) for i in np.ndindex(*a.cdata_shape))
+                    if not (Path(path) / k / ck).is_file()]
+            bad[k] = f"{k}/{gone[0]} is missing" if gone else f"{k} differs from its checksum"
+    return bad
+
+
 def load_results(path: str | Path, manifest: Mapping[str, Any], *, lazy: bool = False) -> dict[str, Any]:
     """The per-trajectory records of a store, flat over the trajectories (N, *trailing) in the plan's
     C order: dask arrays reading the store (``lazy``) or numpy."""
@@ -673,13 +817,15 @@ def pending_mask(manifest: Mapping[str, Any]) -> np.ndarray:
     return pending
 
 
-def open_store(path: str | Path):
+def open_store(path: str | Path, *, dask: bool = True):
     """The dataset a store holds, as xarray reads it (``xr.open_zarr``), lazily; with the zarr
     encodings dropped and text coordinates as Python strings, so that it writes to netCDF exactly
-    as the dataset of a run without a store does."""
+    as the dataset of a run without a store does. ``dask``: its variables are Dask arrays (read chunk
+    by chunk when computed); else xarray's own lazy arrays, each read whole by ``load()`` -- the same
+    values, without Dask's import and task graph, for a dataset that is loaded anyway."""
     import xarray as xr
 
-    ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3)
+    ds = xr.open_zarr(Path(path), consolidated=True, zarr_format=3, chunks={} if dask else None)
     with contextlib.suppress(StoreError, TypeError, KeyError):
         order = (read_manifest(Path(path)) or {}).get("variables") or []
         names = [v for v in order if v in ds.data_vars] + [v for v in ds.data_vars if v not in order]
@@ -728,7 +874,8 @@ def finished_store(store: str | Path):
     if not store.is_dir():
         raise ValidationError("store", f"{store} is a file, not a stabjax store (a directory written by "
                                        "'stabjax sweep ... --keep-store')")
-    m = read_manifest(store)
+    m = read_manifest(store, hint=f"nothing can be exported from it. Compute it again with the sweep that wrote "
+                                  f"it: stabjax sweep SPEC --store {store} --restart")
     if m is None:
         raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST})")
     h = _holder(store)
@@ -739,13 +886,17 @@ def finished_store(store: str | Path):
         raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
                          "again to finish it")
     bad = verify(store, m)
-    if bad:
-        listed = "; ".join(f"chunk {i}: {why}" for i, why in sorted(bad.items())[:5])
-        raise StoreError(f"{store}: {len(bad)} chunk(s) are missing or damaged ({listed}{' ...' if len(bad) > 5 else ''}); "
+    broken = verify_arrays(store, m)
+    if bad or broken:
+        said = [f"chunk {i}: {why}" for i, why in sorted(bad.items())] + [broken[k] for k in sorted(broken)]
+        what = ([f"{len(bad)} chunk(s) are missing or damaged"] if bad else []) + \
+            ([f"{'array' if len(broken) == 1 else 'arrays'} {', '.join(sorted(broken))} "
+              f"{'is' if len(broken) == 1 else 'are'} missing or damaged"] if broken else [])
+        raise StoreError(f"{store}: {' and '.join(what)} ({'; '.join(said[:5])}{' ...' if len(said) > 5 else ''}); "
                          "nothing was exported. Run the sweep command again: it recomputes them")
     return m, plan_from_manifest(m)
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
            "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "plan_from_manifest",
-           "stored_batch", "verify", "checksum"]
+           "stored_batch", "verify", "verify_arrays", "checksum"]

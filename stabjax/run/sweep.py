@@ -36,7 +36,7 @@ from ..fold import verdict as V
 from ..config import setup_jax
 from ..engines.base import N_SUMMARY_FIELDS
 from ..errors import OutputError, ValidationError
-from .outputs import write_reason
+from .outputs import clean_stale_temps, temp_beside, write_reason
 from .progress import progress_bar
 from ..plan.spec import Plan, check_plan, load_spec, make_plan, static_params
 from .store import Chunking
@@ -158,6 +158,7 @@ def solve_chunk(plan: Plan, batch: int, i: int, *,
     delay = os.environ.get("_STABJAX_TEST_CHUNK_SLEEP")  # tests only: widen the window for kill -9
     if delay:
         time.sleep(float(delay))
+    signals.wait_in_chunk(i)  # tests only: a signal sent while chunk i is in flight
     lo, hi = Chunking(plan.shape, batch).bounds(i)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # a worker's own plan: resolved (cached) here
     res = engines.solve(plan.engine, plan.integrated, chunk_params(plan, batch, i), plan.icfg, plan.vcfg,
@@ -212,7 +213,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             return ds
         sink.finish(attrs)
         lazy = n > LAZY_ABOVE
-        ds = S.open_store(store_path)  # the netCDF file is a copy of the store, chunk by chunk
+        ds = S.open_store(store_path, dask=lazy)  # the netCDF file is a copy of the store (chunk by chunk: lazy)
         if not lazy:
             ds = ds.load()
         if out is None:
@@ -406,7 +407,8 @@ def write(ds: xr.Dataset, out: str | Path) -> Path:
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    clean_stale_temps(out)  # a run killed while it wrote this file left its temporary file behind
+    tmp = temp_beside(out)
     try:
         with dask.config.set(scheduler="synchronous"):
             ds.to_netcdf(tmp, engine="netcdf4")

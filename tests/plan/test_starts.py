@@ -1,4 +1,6 @@
 """Starts from a file ([sample] from = ...) and the per-start comparison with the file's labels."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -92,3 +94,77 @@ def test_discovery_against_labels_in_the_file(tmp_path):
     from stabjax.present.basins import format_summary
 
     assert "Matthews correlation" in format_summary(ds)
+
+
+def _plan(tmp_path, starts, **over):
+    from stabjax.plan.spec import make_plan
+
+    return make_plan({"system": PENDULUM, "sample": {"from": str(starts)}, "integrate": {"t1": 10.0}, **over})
+
+
+def test_a_column_named_twice_in_a_csv_header_is_refused(tmp_path):
+    """Before: the second theta0 column was used and omega0 left at its default, without a word."""
+    p = tmp_path / "s.csv"
+    p.write_text("theta0,theta0\n0.1,0.2\n0.3,0.4\n")
+    with pytest.raises(ValidationError, match="column 'theta0' appears 2 times in the header") as e:
+        _plan(tmp_path, p)
+    assert e.value.field == "sample.from"
+
+
+def test_a_netcdf_variable_not_1d_along_the_starts_is_refused(tmp_path):
+    """Before: a 2-D omega0 was dropped and every start ran with omega0 = 0."""
+    import xarray as xr
+
+    p = tmp_path / "s.nc"
+    xr.Dataset({"theta0": ("start", [0.1, 0.2, 0.3]), "omega0": (("start", "k"), np.ones((3, 2)))}).to_netcdf(p)
+    with pytest.raises(ValidationError, match=r"variable 'omega0' has dimensions \('start', 'k'\)"):
+        _plan(tmp_path, p)
+    xr.Dataset({"theta0": ("start", [0.1, 0.2, 0.3]), "omega0": ("other", [1.0, 2.0])}).to_netcdf(p, mode="w")
+    with pytest.raises(ValidationError, match="variable 'omega0' has dimensions \\('other',\\)"):
+        _plan(tmp_path, p)
+    xr.Dataset({"theta0": ("start", [0.1, 0.2, 0.3]), "omega0": ((), 1.0)}).to_netcdf(p, mode="w")
+    with pytest.raises(ValidationError, match="variable 'omega0' has dimensions \\(\\)"):
+        _plan(tmp_path, p)
+    xr.Dataset({"theta0": ("start", [0.1, 0.2, 0.3]), "omega0": ("start", [1.0, 2.0, 3.0])}).to_netcdf(p, mode="w")
+    plan = _plan(tmp_path, p)  # both along the starts: read, each column whole
+    np.testing.assert_array_equal(plan.sample["omega0"], [1.0, 2.0, 3.0])
+
+
+def test_a_npy_field_with_several_numbers_per_start_is_refused(tmp_path):
+    p = tmp_path / "s.npy"
+    arr = np.zeros(3, dtype=[("theta0", float), ("omega0", float, (2,))])
+    np.save(p, arr)
+    with pytest.raises(ValidationError, match="field 'omega0' has shape \\(2,\\) per start"):
+        _plan(tmp_path, p)
+    np.save(p, np.zeros((3, 2), dtype=[("theta0", float), ("omega0", float)]))
+    with pytest.raises(ValidationError, match="needs a 1-D structured array"):
+        _plan(tmp_path, p)
+
+
+def test_a_fixed_parameter_that_is_also_a_column_of_the_file_is_refused(tmp_path):
+    """Before: the file won and fixed_params_json recorded the unused 1.0 (the same clash with [sample] NAME
+    is refused)."""
+    p = tmp_path / "s.csv"
+    p.write_text("theta0,omega0\n0.1,0.2\n0.3,0.4\n")
+    with pytest.raises(ValidationError, match="is also a column of the starts file s.csv") as e:
+        _plan(tmp_path, p, params={"omega0": 1.0})
+    assert e.value.field == "params.omega0"
+    plan = _plan(tmp_path, p, params={"alpha": 0.2})  # another parameter fixed beside the file: fine
+    assert plan.starts_file == p and float(plan.fixed["alpha"]) == 0.2
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_out_equal_to_the_starts_file_is_refused_even_with_force(tmp_path, capsys, force):
+    import xarray as xr
+
+    from clirun import captured
+
+    starts = tmp_path / "starts.nc"
+    xr.Dataset({"theta0": ("start", [0.1, 0.2]), "omega0": ("start", [0.0, 1.0])}).to_netcdf(starts)
+    before = starts.read_bytes()
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'system = "{Path(PENDULUM.split(":")[0]).resolve()}:Pendulum"\n[sample]\nfrom = "starts.nc"\n'
+                    "[integrate]\nt1 = 10.0\n")
+    code, _, err = captured(capsys, "sweep", spec, "--out", starts, "--no-progress", *(["--force"] if force else []))
+    assert code == 2 and "--out" in err and "is this command's input" in err, err
+    assert starts.read_bytes() == before and not (tmp_path / "starts.nc.zarr").exists()

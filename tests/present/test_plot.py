@@ -14,7 +14,8 @@ import pytest  # noqa: E402
 import stabjax  # noqa: E402
 from clirun import captured, status  # noqa: E402
 from stabjax.errors import ValidationError  # noqa: E402
-from stabjax.present import kit, stamps  # noqa: E402
+from stabjax.present import kit  # noqa: E402
+from stabjax.run.outputs import is_own_output, output_stamp, spec_digest_of  # noqa: E402
 
 
 def test_the_public_api_offers_one_plot_and_one_opener():
@@ -35,8 +36,9 @@ def test_plot_draws_every_kind_of_result_and_stamps_it(results, which, kind, lay
     out = tmp_path / "new" / f"{which}.png"
     fig = stabjax.plot(results[which], out)
     assert fig.axes and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert stamps.read(out) == (stamps.source_of(results[which]), stamps.spec_of(ds))
-    assert stamps.shows(out, ds, results[which])
+    stamp = output_stamp(out)
+    assert stamp["source"] == str(results[which].resolve()) and stamp["spec"] == spec_digest_of(ds) is not None
+    assert is_own_output(out, results[which]) and is_own_output(out, spec=spec_digest_of(ds))
     labels = [t for ax in fig.axes for t in (ax.get_xlabel(), ax.get_ylabel()) if t]
     assert labels and not any(re.fullmatch(r"\w+", t) for t in labels)  # axes in words, not bare names
     plt.close("all")
@@ -85,7 +87,7 @@ def test_stabjax_plot_draws_a_refinement_it_used_to_refuse(results, tmp_path, ca
     shutil.copy(results["refine"], res)
     code, out, _ = captured(capsys, "plot", str(res))
     assert code == 0 and "boundary segments" in out and f"wrote {res.with_suffix('.png')}" in out
-    assert stamps.shows(res.with_suffix(".png"), stabjax.open_result(res), res)
+    assert is_own_output(res.with_suffix(".png"), res)
 
 
 @pytest.mark.parametrize("fmt", ["png", "svg", "pdf"])

@@ -373,28 +373,20 @@ def test_signal_keeps_chunks_and_resumes_to_the_same_result(tmp_path, sig, statu
     spec = spec_file(tmp_path, body)
     out = tmp_path / "r.nc"
     store = Path(str(out) + ".zarr")
+    # chunk 2 says it is in flight (a file) and waits for the signal: it lands inside a chunk on any machine
     env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu", STABJAX_THREADS="1",
-               _STABJAX_TEST_CHUNK_SLEEP="0.7")
+               _STABJAX_TEST_SIGNAL_IN_CHUNK=f"2:{tmp_path}")
     cmd = [sys.executable, "-m", "stabjax", "sweep", str(spec), "--out", str(out), "--batch-size", "1",
            "--no-progress", "--no-plot"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 120
-        done = 0
-        while time.time() < deadline:
-            try:
-                done = len(S.read_manifest(store)["chunks"])
-            except (TypeError, S.StoreError):
-                done = 0
-            if done >= 1:
-                break
-            time.sleep(0.05)
-        assert done >= 1, "no chunk finished"
-        # the manifest is committed a few milliseconds before the loop's checkpoint: a signal in that gap
-        # finds no chunk in flight. Wait until the next chunk is in its 0.7 s sleep, so one is.
-        time.sleep(0.25)
+        while not (tmp_path / "chunk-2").exists() and proc.poll() is None and time.time() < deadline:
+            time.sleep(0.02)
+        assert (tmp_path / "chunk-2").exists(), "chunk 2 never started"
+        assert len(S.read_manifest(store)["chunks"]) == 2  # chunks 0 and 1 are written, chunk 2 is in flight
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=120)
     finally:
         proc.kill()
     name = signal.Signals(sig).name
@@ -403,11 +395,11 @@ def test_signal_keeps_chunks_and_resumes_to_the_same_result(tmp_path, sig, statu
         " ".join(err.split()), err
     assert "Traceback" not in err
     kept = len(S.read_manifest(store)["chunks"])
-    assert done + 1 <= kept < 6  # the chunk in flight was written, then the run stopped
+    assert kept == 3  # the chunk in flight was written, then the run stopped
     assert not out.exists()
     if not resume:
         return
-    env.pop("_STABJAX_TEST_CHUNK_SLEEP")
+    env.pop("_STABJAX_TEST_SIGNAL_IN_CHUNK")
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     resumed = xr.load_dataset(out)

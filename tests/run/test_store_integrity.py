@@ -240,3 +240,38 @@ def test_a_store_whose_metadata_is_damaged_starts_over(spec, tmp_path, reference
         ds = run_spec(spec, out, batch_size=4)
     assert ds.attrs["chunks_resumed"] == 0
     assert_same(ds, reference)
+
+
+# ---- issue 32: the layout of a small store is made without Dask ----------------------------------------------
+
+
+@pytest.mark.parametrize("text", [TINY, SAMPLED], ids=["grid", "sampled"])
+def test_the_layout_made_without_dask_is_the_same_store(tmp_path, monkeypatch, text, reference):
+    """Placeholders of zarr's fill value (numpy, small stores) and lazy Dask ones (large stores) lay out the same
+    arrays -- every zarr.json and the consolidated metadata equal -- write no chunk of an unfinished block,
+    and finish to the same result bitwise."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(text)
+    batch = 4 if text is TINY else 5
+    made = {}
+    for how, limit in (("numpy", S.PLACEHOLDER_BYTES), ("dask", 0)):
+        monkeypatch.setattr(S, "PLACEHOLDER_BYTES", limit)
+        out = tmp_path / f"{how}.nc"
+
+        def stop(i, n):
+            if i == 0:
+                raise KeyboardInterrupt
+
+        with pytest.raises(KeyboardInterrupt):
+            run_spec(spec, out, batch_size=batch, on_chunk=stop)
+        store = tmp_path / f"{how}.nc.zarr"
+        meta = {str(p.relative_to(store)): json.loads(p.read_text()) for p in sorted(store.glob("*/zarr.json"))}
+        root = json.loads((store / "zarr.json").read_text())["consolidated_metadata"]
+        files = sorted(str(p.relative_to(store)) for p in store.rglob("*") if p.is_file() and "/c/" in str(p))
+        chunked = S.read_manifest(store)["arrays"]
+        assert not [f for f in files if f.split("/")[0] in chunked and f.split("/")[2] != "0"]  # only block 0 written
+        made[how] = (meta, root, files, run_spec(spec, out, batch_size=batch))
+    assert made["numpy"][:3] == made["dask"][:3]
+    assert_same(made["numpy"][3], made["dask"][3])
+    if text is TINY:
+        assert_same(made["numpy"][3], reference)
