@@ -45,6 +45,8 @@ MEANINGS = {
         "verdict": "the attitude classifier's thresholds and horizons",
         "outcomes": "named outcomes: rules, templates, escape, discovery (overrides the model's declaration)",
         "refine": "adaptive refinement of the boundary instead of the full grid",
+        "shock": "minimal fatal shocks: the smallest perturbation of a start that ends elsewhere, held against a "
+                 "theorem's guaranteed region ([Regions of attraction](shock.md))",
     },
     "integrate": {
         "t1": "end of the integration (the horizon); default: the model's `default_t1`",
@@ -236,7 +238,7 @@ def table(name: str) -> str:
             _fail(f"[refine] keys without a meaning: {missing}")
         return "\n".join(["| key | meaning |", "|---|---|"] + [f"| `{k}` | {_cell(written[k])} |" for k in REFINE_KEYS])
     if name == "dists":
-        from stabjax.plan.spec import _DISTS, _REQUIRED
+        from stabjax.plan.samplers import _DISTS, _REQUIRED
 
         written = _written("dist", _DISTS)
         missing = sorted(set(_DISTS) - set(written))
