@@ -67,7 +67,7 @@ def sweep(
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
                           markup=False)
-    note = plan.outcomes.decl.default_distance_note() if plan.outcomes is not None and plan.outcomes.decl else ""
+    note = plan.scheme.decl.default_distance_note() if plan.scheme.decl is not None else ""
     if note:
         err_console.print(f"note: {note}", markup=False)
     executor = None

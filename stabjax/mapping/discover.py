@@ -1,4 +1,5 @@
-"""Attractors found from the trajectories themselves: featurise, scale, group, type and name.
+"""Attractors found from the trajectories themselves: featurise, scale, group, type and name (the
+whole-set outcome mapper :class:`Discovery`, :mod:`stabjax.mapping.mapper`).
 
 A model that declares no outcomes rules (or a spec with ``[outcomes] discover = true``) gets its
 outcomes here, after every trajectory of the sweep has run (the grouping pools all grid points,
@@ -40,7 +41,7 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    by decreasing basin size within each type.
 5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point is grouped on its
    own and the attractors of neighbouring points are matched by the distance between their
-   representatives (:func:`continue_along`, Attractors.jl's global continuation), so
+   representatives (:mod:`stabjax.mapping.continuation`, Attractors.jl's global continuation), so
    ``basin_fraction`` along the axis follows one attractor and births and deaths are reported
    (``attractor_events``). ``continuation = false`` groups all points together instead.
 6. **Representative** of each group: the member whose features lie nearest the group's median;
@@ -57,14 +58,15 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ValidationError
-from ..model.outcomes import DiscoveryConfig  # the [outcomes.discovery] table is part of the declaration
+from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig  # [outcomes.discovery]: the declaration's
+from .mapper import Mapped, Mapper, OutcomeScheme, outcome_names
 
 STATS = ("mean", "std", "min", "max")
 TYPES = ("fixed_point", "limit_cycle", "chaotic", "attractor")
 
 
 @dataclass
-class Discovery:
+class Attractors:
     """The attractors found: ``labels`` (N,) index into ``names`` or -1 (unclassified / not valid)."""
 
     labels: np.ndarray
@@ -154,7 +156,7 @@ def group(x: np.ndarray, cfg: DiscoveryConfig) -> tuple[np.ndarray, dict[str, An
 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
-             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0) -> Discovery:
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0) -> Attractors:
     """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
     ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales)."""
     n_obs = len(observables)
@@ -190,7 +192,7 @@ def _describe(g: np.ndarray, feats, x, scale, lam_all, cfg: DiscoveryConfig):
     return kind, med, lam, rep
 
 
-def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> Discovery:
+def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> Attractors:
     """Name and order the groups (type, then decreasing size); ``kinds``: given types (continuation)."""
     typed = []
     for i, g in enumerate(groups):
@@ -211,40 +213,29 @@ def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> 
         reps.append(rep)
         labels[g] = a
     stats.update(n_grouped=int((labels >= 0).sum()))
-    return Discovery(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
+    return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                      features=np.asarray(fmed).reshape(len(names), len(fnames)), feature_names=fnames,
                      lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=scale,
                      stats=stats)
 
 
-def continue_along(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
-                   atol: float = 0.0, rtol: float = 0.0) -> tuple[Discovery, list[dict[str, Any]]]:
-    """Attractors followed along one grid axis (Datseris, Rossi & Wagemakers, Chaos 33 (2023): the
-    "global continuation" of Attractors.jl, ``MatchBySSSetDistance`` with centroid distances).
+def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
+               atol: float = 0.0, rtol: float = 0.0) -> tuple[Attractors, list[dict[str, Any]]]:
+    """Attractors followed along one grid axis: each point grouped on its own (:func:`group`, features
+    scaled by the whole sweep's ranges so distances compare between points), then matched from point to
+    point by :func:`stabjax.mapping.continuation.match_sequentially`. Trajectories are laid out point-major
+    (``n_points`` grid points, the same number of samples each). Returns the discovery (labels over all
+    trajectories) and the births and deaths (:func:`stabjax.mapping.continuation.events`)."""
+    from . import continuation as C
 
-    Trajectories are laid out point-major (``n_points`` grid points, the same number of samples
-    each). Each point is grouped on its own (:func:`group`, features scaled by the whole sweep's
-    ranges so distances compare between points); the groups of point k are matched to the
-    attractors alive at point k - 1 by the distance between their representatives' scaled feature
-    vectors, pairs accepted greedily in increasing distance while both are free and the distance is
-    at most ``match_threshold``; an unmatched group is a new attractor (a birth), an attractor of
-    point k - 1 left unmatched ends there (a death). Greedy, not an optimal assignment (as
-    Attractors.jl); an attractor that vanishes and reappears gets a new identity. An attractor's type
-    is the one it has at most of its points. Returns the discovery (labels over all trajectories)
-    and the events ``{"attractor", "event": "birth" | "death", "index": grid index}``.
-    """
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1)
     scale = observable_ranges(results, valid, n_obs, atol, rtol)
     x = feats / np.repeat(scale, len(STATS))[None, :]
     lam_all = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
-    n = len(feats)
-    per = n // n_points
-    members: list[list[np.ndarray]] = []  # global id -> member index arrays
-    kinds: list[list[str]] = []
-    alive: dict[int, np.ndarray] = {}  # global id -> representative scaled features at the last point
-    span: list[list[int]] = []  # global id -> [first point, last point]
+    per = len(feats) // n_points
+    found: list[list[C.Found]] = []
     for k in range(n_points):
         idx = np.arange(k * per, (k + 1) * per)
         idx = idx[valid[idx]]
@@ -255,91 +246,65 @@ def continue_along(results, observables, cfg: DiscoveryConfig, valid: np.ndarray
                 gi = idx[lab == g]
                 if gi.size:
                     kind, _, _, rep = _describe(gi, feats, x, scale, lam_all, cfg)
-                    local.append((gi, kind, x[rep]))
-        pairs = sorted((float(np.linalg.norm(rep - alive[a])), j, a) for j, (_, _, rep) in enumerate(local)
-                       for a in alive)
-        taken_new, taken_old, ids = set(), set(), {}
-        for d, j, a in pairs:
-            if d <= cfg.match_threshold and j not in taken_new and a not in taken_old:
-                ids[j] = a
-                taken_new.add(j)
-                taken_old.add(a)
-        new_alive = {}
-        for j, (gi, kind, rep) in enumerate(local):
-            a = ids.get(j)
-            if a is None:
-                a = len(members)
-                members.append([])
-                kinds.append([])
-                span.append([k, k])
-            members[a].append(gi)
-            kinds[a].append(kind)
-            span[a][1] = k
-            new_alive[a] = rep
-        alive = new_alive
-    groups = [np.concatenate(m) for m in members]
+                    local.append(C.Found(gi, kind, x[rep]))
+        found.append(local)
+    ids, spans = C.match_sequentially(found, cfg.match_threshold)
+    groups, kinds = C.merged(found, ids, len(spans))
     majority = [max(TYPES, key=lambda t: (ks.count(t), -TYPES.index(t))) for ks in kinds]
     disc = _named(groups, feats, fnames, x, scale, lam_all, cfg, {"points": n_points}, kinds=majority)
-    events = []
-    for a, g in enumerate(groups):
-        name = disc.names[int(disc.labels[g[0]])]
-        first, last = span[a]
-        if first > 0:
-            events.append({"attractor": name, "event": "birth", "index": first})
-        if last < n_points - 1:
-            events.append({"attractor": name, "event": "death", "index": last + 1})
-    events.sort(key=lambda e: (e["index"], e["event"], e["attractor"]))
-    return disc, events
+    names = [disc.names[int(disc.labels[g[0]])] for g in groups]
+    return disc, C.events(spans, names, n_points)
 
 
-# ---- the outcomes of a plan ----------------------------------------------------------------------
+# ---- the mapper -------------------------------------------------------------------------------------
 
 
-def plan_config(plan) -> DiscoveryConfig:
-    return DiscoveryConfig.from_dict(plan.scheme.decl.discovery or {})
+class Discovery(Mapper):
+    """The outcomes are the attractors found in the whole sweep's features (a whole-set mapper; see the
+    module docstring). Before the run its scheme holds the fates alone (escape, unclassified, failed)."""
 
+    kind = "discovery"
+    whole_set = True
 
-def outcomes(plan, results: Mapping[str, np.ndarray]):
-    """(codes (N,) int8, the scheme with the attractors' names, data variables, coordinates) of a
-    discovering plan, from every trajectory's results."""
-    from ..fold import status as S
-    from ..model import outcomes as O
+    def __init__(self, decl, escape: bool):
+        self.escape = bool(escape)
+        self.cfg = DiscoveryConfig.from_dict(decl.discovery or {})
+        self.scheme = OutcomeScheme(*outcome_names(decl, (), self.escape), decl)
 
-    sch = plan.scheme
-    decl = sch.decl
-    cfg = plan_config(plan)
-    status = np.asarray(results["solver_status"])
-    events = None
-    if cfg.continuation and len(plan.grid) == 1 and plan.n_sample:
-        disc, events = continue_along(results, tuple(plan.system.observables), cfg, status == 0, plan.grid[0].size,
+    def map_set(self, plan, results: Mapping[str, np.ndarray], state: Any = None) -> Mapped:
+        """The attractors of every trajectory's results: codes, the scheme with the attractors' names, and
+        the attractors' variables."""
+        from ..fold import status as S
+
+        decl, cfg = self.decl, self.cfg
+        status = np.asarray(results["solver_status"])
+        events = None
+        if cfg.continuation and len(plan.grid) == 1 and plan.n_sample:
+            disc, events = _continued(results, tuple(plan.system.observables), cfg, status == 0, plan.grid[0].size,
                                       plan.icfg.atol, plan.icfg.rtol)
-    else:
-        disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
-    escape = decl.escape in sch.names
-    names = tuple(disc.names) + ((decl.escape,) if escape else ()) + (O.UNCLASSIFIED, O.FAILED_NAME)
-    if len(names) > 127:
-        raise ValidationError("outcomes.discovery", f"{len(disc.names)} attractors found: more than the outcome "
-                              "codes hold; raise eps or min_samples")
-    colors = [O.PALETTE[i % len(O.PALETTE)] for i in range(len(disc.names))]
-    colors += ([O.COLOR_ESCAPED] if escape else []) + [O.GREY_UNCLASSIFIED, O.GREY_FAILED]
-    new = O.OutcomeScheme(names, tuple(colors), decl)
-    code = np.where(disc.labels >= 0, disc.labels, names.index(O.UNCLASSIFIED))
-    ok = status == 0
-    if escape:
-        code = np.where(status == S.ESCAPED, names.index(decl.escape), code)
-        ok = ok | (status == S.ESCAPED)
-    code = np.where(ok, code, names.index(O.FAILED_NAME)).astype(np.int8)
-    data, coords = _attractor_vars(plan, disc, results, cfg)
-    if events is not None:
-        ax = plan.grid[0]
-        ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
-        data["attractor_events"] = ((), json.dumps(ev), {
-            "long_name": f"births and deaths of attractors along {ax.name} (JSON: attractor, event, first grid "
-                         f"index where it is present (birth) or absent again (death), the {ax.name} value there)"})
-    return code, new, data, coords
+        else:
+            disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
+        names, colors = outcome_names(decl, tuple(disc.names), self.escape)
+        if len(names) > 127:
+            raise ValidationError("outcomes.discovery", f"{len(disc.names)} attractors found: more than the outcome "
+                                  "codes hold; raise eps or min_samples")
+        code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
+        ok = status == 0
+        if self.escape:
+            code = np.where(status == S.ESCAPED, names.index(decl.escape), code)
+            ok = ok | (status == S.ESCAPED)
+        code = np.where(ok, code, names.index(FAILED_NAME)).astype(np.int8)
+        data, coords = _attractor_vars(plan, disc, results, cfg)
+        if events is not None:
+            ax = plan.grid[0]
+            ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
+            data["attractor_events"] = ((), json.dumps(ev), {
+                "long_name": f"births and deaths of attractors along {ax.name} (JSON: attractor, event, first grid "
+                             f"index where it is present (birth) or absent again (death), the {ax.name} value there)"})
+        return Mapped(code, OutcomeScheme(names, colors, decl), data, coords)
 
 
-def _attractor_vars(plan, disc: Discovery, results, cfg: DiscoveryConfig):
+def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]

@@ -1,8 +1,9 @@
-"""Named outcomes: which attractor (or fate) each trajectory reached, and basin stability.
+"""Named outcomes, as a model declares them: the declaration and its rule language.
 
-A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one
-integer code, stored as the dataset variable ``outcome`` with CF ``flag_values`` /
-``flag_meanings``. Codes are, in this order:
+A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one integer
+code, stored as the dataset variable ``outcome`` with CF ``flag_values`` / ``flag_meanings``. The
+declaration (:class:`Outcomes`) says which outcomes there are and how to recognise them; assigning
+them is the mapping's (:mod:`stabjax.mapping.mapper`: one mapper per plan). Codes are, in this order:
 
 1. the **rule** outcomes, in declaration order: the first rule that holds wins. A rule is an
    expression over *late-window features* of the observables (``max(x)``, ``min(x)``,
@@ -19,13 +20,13 @@ integer code, stored as the dataset variable ``outcome`` with CF ``flag_values``
 4. ``unclassified``: no rule holds and no template is near;
 5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
 
-Nothing is absorbed silently: 4 and 5 are always present. A system that declares no outcomes gets
-its attractors discovered (:mod:`stabjax.mapping.discover`: ``fixed_point_1``, ``limit_cycle_1``,
-``chaotic_1``, ...). The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
+Nothing is absorbed silently: 4 and 5 are always present (:mod:`stabjax.mapping.declared`). A system
+that declares no outcomes gets its attractors discovered (:mod:`stabjax.mapping.discover`:
+``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ...), and so does a spec with ``[outcomes]
+discover = true``; ``[outcomes.discovery]`` (:class:`DiscoveryConfig`) sets how, and never chooses
+discovery by itself. The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
 outcomes (converged, flipped, diverged, undecided, failed), with the same codes as ``verdict``.
-
-Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
-sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
+Basin stability over the codes: :mod:`stabjax.mapping.basin`.
 """
 from __future__ import annotations
 
@@ -38,13 +39,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..fold import status as S
 from ..errors import ValidationError
 
 FEATURES = ("max", "min", "mean", "std", "final")
 LYAPUNOV = "lyapunov"  # bare name in rules and features: the largest Lyapunov exponent (stabjax.model.tangent)
 UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
-Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 MAX_RULE_CHARS = 500
 
 # named outcomes, in declaration order: Okabe & Ito's colour-blind-safe palette (blue, vermillion, bluish
@@ -452,33 +451,6 @@ class Outcomes:
         return ""
 
 
-@dataclass(frozen=True)
-class OutcomeScheme:
-    """The resolved outcomes of a plan: names (code = index), colours and how to assign them."""
-
-    names: tuple[str, ...]
-    colors: tuple[str, ...]
-    decl: Outcomes | None  # None: the verdicts are the outcomes
-
-    @property
-    def from_verdicts(self) -> bool:
-        return self.decl is None
-
-
-def scheme(system, decl: Outcomes | None, escape: bool) -> OutcomeScheme:
-    from ..fold import verdict as V
-
-    if decl is None:
-        return OutcomeScheme(tuple(V.NAMES), tuple(V.COLORS), None)
-    names = decl.names(escape)
-    user = len(decl.rules) + len(decl.templates)
-    colors = [PALETTE[i % len(PALETTE)] for i in range(user)]
-    if escape:
-        colors.append(COLOR_ESCAPED)
-    colors += [GREY_UNCLASSIFIED, GREY_FAILED]
-    return OutcomeScheme(names, tuple(colors), decl)
-
-
 def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...]):
     """``feat(stat, observable)`` over the engine's ``feat_<stat>`` arrays (N, n_obs)."""
     index = {o: i for i, o in enumerate(observables)}
@@ -497,103 +469,3 @@ def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
     obs, scalars = _names(system)
     cols = [parse(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
     return np.stack([np.asarray(c, float) for c in cols], axis=-1)
-
-
-def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params: Mapping[str, np.ndarray],
-           template_features: np.ndarray | None = None) -> np.ndarray:
-    """Outcome codes (int8, shape (N,)) of N trajectories.
-
-    ``results``: the engine's per-trajectory arrays (``verdict``, ``solver_status``, ``feat_*``);
-    ``params``: their parameters (N, ...); ``template_features``: (N, n_templates, n_features), the
-    feature vectors of the templates integrated at each trajectory's grid point.
-    """
-    if sch.from_verdicts:
-        v = S.verdicts(np.asarray(results["solver_status"]), np.asarray(results["verdict"]))
-        return (v[..., -1] if v.ndim > 1 else v).astype(np.int8)
-    decl = sch.decl
-    status = np.asarray(results["solver_status"])
-    n = status.shape[0]
-    code = np.full(n, -1, np.int16)
-    names = sch.names
-    feat = feature_getter(results, tuple(system.observables))
-
-    def par(name):
-        return np.asarray(params[name], float).reshape(n)
-
-    obs, scalars = _names(system)
-    for i, (name, text) in enumerate(decl.rules.items()):
-        hit = np.broadcast_to(parse(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
-        code = np.where((code < 0) & hit, i, code)
-    if decl.templates and template_features is not None:
-        x = feature_matrix(decl, system, feat, par)  # (N, F)
-        d = np.linalg.norm(x[:, None, :] - template_features, axis=-1)  # (N, T)
-        d = np.where(np.isfinite(d), d, np.inf)
-        j = np.argmin(d, axis=1)
-        dmin = d[np.arange(n), j]
-        limit = decl.max_distance if decl.max_distance is not None else 0.5 * min_template_spacing(template_features)
-        ok = dmin <= limit
-        code = np.where((code < 0) & ok, len(decl.rules) + j, code)
-    unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
-    code = np.where(code < 0, unclassified, code)
-    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed)
-    return code.astype(np.int8)
-
-
-def min_template_spacing(tf: np.ndarray) -> np.ndarray:
-    """Per trajectory (grid point): the smallest distance between two templates' feature vectors."""
-    t = tf.shape[-2]
-    if t < 2:
-        return np.full(tf.shape[:-2], np.inf)
-    d = np.linalg.norm(tf[..., :, None, :] - tf[..., None, :, :], axis=-1)
-    # a template that failed at a point (NaN features) is far from everything: it must not make the
-    # spacing NaN, which would leave every trajectory there unclassified
-    d = np.where(np.eye(t, dtype=bool) | ~np.isfinite(d), np.inf, d)
-    return d.min(axis=(-1, -2))
-
-
-COINCIDE_RTOL = 1e-6  # feature vectors this close (relative to their size) are one attractor
-
-
-def coinciding_templates(decl: Outcomes, tf: np.ndarray) -> tuple[int, str, str, float] | None:
-    """The first (point, template a, template b, distance) where two templates' feature vectors
-    coincide (distance <= COINCIDE_RTOL (1 + |feature vector|)), or None.
-
-    Coinciding templates make the default ``max_distance`` (half the smallest spacing) zero, and
-    every trajectory near them would end "unclassified" without a word; with a given ``max_distance``
-    the choice between the two is arbitrary. Either way the plan is refused before it runs.
-    """
-    t = tf.shape[-2]
-    if t < 2:
-        return None
-    names = list(decl.templates)
-    d = np.linalg.norm(tf[:, :, None, :] - tf[:, None, :, :], axis=-1)  # (P, T, T)
-    size = np.linalg.norm(tf, axis=-1)
-    scale = 1.0 + np.maximum(size[:, :, None], size[:, None, :])
-    with np.errstate(invalid="ignore"):
-        close = (d <= COINCIDE_RTOL * scale) & ~np.eye(t, dtype=bool)
-    if not close.any():
-        return None
-    p, a, b = (int(x[0]) for x in np.nonzero(close))
-    return p, names[a], names[b], float(d[p, a, b])
-
-
-# ---- basin stability ---------------------------------------------------------------------------------
-
-
-def basin_stats(codes: np.ndarray, n_outcomes: int, z: float = Z95) -> dict[str, np.ndarray]:
-    """Per outcome over the last axis (the samples): count, fraction S, SE sqrt(S(1-S)/N), Wilson interval.
-
-    Returns arrays of shape (*codes.shape[:-1], n_outcomes). The Wilson score interval keeps its
-    coverage near S = 0 or 1, where S +- z SE collapses to a point.
-    """
-    codes = np.asarray(codes)
-    n = codes.shape[-1]
-    counts = np.stack([(codes == k).sum(axis=-1) for k in range(n_outcomes)], axis=-1).astype(np.int64)
-    s = counts / n
-    se = np.sqrt(s * (1 - s) / n)
-    z2n = z * z / n
-    centre = (s + z2n / 2) / (1 + z2n)
-    half = z / (1 + z2n) * np.sqrt(s * (1 - s) / n + z2n / (4 * n))
-    # the interval contains S exactly; min/max only absorb rounding at S = 0 or 1
-    return dict(count=counts, fraction=s, se=se, ci_low=np.minimum(np.clip(centre - half, 0, 1), s),
-                ci_high=np.maximum(np.clip(centre + half, 0, 1), s))

@@ -163,8 +163,8 @@ class Result:
         """The window the classifier judges the end of a run on: the outcome features' last
         ``window`` fraction (named outcomes), else the verdict's last ``late_decades`` in log-time."""
         ic, vc = self.plan.icfg, self.plan.vcfg
-        if self.kind == "basin" and self.plan.outcomes is not None and self.plan.outcomes.decl is not None:
-            w = float(self.plan.outcomes.decl.window)
+        if self.kind == "basin" and self.plan.scheme.decl is not None:
+            w = float(self.plan.scheme.decl.window)
             return ic.t1 - w * (ic.t1 - ic.t0), ic.t1
         return ic.t0 + (ic.t1 - ic.t0) * 10.0 ** (-float(vc.late_decades)), ic.t1
 

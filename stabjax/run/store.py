@@ -442,15 +442,13 @@ class ChunkStore:
         """The plan's template features: read back from the store when it has them (a resume
         classifies with the very numbers the first chunks used), else integrated now."""
         if self._tf is False:
-            from . import dataset as D
-
             if self.manifest.get("arrays") is not None and "template_features" in self.manifest.get("entries", []):
                 tf = np.asarray(self._data()["template_features"][...])
                 self._tf = tf.reshape(-1, *tf.shape[-2:])
             elif self._tf_given is not None:
                 self._tf = self._tf_given
             else:
-                self._tf = D.template_features(self.plan)
+                self._tf = self.plan.mapper.prepare(self.plan)
         return self._tf
 
     def _create(self, rec: Mapping[str, np.ndarray]):
@@ -460,10 +458,12 @@ class ChunkStore:
         import dask.array as da
 
         from . import dataset as D
+        from . import derive
 
         shape, block = self.chunking.shape, self.chunking.block
         holders = {k: da.empty(shape + v.shape[1:], chunks=block + v.shape[1:], dtype=v.dtype) for k, v in rec.items()}
-        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan), whole=False)
+        layout = derive.initial(self.plan, self.template_features())
+        ds = D.build(self.plan, holders, layout)
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
         for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
             ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
@@ -478,7 +478,7 @@ class ChunkStore:
         enc = {k: {"chunks": block + tuple(v.shape[nd:])} for k, v in ds.variables.items()
                if nd and v.dims[:nd] == self.plan.dims}
         if "outcome" in rec and self._basin_per_chunk():  # basin statistics: one zarr chunk per sweep chunk's grid points
-            for k in D.basin_placeholders(self.plan):
+            for k in D.basin_vars(self.plan, layout.basin):
                 enc[k] = {"chunks": block[:-1] + tuple(ds[k].shape[nd - 1:])}
         with _quiet_zarr():
             ds.to_zarr(self.path, mode="a", compute=False, zarr_format=3, consolidated=True, encoding=enc)
@@ -495,14 +495,15 @@ class ChunkStore:
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         """Store chunk ``i`` (the engine's results, trimmed to the chunk's trajectories): its record
-        (:func:`stabjax.run.dataset.derive_chunk`: verdicts, outcome) into the arrays, then the manifest
+        (:func:`stabjax.run.derive.chunk`: verdicts, outcome) into the arrays, then the manifest
         entry with the checksum of every array's block."""
         import zarr
 
         from . import dataset as D
+        from . import derive
 
         lo, hi = self.bounds(i)
-        rec = D.derive_chunk(self.plan, res, lo, hi, self.template_features())
+        rec = derive.chunk(self.plan, res, lo, hi, self.template_features())
         try:
             if self.manifest.get("arrays") is None:
                 self._create(rec)
@@ -523,7 +524,8 @@ class ChunkStore:
                 if "outcome" in rec and self._basin_per_chunk():
                     # a reader of the running store sees the statistics of every finished grid point (the
                     # chunk holds all its samples); finish() computes them all again from the stored outcomes
-                    for k, (_, values, _) in D.basin_vars(self.plan, rec["outcome"].reshape(block)).items():
+                    stats = derive.basin(self.plan, rec["outcome"].reshape(block))
+                    for k, (_, values, _) in D.basin_vars(self.plan, stats).items():
                         g[k][region[:-1] + (slice(None),)] = values
             entry = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else 0}
             entry.update(info or {})
@@ -534,9 +536,11 @@ class ChunkStore:
             raise self._io_error(f"chunk {i}", exc) from None
 
     def finish(self, attrs: Mapping[str, Any]):
-        """After the last chunk: the basin statistics (from the stored outcomes) and the run's
-        attributes (wall time, steps, engines); the store then reads as the finished dataset."""
+        """After the last chunk: the variables that need every trajectory (the derive step over the stored
+        outcomes, or a whole-set mapper over the stored records: basin statistics, entropy, ...) and the
+        run's attributes (wall time, steps, engines); the store then reads as the finished dataset."""
         from . import dataset as D
+        from . import derive
 
         if not self.complete():
             raise StoreError(f"{self.path}: {len(self.manifest['chunks'])} of {self.n_chunks} chunks finished")
@@ -544,16 +548,20 @@ class ChunkStore:
             if self.manifest.get("arrays") is None:  # a plan with no trajectory cannot happen; be explicit
                 raise StoreError(f"{self.path} has no arrays")
             g = self._data()
-            if "outcome" in self.manifest["arrays"]:
-                codes = g["outcome"][...]
-                for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
-                    g[k][...] = values
-                extras = D.outcome_extras(self.plan, codes, list(self.plan.scheme.names))
-                if extras:  # need every code (starts-file agreement, basin entropy): added now
-                    self._add_vars(extras, {})
-            elif "solver_status" in self.manifest["arrays"]:  # outcomes over the whole sweep: added now
-                self._add_vars(*D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
-                                                   self.template_features()))
+            arrays = self.manifest["arrays"]
+            if "outcome" in arrays or "solver_status" in arrays:
+                # stored outcomes (a per-trajectory mapper), or the whole-set mapper over every stored record
+                records = {"outcome": np.asarray(g["outcome"][...]).reshape(-1)} if "outcome" in arrays \
+                    else load_results(self.path, self.manifest)
+                derived = derive.finish(self.plan, records, self.template_features(), with_theory=False)
+                data, coords = D.outcome_vars(self.plan, derived, derived.mapped.codes.reshape(self.plan.shape))
+                held = set(self.manifest.get("variables", []))
+                for k in D.basin_vars(self.plan, derived.basin):
+                    if k in held:  # placeholders since the store's creation
+                        g[k][...] = data[k][1]
+                added = {k: v for k, v in data.items() if k not in held}
+                if added:  # what needs every outcome (starts-file agreement, basin entropy; a whole-set mapper's all)
+                    self._add_vars(added, coords)
             _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
             self.manifest["finished"] = True
             self._save_manifest()
@@ -562,9 +570,8 @@ class ChunkStore:
 
 
     def _add_vars(self, data: Mapping[str, tuple], coords: Mapping[str, tuple]):
-        """Variables known only when every chunk is in (a classification over the whole sweep:
-        :func:`stabjax.run.dataset.whole_sweep_vars`; what needs every outcome code:
-        :func:`stabjax.run.dataset.outcome_extras`), written as new arrays of the group, listed in the
+        """Variables known only when every chunk is in (:func:`stabjax.run.dataset.outcome_vars`: a
+        whole-set mapper's outcomes; what needs every outcome code), written as new arrays of the group, listed in the
         manifest first and placed in the dataset's order as :func:`stabjax.run.dataset.build` places them."""
         import xarray as xr
 
