@@ -177,8 +177,10 @@ def run_status(ds, out: Optional[Path] = None) -> int:
                               "exit status 1", style="red", markup=False)
             return 1
         if n and unclassified == n:
-            err_console.print(f"no trajectory was classified: all {n} are unclassified (no rule holds and no "
-                              "template is near); exit status 1", style="red", markup=False)
+            why = ("no attractor was found: no min_samples trajectories lie within eps of one another"
+                   if "attractor_type" in ds else "no rule holds and no template is near")
+            err_console.print(f"no trajectory was classified: all {n} are unclassified ({why}); exit status 1",
+                              style="red", markup=False)
             return 1
         return 0
     if "verdict" not in ds:

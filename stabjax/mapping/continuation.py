@@ -9,10 +9,20 @@ on saved output with other settings (as Attractors.jl's ``match_sequentially!``)
   its representative's scaled feature vector; :func:`found_from_labels` builds them from any labelling
   (a mapper's codes, a saved dataset's ``outcome``) and feature matrix;
 * :func:`match_sequentially`: the groups of point k are matched to the attractors alive at point k - 1
-  by the distance between representatives, pairs accepted greedily in increasing distance while both are
-  free and the distance is at most the threshold; an unmatched group is a new attractor (a birth), an
-  attractor of point k - 1 left unmatched ends there (a death). Greedy, not an optimal assignment (as
-  Attractors.jl); an attractor that vanishes and reappears gets a new identity;
+  of the **same type** by the distance between representatives, pairs accepted greedily in increasing
+  distance while both are free and the distance is below the threshold; an unmatched group is a new
+  attractor (a birth), an attractor of point k - 1 left unmatched ends there (a death). So two groups of
+  different type never share an identity (a name): a fixed point that turns into a limit cycle is the
+  death of the one and the birth of the other (a Hopf bifurcation read from the data), never one
+  attractor whose type is a vote over the points. Greedy, not an optimal assignment (as Attractors.jl);
+  an attractor that vanishes and reappears gets a new identity;
+* :func:`default_threshold`: the threshold when none is given, from the data: the smallest distance
+  between the representatives of two attractors found at one grid point. Two distinct attractors were
+  seen that close together, so a jump at least that long between neighbouring points is as long as the
+  step from one attractor to another: a death and a birth, not a continuation (the scale Attractors.jl's
+  proximity mapper takes its radius from, the least distance between attractors). Where no point holds
+  two attractors the data give no such scale and the threshold is unbounded (``inf``, Attractors.jl's
+  default ``MatchBySSSetDistance(threshold = Inf)``): the types alone then split;
 * :func:`merged` gathers each identity's members over the points, :func:`events` lists the births and deaths.
 """
 from __future__ import annotations
@@ -57,18 +67,30 @@ def found_from_labels(labels: np.ndarray, x: np.ndarray, n_points: int, kinds: S
     return out
 
 
-def match_sequentially(points: Sequence[Sequence[Found]], threshold: float = math.inf
+def default_threshold(points: Sequence[Sequence[Found]]) -> float:
+    """The smallest distance between the representatives of two attractors found at one point (``inf``
+    where no point holds two); see the module docstring."""
+    d = [float(np.linalg.norm(a.rep - b.rep)) for local in points
+         for i, a in enumerate(local) for b in local[i + 1:]]
+    return min(d) if d else math.inf
+
+
+def match_sequentially(points: Sequence[Sequence[Found]], threshold: float | None = None
                        ) -> tuple[list[list[int]], list[list[int]]]:
     """Identities along the points: ``ids[k][j]``, the identity of group j of point k, and ``spans[a]``
-    = [first point, last point] of identity a (numbered in order of birth)."""
+    = [first point, last point] of identity a (numbered in order of birth). A group matches only an
+    attractor of its own type, less than ``threshold`` away (None: :func:`default_threshold`)."""
+    if threshold is None:
+        threshold = default_threshold(points)
     ids: list[list[int]] = []
     spans: list[list[int]] = []
-    alive: dict[int, np.ndarray] = {}  # identity -> representative at the last point
+    alive: dict[int, Found] = {}  # identity -> its group at the last point
     for k, local in enumerate(points):
-        pairs = sorted((float(np.linalg.norm(f.rep - alive[a])), j, a) for j, f in enumerate(local) for a in alive)
+        pairs = sorted((float(np.linalg.norm(f.rep - alive[a].rep)), j, a) for j, f in enumerate(local)
+                       for a in alive if alive[a].kind == f.kind)
         taken_new, taken_old, match = set(), set(), {}
         for d, j, a in pairs:
-            if d <= threshold and j not in taken_new and a not in taken_old:
+            if d < threshold and j not in taken_new and a not in taken_old:
                 match[j] = a
                 taken_new.add(j)
                 taken_old.add(a)
@@ -80,7 +102,7 @@ def match_sequentially(points: Sequence[Sequence[Found]], threshold: float = mat
                 spans.append([k, k])
             spans[a][1] = k
             here.append(a)
-            new_alive[a] = f.rep
+            new_alive[a] = f
         ids.append(here)
         alive = new_alive
     return ids, spans
@@ -88,7 +110,8 @@ def match_sequentially(points: Sequence[Sequence[Found]], threshold: float = mat
 
 def merged(points: Sequence[Sequence[Found]], ids: Sequence[Sequence[int]], n_ids: int
            ) -> tuple[list[np.ndarray], list[list[str]]]:
-    """Per identity: its members over every point (concatenated in point order) and its type at each."""
+    """Per identity: its members over every point (concatenated in point order) and its type at each
+    (one type: :func:`match_sequentially` matches within a type)."""
     members: list[list[np.ndarray]] = [[] for _ in range(n_ids)]
     kinds: list[list[str]] = [[] for _ in range(n_ids)]
     for local, here in zip(points, ids):

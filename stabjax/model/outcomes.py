@@ -253,22 +253,40 @@ VERDICTS = _Verdicts()
 
 @dataclass(frozen=True)
 class DiscoveryConfig:
-    """``[outcomes.discovery]``: the grouping and typing settings (defaults measured on the examples,
-    ``docs/performance.md``: eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic
-    attractor's feature cloud nor merges Duffing's period-3 cycles).
+    """``[outcomes.discovery]``: the grouping, typing and continuation settings of attractor discovery
+    (:mod:`stabjax.mapping.discover`). Defaults measured on the examples (``docs/performance.md``:
+    eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic attractor's feature cloud
+    nor merges Duffing's period-3 cycles).
+
+    The table configures discovery; it does not switch it on. Discovery runs for a model that declares no
+    outcomes, or with ``[outcomes] discover = true``; the table beside a model's rules, templates or
+    verdicts is refused naming it (as Attractors.jl and pyBasin take a mapper or predictor as an object
+    the user chooses, never from the presence of one of its settings; and a setting that would be
+    ignored is refused, like any unknown key).
 
     eps              DBSCAN radius, in units of each observable's range over the sweep
-    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample
+    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample; a sweep (or,
+                     under continuation, a grid point) with fewer trajectories is refused before integrating
     subsample        trajectories grouped by DBSCAN itself; the others join their nearest core sample
-    fixed_point_tol  window std / range below this for every observable -> fixed point
-    chaos_threshold  median largest Lyapunov exponent above this -> chaotic
+    fixed_point_tol  window std / range below this for every observable -> fixed point (so is a window
+                     std within the fixed-point stop's 1000 solver tolerances, and a group the stop froze)
+    chaos_threshold  median largest Lyapunov exponent above this -> chaotic; below minus this, an
+                     autonomous model's group (or any monotone approach) is a fixed point still approaching
     lyapunov         integrate the tangent dynamics for the exponent (off: no chaotic/limit-cycle types)
     seed             of the subsample
-    continuation     with one [grid] axis: group each grid point on its own and match the attractors
-                     of neighbouring points (:func:`continue_along`); off: group all points together
-    match_threshold  largest distance (scaled features) between representatives of one attractor at
-                     neighbouring grid points (default inf, as Attractors.jl's MatchBySSSetDistance: the
-                     greedy order alone decides; a finite value lets a far jump be a death and a birth)
+    continuation     with one ``[grid]`` axis and ``[sample]``: group each grid point on its own and match
+                     the attractors of neighbouring points (:mod:`stabjax.mapping.continuation`), so each
+                     keeps its name along the axis and births and deaths are reported
+                     (``attractor_events``); a group matches only an attractor of its own type. false:
+                     group all points together (an attractor keeps one name across the grid by the
+                     pooled grouping)
+    match_threshold  the representatives of one attractor at neighbouring grid points lie less than this
+                     apart (scaled features, the units of eps); a longer jump is a death and a birth.
+                     Default (unset): from the data, the smallest distance between two attractors found at
+                     one grid point -- a jump that long is the step from one attractor to another
+                     (unbounded where no point holds two; the types still split); ``inf``: the greedy
+                     order alone decides (Attractors.jl's ``MatchBySSSetDistance`` default). The value
+                     used is the ``match_threshold`` attribute of ``attractor_events``
     """
 
     eps: float = 0.05
@@ -279,7 +297,7 @@ class DiscoveryConfig:
     lyapunov: bool = True
     seed: int = 0
     continuation: bool = True
-    match_threshold: float = math.inf
+    match_threshold: float | None = None  # None: from the data (mapping.continuation.default_threshold)
 
     @classmethod
     def from_dict(cls, d: Any, section: str = "outcomes.discovery") -> "DiscoveryConfig":
@@ -388,9 +406,15 @@ class Outcomes:
         if "discovery" in table:
             DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
             kw["discovery"] = dict(table["discovery"])
-            kw["discover"] = kw["discover"] or "discover" not in table
         if ("rules" in table or "templates" in table) and "discover" not in table:
             kw["discover"] = False  # declared outcomes replace a discovering base declaration
+        if "discovery" in table and not kw["discover"]:
+            # the table configures discovery, it never chooses it (DiscoveryConfig): settings that would be
+            # ignored are refused, and declared outcomes are never replaced by the presence of a setting
+            raise ValidationError(f"{section}.discovery", "configures attractor discovery, which is off here: the "
+                                  "outcomes are declared (the model's or this table's rules, templates or verdicts); "
+                                  f"set {section}.discover = true to discover the attractors instead, or remove "
+                                  f"[{section}.discovery]")
         if kw["discover"] and "rules" not in table and "templates" not in table:
             kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
         return cls(**kw)

@@ -207,7 +207,17 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             ds = sink.dataset()
             ds.attrs.update(attrs)
             return ds
-        sink.finish(attrs)
+        try:
+            sink.finish(attrs)
+        except ValidationError:
+            # the whole-set mapper refused every record (too many attractors for the outcome codes): a store of
+            # these settings cannot give a result, and a run with others is another computation: none is kept
+            if not keep_partial:
+                sink.discard()
+                sink.close()
+                with contextlib.suppress(OSError):
+                    store_path.rmdir()
+            raise
         lazy = n > LAZY_ABOVE
         ds = S.open_store(store_path)  # the netCDF file is a copy of the store, chunk by chunk
         if not lazy:

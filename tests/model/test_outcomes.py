@@ -39,3 +39,22 @@ def test_bad_rules_name_the_field(text, needle):
         Rule(text, OBS, ("k",), "outcomes.rules.settled")
     assert exc.value.field == "outcomes.rules.settled"
     assert needle in exc.value.message
+
+
+def test_a_discovery_table_configures_discovery_and_never_switches_it_on():
+    """``[outcomes.discovery]`` beside declared outcomes (a model's rules, the verdicts) is refused naming
+    the table; with ``discover = true``, or for a model that declares nothing (already discovering), it
+    configures discovery."""
+    from stabjax.model.outcomes import Outcomes
+
+    rules = Outcomes(rules={"rest": "std(x) < 1e-3"})
+    for base in (rules, None):
+        with pytest.raises(ValidationError) as exc:
+            Outcomes.from_spec({"discovery": {"eps": 0.1}}, base=base)
+        assert exc.value.field == "outcomes.discovery" and "discover = true" in exc.value.message
+    on = Outcomes.from_spec({"discover": True, "discovery": {"eps": 0.1}}, base=rules)
+    assert on.discover and not on.rules and on.discovery == {"eps": 0.1}
+    found = Outcomes.from_spec({"discovery": {"eps": 0.1}}, base=Outcomes(discover=True))
+    assert found.discover and found.discovery == {"eps": 0.1}
+    with pytest.raises(ValidationError, match="outcomes.discovery"):
+        Outcomes.from_spec({"discover": False, "discovery": {"eps": 0.1}}, base=Outcomes(discover=True))
