@@ -5,7 +5,8 @@ Everything a user runs or writes is here, under one flat namespace; the subpacka
 and may change between versions:
 
 * **run**: :func:`run_spec`, :func:`run_plan`, :func:`make_plan`, :func:`load_spec`, :func:`open_result`,
-  :func:`simulate`, :func:`solve_batch`, :func:`refine_spec`, :func:`refine_plan`, :func:`horizon_check`;
+  :func:`simulate`, :func:`solve_batch`, :func:`refine_spec`, :func:`refine_plan`, :func:`horizon_check`,
+  :func:`classify` (a plan's outcome mapper over given results);
 * **see**: :func:`plot`, :func:`write_report`, :func:`serve` (the browser explorer);
 * **write a model**: :class:`System`, :class:`Param`, :class:`ParamSet`, :class:`Outcomes`,
   :data:`VERDICTS`, :class:`Predicate`, :class:`Theory`, :func:`register`, :func:`get_system`,
@@ -32,6 +33,7 @@ _API = {
     "make_plan": "plan.spec", "load_spec": "plan.spec",
     "simulate": "engines.simulate", "solve_batch": "engines.simulate",
     "refine_spec": "explore.refine", "refine_plan": "explore.refine",
+    "classify": "mapping.classify",
     "horizon_check": "run.horizon",
     # see
     "write_report": "present.report", "serve": "present.view",
@@ -67,6 +69,7 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from .engines.simulate import simulate, solve_batch
     from .errors import StabjaxError, ValidationError
     from .explore.refine import refine_plan, refine_spec
+    from .mapping.classify import classify
     from .model.loading import register
     from .model.loading import resolve as get_system
     from .model.outcomes import VERDICTS, Outcomes
