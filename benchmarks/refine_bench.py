@@ -35,7 +35,7 @@ def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict
     s = {k: v for k, v in spec.items() if k != "refine"}
     s["grid"] = grid
     integ = {k: v for k, v in s.get("integrate", {}).items() if k not in ("early_stop", "attractor_stop")}
-    if plan.outcomes is not None and not plan.scheme.from_verdicts:
+    if not plan.mapper.uses_verdicts:
         integ["early_stop"] = False  # (the attitude verdicts never stop early: nothing to switch off)
     s["integrate"] = integ
     s["name"] = f"{spec.get('name', 'sweep')}_full"

@@ -7,6 +7,7 @@ and may change between versions:
 * **run**: :func:`run_spec`, :func:`run_plan`, :func:`make_plan`, :func:`load_spec`, :func:`open_result`,
   :func:`simulate`, :func:`solve_batch`, :func:`refine_spec`, :func:`refine_plan`, :func:`horizon_check`,
   :func:`shock_spec`, :func:`shock_plan`, :func:`minimal_fatal_shock`, :func:`witness_replay` (minimal fatal shocks);
+  :func:`classify` (a plan's outcome mapper over given results);
 * **see**: :func:`plot`, :func:`write_report`, :func:`serve` (the browser explorer);
 * **write a model**: :class:`System`, :class:`Param`, :class:`ParamSet`, :class:`Outcomes`,
   :data:`VERDICTS`, :class:`Predicate`, :class:`Theory`, :func:`register`, :func:`get_system`,
@@ -35,6 +36,7 @@ _API = {
     "refine_spec": "explore.refine", "refine_plan": "explore.refine",
     "shock_spec": "explore.shock", "shock_plan": "explore.shock", "minimal_fatal_shock": "explore.shock",
     "witness_replay": "explore.shock_result",
+    "classify": "mapping.classify",
     "horizon_check": "run.horizon",
     # see
     "plot": "present.show", "write_report": "present.report", "serve": "present.view",
@@ -72,6 +74,7 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from .explore.refine import refine_plan, refine_spec
     from .explore.shock import minimal_fatal_shock, shock_plan, shock_spec
     from .explore.shock_result import witness_replay
+    from .mapping.classify import classify
     from .model.loading import register
     from .model.loading import resolve as get_system
     from .model.outcomes import VERDICTS, Outcomes

@@ -70,7 +70,7 @@ def sweep(
     if replacing:
         err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
                           markup=False)
-    note = plan.outcomes.decl.default_distance_note() if plan.outcomes is not None and plan.outcomes.decl else ""
+    note = plan.scheme.decl.default_distance_note() if plan.scheme.decl is not None else ""
     if note:
         err_console.print(f"note: {note}", markup=False)
     executor = None
@@ -221,8 +221,10 @@ def run_status(ds, out: Optional[Path] = None) -> int:
                               "exit status 1", style="red", markup=False)
             return 1
         if n and unclassified == n:
-            err_console.print(f"no trajectory was classified: all {n} are unclassified (no rule holds and no "
-                              "template is near); exit status 1", style="red", markup=False)
+            why = ("no attractor was found: no min_samples trajectories lie within eps of one another"
+                   if "attractor_type" in ds else "no rule holds and no template is near")
+            err_console.print(f"no trajectory was classified: all {n} are unclassified ({why}); exit status 1",
+                              style="red", markup=False)
             return 1
         return 0
     if "verdict" not in ds:

@@ -299,7 +299,7 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
              rounds_resumed: int = 0) -> xr.Dataset:
     plan, cfg = ref.plan, ref.cfg
     from ..run.dataset import cf_attributes
-    from ..run.sweep import provenance
+    from ..run.derive import provenance
 
     names = [ax.name for ax in plan.grid]
     # every horizon's boundary, ascending in horizon (one horizon: the segments as they always were)
@@ -430,7 +430,7 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     """
     import shutil
 
-    from ..mapping.basin import point_outcomes
+    from ..mapping.classify import classify
     from ..run.sweep import default_store, run_points, write
 
     cfg = refine_config(plan)
@@ -450,8 +450,8 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
                                batch_size=batch_size, progress=progress, keep_store=True, executor=executor,
                                overrides=overrides)
         if cfg.label == "outcome" and "outcome" not in res:
-            params = dataclasses.replace(plan, points=values).params_for(0, len(values) * max(plan.n_sample, 1))
-            res["outcome"] = point_outcomes(plan, params, res, len(values))
+            # the templates integrated at this round's points (the mapper's state of the points' plan)
+            res["outcome"] = classify(dataclasses.replace(plan, points=values), res).codes
         engines.update(info["engines"])
         resumed[0] += info["n_resumed"] == info["n_chunks"]
         if r == 0 and rplan.icfg.attractor_stop and "outcome" in res:

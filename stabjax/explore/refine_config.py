@@ -52,9 +52,9 @@ def label_names(plan: Plan, label: str) -> tuple[str, ...]:
     """Names of the label codes: verdict names, or the system's declared outcomes."""
     if label == "verdict":
         return tuple(V.NAMES)
-    if plan.outcomes is None:
+    if plan.mapper.uses_verdicts:
         raise ValidationError("refine.label", f"{plan.system.name} declares no named outcomes; use label = \"verdict\"")
-    return tuple(plan.outcomes.names)
+    return tuple(plan.scheme.names)
 
 
 def horizon_times(plan: Plan) -> np.ndarray:
@@ -117,12 +117,15 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
 
     label = raw.get("label")
     if label is None:
-        label = "outcome" if plan.outcomes is not None else "verdict"
+        label = "verdict" if plan.mapper.uses_verdicts else "outcome"
     if label not in ("verdict", "outcome"):
         raise ValidationError("refine.label", f"must be \"verdict\" or \"outcome\", got {label!r}")
-    if label == "verdict" and plan.outcomes is not None and not plan.scheme.from_verdicts:
+    if label == "verdict" and not plan.mapper.uses_verdicts:
         raise ValidationError("refine.label", f"{plan.system.name}'s outcomes are named (rules, templates, discovery): "
                                               "it has no attitude verdicts; use label = \"outcome\"")
+    if label == "outcome" and plan.mapper.whole_set:  # refused before any round is integrated
+        raise ValidationError("outcomes.discover", "discovery groups a whole sweep's trajectories; refinement "
+                              "needs declared outcomes (rules or templates)")
     names = label_names(plan, label)
 
     pair = raw.get("pair")

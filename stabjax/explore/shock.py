@@ -72,30 +72,26 @@ LADDER_SHRINK = 0.8
 
 
 class Labeller:
-    """Outcome codes of a round's trajectories, with the sweep's machinery.
-
-    The only place that asks the outcome machinery (rules, templates, attitude verdicts:
-    :func:`stabjax.model.outcomes.assign`, with the templates integrated once per grid point by
-    :func:`stabjax.mapping.basin.template_features_at`; discovery: :mod:`stabjax.mapping.discover`), so that it can
-    be re-pointed at another mapper in one place."""
+    """Outcome codes of a round's trajectories, with the sweep's machinery: the plan's outcome mapper
+    (:mod:`stabjax.mapping.mapper`). A per-trajectory mapper (attitude verdicts; rules, templates and escape)
+    labels each shocked start with its parameters and its grid point's state (the templates integrated there
+    once, :meth:`~stabjax.mapping.mapper.Mapper.prepare_at`); discovery, a whole-set mapper, groups the first
+    round and places later trajectories by their nearest grouped one. The only place that asks the outcome
+    machinery."""
 
     def __init__(self, plan: Plan, base: Mapping[str, np.ndarray]):
-        from ..mapping.basin import template_features_at
-
         self.plan = plan
-        sch = plan.scheme
-        self.discover = sch.decl is not None and sch.decl.discover
-        self.names: tuple[str, ...] = tuple(sch.names)
-        self.tf = None if self.discover else template_features_at(plan, base)  # (G, T, F) or None
+        self.mapper = plan.mapper
+        self.discover = self.mapper.whole_set
+        self.names: tuple[str, ...] = tuple(plan.scheme.names)
+        self.state = None if self.discover else self.mapper.prepare_at(plan, base)  # per grid point, or None
         self.ref = None  # discovery: the first round's grouped features
 
     def __call__(self, g: np.ndarray, params: Mapping[str, np.ndarray], results: Mapping[str, np.ndarray]):
-        from ..model import outcomes as O
-
         if self.discover:
             return self._discovered(results)
-        tf = None if self.tf is None else self.tf[g]
-        return O.assign(self.plan.scheme, self.plan.system, results, params, tf).astype(np.int16)
+        state = None if self.state is None else self.state[g]
+        return self.mapper.label(self.plan, results, params, state).astype(np.int16)
 
     def _discovered(self, results):
         """Discovery on the first round (the unshocked starts and the scan), pooled over the grid points; later
@@ -109,11 +105,12 @@ class Labeller:
 
         plan = self.plan
         obs = tuple(plan.system.observables)
-        cfg = D.plan_config(plan)
+        cfg = self.mapper.cfg
         status = np.asarray(results["solver_status"])
         feats, _ = D.feature_table(results, obs)
         if self.ref is None:
-            disc = D.discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
+            disc = D.discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol,
+                              D.is_autonomous(plan.system))
             escape = (plan.escape_radius is not None) * (plan.scheme.decl.escape,)
             self.names = tuple(disc.names) + escape + (O.UNCLASSIFIED, O.FAILED_NAME)
             keep = disc.labels >= 0

@@ -79,6 +79,7 @@ import numpy as np
 from dataclasses import dataclass
 
 from ..errors import ValidationError
+from .features import fold_observation  # the feature rows are the fold's: one definition
 
 # stop within this many tolerance units (atol + rtol |x_i|, RMS) of the equilibrium (module docstring)
 DISTANCE_TOL = 1000.0
@@ -276,18 +277,8 @@ def fast_forward(c, n_in, obs, xp=jnp):
     (..., 1)): the native engine applies it on the host without a compile per batch size."""
     if "feat" not in c:
         return c
-    fe = c["feat"]
-    F = fe.shape[-1]
-    m = min(int(obs.shape[-1]), F)
-    o = obs[..., :m].astype(fe.dtype)
-    w = xp.asarray(n_in, fe.dtype)
-    has = w > 0
-    rows = [xp.where(has, xp.maximum(fe[..., 0, :m], o), fe[..., 0, :m]),
-            xp.where(has, xp.minimum(fe[..., 1, :m], o), fe[..., 1, :m]),
-            fe[..., 2, :m] + w * o, fe[..., 3, :m] + w * o * o, fe[..., 4, :m] + w * xp.ones_like(o), o]
-    head = xp.stack(rows, axis=-2)
     out = dict(c)
-    out["feat"] = head if m == F else xp.concatenate([head, fe[..., m:]], axis=-1)
+    out["feat"] = fold_observation(c["feat"], obs, n_in, xp)
     return out
 
 

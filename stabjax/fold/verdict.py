@@ -88,6 +88,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..config import VERDICT_NAMES, VerdictConfig
+from . import features as FT
 
 CONVERGED, FLIPPED, DIVERGED, UNDECIDED, FAILED = 0, 1, 2, 3, 4
 NAMES = VERDICT_NAMES
@@ -268,8 +269,7 @@ def init(dtype=jnp.float64, cfg: VerdictConfig | None = None, n_obs: int | None 
     if cfg is not None:
         F = min(int(n_obs or cfg.n_obs or MAX_FEATURE_OBS), MAX_FEATURE_OBS) if cfg.features else 0
     # no zero-size leaves (the fused engine's row layout has no room for them): no features, no entry
-    feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype)
-                                                 for v in (-jnp.inf, jnp.inf, 0.0, 0.0, 0.0, jnp.nan)])}
+    feat = {} if F == 0 else {"feat": jnp.stack([jnp.full((F,), v, dtype) for v in FT.INIT])}
     if cfg is not None and not cfg.verdicts:  # named outcomes: the features alone (no attitude state)
         return dict(span=jnp.asarray(jnp.nan, dtype), **feat)
 
@@ -374,16 +374,9 @@ def update(c, t, obs_k, cfg: VerdictConfig, t_late):
 
 
 def _fold_features(fe, u, obs_k, span, cfg: VerdictConfig):
-    """The late-window feature rows (max, min, sum, sum of squares, count, last) after one checkpoint."""
-    F = fe.shape[1]
-    m = min(int(obs_k.shape[0]), F)
-    o = obs_k[:m].astype(fe.dtype)
+    """The late-window feature rows after one checkpoint (:func:`stabjax.fold.features.fold_observation`)."""
     inw = (u >= span * (1.0 - cfg.feature_window)).astype(fe.dtype)
-    rows = [jnp.where(inw > 0, jnp.maximum(fe[0, :m], o), fe[0, :m]),
-            jnp.where(inw > 0, jnp.minimum(fe[1, :m], o), fe[1, :m]),
-            fe[2, :m] + inw * o, fe[3, :m] + inw * o * o, fe[4, :m] + inw, o]
-    head = jnp.stack(rows)
-    return head if m == F else jnp.concatenate([head, fe[:, m:]], axis=1)
+    return FT.fold_observation(fe, obs_k, inw)
 
 
 def resolve(verdict, failed, size_max, cfg: VerdictConfig):
@@ -406,7 +399,7 @@ def _lsq(n, sx, sy, sxx, sxy):
 def finalize(c, solver_ok, cfg: VerdictConfig):
     """Verdicts and summaries at every horizon (trailing dim ``horizon``) from the running state."""
     if "peak" not in c:  # the features alone (init with cfg.verdicts False)
-        return _feature_summaries(c, cfg)
+        return FT.summaries(c, cfg)
     dtype = c["peak"].dtype
     nan = jnp.asarray(jnp.nan, dtype)
     span_c = c["span"]
@@ -492,25 +485,8 @@ def finalize(c, solver_ok, cfg: VerdictConfig):
         decay_reason=reason,
         size_max=g["size_max"],
     )
-    out.update(_feature_summaries(c, cfg))
+    out.update(FT.summaries(c, cfg))
     return out
-
-
-def _feature_summaries(c, cfg: VerdictConfig) -> dict:
-    """feat_max/min/mean/std/final of each observable over the feature window (NaN where it saw none)."""
-    F = c["feat"].shape[1] if "feat" in c else 0
-    if not (cfg.features and F > 0):
-        return {}
-    nan = jnp.asarray(jnp.nan, c["feat"].dtype)
-    m = min(int(cfg.n_obs) if cfg.n_obs else F, F)
-    fe = c["feat"][:, :m]
-    cnt = fe[4]
-    mean = fe[2] / jnp.where(cnt > 0, cnt, 1.0)
-    var = jnp.maximum(fe[3] / jnp.where(cnt > 0, cnt, 1.0) - mean * mean, 0.0)
-    none = cnt == 0
-    return dict(feat_max=jnp.where(none, nan, fe[0]), feat_min=jnp.where(none, nan, fe[1]),
-                feat_mean=jnp.where(none, nan, mean), feat_std=jnp.where(none, nan, jnp.sqrt(var)),
-                feat_final=fe[5])
 
 
 def classify(ts: jnp.ndarray, obs: jnp.ndarray, solver_ok: jnp.ndarray, cfg: VerdictConfig, t0: float = 0.0):

@@ -1,4 +1,5 @@
-"""Attractors found from the trajectories themselves: featurise, scale, group, type and name.
+"""Attractors found from the trajectories themselves: featurise, scale, group, type and name (the
+whole-set outcome mapper :class:`Discovery`, :mod:`stabjax.mapping.mapper`).
 
 A model that declares no outcomes rules (or a spec with ``[outcomes] discover = true``) gets its
 outcomes here, after every trajectory of the sweep has run (the grouping pools all grid points,
@@ -10,9 +11,10 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    the whole sweep (max of its window maxima minus min of its window minima). Per *observable*, not
    per feature: a z-score per feature (pyBasin) would blow the solver noise in the window std of
    fixed points (1e-12) up to unit size; per observable no observable dominates by its units and
-   the noise stays noise. A range is never taken below 10^4 solver tolerances
-   (:func:`observable_ranges`): an observable every trajectory brings to the same value carries
-   only noise.
+   the noise stays noise. A range is never taken below :func:`floor_factor` solver tolerances
+   (atol + rtol max|value|, :func:`observable_ranges`): an observable every trajectory brings to the
+   same value carries only noise, and two trajectories each within the fixed-point stop's distance
+   (1000 tolerances, :mod:`stabjax.fold.stops`) of one equilibrium must lie within ``eps`` of each other.
 3. **Grouping**: scikit-learn's DBSCAN (Ester et al. 1996) with radius ``eps`` (fraction of each
    observable's range) and ``min_samples``, on a random subsample of ``subsample`` trajectories;
    every trajectory then takes the label of its nearest core sample if that lies within ``eps``
@@ -23,6 +25,13 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    subsample is sparser than the whole set, whose DBSCAN would have made it a border point); the
    rest is ``unclassified`` (e.g. trajectories still in a transient). Linear in N
    after the subsample: 10^5 trajectories take about a second (``docs/performance.md``).
+   Trajectories **at rest** -- stopped at a stable equilibrium by the fixed-point stop, or with every
+   observable's window std within :func:`rest_threshold` (the stop's 1000 solver tolerances, or
+   ``fixed_point_tol`` of the range) -- are grouped by where they rest (their last observables), the
+   others by their window features: a fixed point is a point, whatever transient its window still
+   holds. Fixed points found twice (by both groupings, or split by a transient) whose positions lie
+   within ``eps`` are one; a trajectory left ungrouped that approaches a stable equilibrium (at rest,
+   or its exponent below ``-chaos_threshold`` in an autonomous model) joins the fixed point it ends at.
    Why DBSCAN and not HDBSCAN (pyBasin's default) or recurrences (Attractors.jl): a chaotic
    attractor's features scatter between finite windows but form one connected cloud, which
    density-connectivity keeps whole at any radius above the sampling gaps, while two attractors
@@ -31,18 +40,25 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    into noise; the recurrence finite-state machine needs a state-space grid and runs trajectories
    one after the other (a vmapped batch engine runs them all at once).
 4. **Types** per group (pyBasin's ``DynamicalSystemClusterer`` idea, thresholds stated):
-   ``fixed_point`` when the median window std of every observable is below ``fixed_point_tol``
-   times its range; else ``chaotic`` when the median largest Lyapunov exponent
-   (:mod:`stabjax.model.tangent`) is above ``chaos_threshold``; else ``limit_cycle`` (a periodic or
-   quasi-periodic motion: its exponent is 0 for autonomous flows, negative for forced ones).
-   Without the exponent (``lyapunov = false``) a non-stationary group is ``attractor``.
+   ``fixed_point`` when most members are at rest (above: the thresholds follow from the solver's
+   tolerances, so the stop and the typing agree); else ``chaotic`` when the median largest Lyapunov
+   exponent (:mod:`stabjax.model.tangent`) is above ``chaos_threshold``; else ``fixed_point`` again
+   when that exponent is below ``-chaos_threshold`` and the model is autonomous (a bounded motion of an
+   autonomous flow other than an equilibrium has a zero exponent) or most members end their window at
+   an extreme of every observable (a monotone approach, no oscillation): a group still approaching a
+   stable equilibrium is never called a cycle; else ``limit_cycle`` (a periodic or quasi-periodic
+   motion: its exponent is 0 for autonomous flows, negative for forced ones). The finite-time
+   exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
+   window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
+   group not at rest is ``attractor``.
    Names: the type and a number, ``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ... numbered
    by decreasing basin size within each type.
-5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point is grouped on its
-   own and the attractors of neighbouring points are matched by the distance between their
-   representatives (:func:`continue_along`, Attractors.jl's global continuation), so
-   ``basin_fraction`` along the axis follows one attractor and births and deaths are reported
-   (``attractor_events``). ``continuation = false`` groups all points together instead.
+5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point's attractors are
+   found on their own and matched to those of the previous point of the same type by the distance
+   between their representatives (:mod:`stabjax.mapping.continuation`, Attractors.jl's global
+   continuation; ``match_threshold``, default from the data), so ``basin_fraction`` along the axis
+   follows one attractor, two groups of different type never share a name, and births and deaths
+   are reported (``attractor_events``). ``continuation = false`` groups all points together instead.
 6. **Representative** of each group: the member whose features lie nearest the group's median;
    its parameters (start), its state at t1 (re-integrated on its own) and the group's median
    features are stored in the dataset.
@@ -57,14 +73,16 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ValidationError
-from ..model.outcomes import DiscoveryConfig  # the [outcomes.discovery] table is part of the declaration
+from ..fold.stops import DISTANCE_TOL, STOP_FIXED_POINT, is_autonomous
+from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig  # [outcomes.discovery]: the declaration's
+from .mapper import Mapped, Mapper, OutcomeScheme, outcome_names
 
 STATS = ("mean", "std", "min", "max")
 TYPES = ("fixed_point", "limit_cycle", "chaotic", "attractor")
 
 
 @dataclass
-class Discovery:
+class Attractors:
     """The attractors found: ``labels`` (N,) index into ``names`` or -1 (unclassified / not valid)."""
 
     labels: np.ndarray
@@ -90,21 +108,44 @@ def feature_table(results: Mapping[str, np.ndarray], observables: tuple[str, ...
 
 
 NOISE_FACTOR = 1e4  # differences below this many solver tolerances are numerical, not dynamical
+STOP_DISTANCE = DISTANCE_TOL  # the fixed-point stop's (and the solver's plateau's) bound, in tolerance units
 
 
-def observable_ranges(results, valid: np.ndarray, n_obs: int, atol: float = 0.0, rtol: float = 0.0) -> np.ndarray:
-    """Range of each observable over the valid trajectories' windows, at least ``NOISE_FACTOR``
-    tolerances (atol + rtol max|value|): an observable that every trajectory brings to the same
-    value (a velocity at rest) must not blow its solver noise up to the size of a real difference.
-    Measured: Tsit5 at rtol = atol = 1e-8 stays 4e-5 (4000 tolerances) from a weakly stable focus
-    (Lorenz r = 24.4), the controller holding the step where the oscillation is barely damped."""
+def tolerances(results, valid: np.ndarray, n_obs: int, atol: float = 0.0, rtol: float = 0.0) -> np.ndarray:
+    """The solver's tolerance on each observable, atol + rtol max|value| over the valid windows (the
+    step-size controller's norm, applied to the observables)."""
+    lo = np.asarray(results["feat_min"], float)[valid, :n_obs]
+    hi = np.asarray(results["feat_max"], float)[valid, :n_obs]
+    if lo.shape[0] == 0:
+        return np.full(n_obs, float(atol))
+    big = np.maximum(np.nanmax(np.abs(hi), axis=0), np.nanmax(np.abs(lo), axis=0))
+    return atol + rtol * np.where(np.isfinite(big), big, 0.0)
+
+
+def floor_factor(n_obs: int, eps: float | None = None) -> float:
+    """The smallest range, in solver tolerances, an observable's features are scaled by: at least
+    ``NOISE_FACTOR``, and so large that two trajectories each within the fixed-point stop's distance
+    (``STOP_DISTANCE`` tolerance units) of one equilibrium -- each of their 4 features of each observable
+    then differs by at most twice that -- lie within ``eps`` of each other after scaling: the stop and the
+    grouping agree (a start the stop froze near the equilibrium joins the others at it)."""
+    if not eps:
+        return NOISE_FACTOR
+    return max(NOISE_FACTOR, 2.0 * STOP_DISTANCE * math.sqrt(len(STATS) * n_obs) / eps)
+
+
+def observable_ranges(results, valid: np.ndarray, n_obs: int, atol: float = 0.0, rtol: float = 0.0,
+                      eps: float | None = None) -> np.ndarray:
+    """Range of each observable over the valid trajectories' windows, at least :func:`floor_factor`
+    tolerances (:func:`tolerances`): an observable that every trajectory brings to the same value (a
+    velocity at rest) must not blow its solver noise up to the size of a real difference. Measured:
+    Tsit5 at rtol = atol = 1e-8 stays 4e-5 (4000 tolerances) from a weakly stable focus (Lorenz
+    r = 24.4), the controller holding the step where the oscillation is barely damped."""
     lo = np.asarray(results["feat_min"], float)[valid, :n_obs]
     hi = np.asarray(results["feat_max"], float)[valid, :n_obs]
     if lo.shape[0] == 0:
         return np.ones(n_obs)
     r = np.nanmax(hi, axis=0) - np.nanmin(lo, axis=0)
-    big = np.maximum(np.nanmax(np.abs(hi), axis=0), np.nanmax(np.abs(lo), axis=0))
-    floor = NOISE_FACTOR * (atol + rtol * np.where(np.isfinite(big), big, 0.0))
+    floor = floor_factor(n_obs, eps) * tolerances(results, valid, n_obs, atol, rtol)
     r = np.where(np.isfinite(r), np.maximum(r, floor), 0.0)
     return np.where(r > 0, r, 1.0)
 
@@ -153,52 +194,146 @@ def group(x: np.ndarray, cfg: DiscoveryConfig) -> tuple[np.ndarray, dict[str, An
     return labels, {"rounds": rounds}
 
 
-def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
-             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0) -> Discovery:
-    """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
-    ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales)."""
+@dataclass
+class _Features:
+    """What grouping and typing read of every trajectory (see :func:`features`)."""
+
+    feats: np.ndarray  # (N, 4 n_obs) physical units
+    names: list[str]
+    x: np.ndarray  # scaled window features
+    xf: np.ndarray  # (N, n_obs) scaled observables at the last checkpoint
+    scale: np.ndarray  # (n_obs,)
+    tol: np.ndarray  # (n_obs,) the solver's tolerance on each observable
+    valid: np.ndarray  # reached t1 with finite features
+    final: np.ndarray  # (N, n_obs) the last checkpoint's observables
+    lam: np.ndarray | None  # (N,) largest Lyapunov exponent, None when not integrated
+    at_rest: np.ndarray  # (N,) stopped by the fixed-point stop, or every window std at the rest threshold
+    autonomous: bool
+
+
+def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False) -> _Features:
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
-    valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1)
-    scale = observable_ranges(results, valid, n_obs, atol, rtol)
-    x = feats / np.repeat(scale, len(STATS))[None, :]
-    idx = np.flatnonzero(valid)
-    lab_v, stats = group(x[idx], cfg)
-    lam_all = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
-    groups = [idx[lab_v == g] for g in range(int(lab_v.max()) + 1 if lab_v.size else 0)]
-    groups = [g for g in groups if g.size]
-    return _named(groups, feats, fnames, x, scale, lam_all, cfg, stats)
+    final = np.asarray(results["feat_final"], float)[:, :n_obs]
+    valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1) & np.all(np.isfinite(final), axis=1)
+    scale = observable_ranges(results, valid, n_obs, atol, rtol, cfg.eps)
+    tol = tolerances(results, valid, n_obs, atol, rtol)
+    std = feats[:, [k * len(STATS) + 1 for k in range(n_obs)]]
+    at_rest = np.all(std <= rest_threshold(scale, tol, cfg), axis=1)
+    if "stop_reason" in results:
+        at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
+    return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
+                     final, np.asarray(results["lyapunov"], float) if "lyapunov" in results else None, at_rest,
+                     bool(autonomous))
 
 
-def _describe(g: np.ndarray, feats, x, scale, lam_all, cfg: DiscoveryConfig):
+def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> np.ndarray:
+    """The window std (per observable) at or below which a trajectory is at rest: the fixed-point stop's
+    distance from an equilibrium (``STOP_DISTANCE`` solver tolerances, where the solver's own solution
+    hovers near a stable equilibrium), or ``fixed_point_tol`` of the observable's range."""
+    return np.maximum(cfg.fixed_point_tol * scale, STOP_DISTANCE * tol)
+
+
+def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False) -> Attractors:
+    """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
+    ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales and the fixed
+    points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring)."""
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous)
+    found, stats = _found(f, cfg, np.flatnonzero(f.valid))
+    return _named(found, f, stats)
+
+
+def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tuple], dict[str, Any]]:
+    """The attractors among trajectories ``idx``: (members, type, median features, median exponent,
+    representative) each. Trajectories at rest are grouped by where they rest (their last observables:
+    a fixed point is a point, whatever transient its window still holds), the others by their window
+    features; fixed points found twice are one, and a trajectory left ungrouped that approaches a stable
+    equilibrium (:func:`_approaching`) joins the fixed point it ends at."""
+    rest, moving = idx[f.at_rest[idx]], idx[~f.at_rest[idx]]
+    groups, stats = [], {"rounds": 0}
+    for members, x in ((rest, f.xf), (moving, f.x)):
+        if members.size:
+            lab, st = group(x[members], cfg)
+            stats["rounds"] += st["rounds"]
+            groups += [members[lab == g] for g in range(int(lab.max()) + 1 if lab.size else 0)]
+    found = [(g, *_describe(g, f, cfg)) for g in groups if g.size]
+    points = [r for r in found if r[1] == "fixed_point"]
+    others = [r for r in found if r[1] != "fixed_point"]
+    merged: list[np.ndarray] = []
+    centres: list[np.ndarray] = []
+    for g, *_ in points:  # one fixed point found by both groupings, or split by its transient: one attractor
+        c = np.median(f.xf[g], axis=0)
+        near = [i for i, o in enumerate(centres) if np.linalg.norm(c - o) <= cfg.eps]
+        if near:
+            merged[near[0]] = np.concatenate([merged[near[0]], g])
+            centres[near[0]] = np.median(f.xf[merged[near[0]]], axis=0)
+        else:
+            merged.append(g)
+            centres.append(c)
+    left = np.setdiff1d(idx, np.concatenate([g for g, *_ in found]) if found else idx[:0])
+    left = left[_approaching(left, f, cfg)]
+    if left.size and centres:
+        d = np.linalg.norm(f.xf[left][:, None, :] - np.asarray(centres)[None], axis=-1)
+        j = np.argmin(d, axis=1)
+        for i in np.flatnonzero(d[np.arange(left.size), j] <= cfg.eps):
+            merged[j[i]] = np.append(merged[j[i]], left[i])
+    points = [(np.sort(g), *_describe(np.sort(g), f, cfg)) for g in merged]
+    return points + others, stats
+
+
+def _approaching(members: np.ndarray, f: _Features, cfg: DiscoveryConfig) -> np.ndarray:
+    """Per trajectory: approaching a stable equilibrium -- at rest, or its exponent below
+    -chaos_threshold in an autonomous model (a bounded motion other than an equilibrium has a zero one)."""
+    out = f.at_rest[members].copy()
+    if f.lam is not None and f.autonomous:
+        with np.errstate(invalid="ignore"):
+            out |= f.lam[members] < -cfg.chaos_threshold
+    return out
+
+
+def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig):
     """(type, median features, median exponent, representative index) of one group of trajectories."""
-    n_obs = len(scale)
-    std_cols = [k * len(STATS) + 1 for k in range(n_obs)]
-    med = np.median(feats[g], axis=0)
-    rel_std = med[std_cols] / scale
-    lam = float(np.nanmedian(lam_all[g])) if lam_all is not None and np.isfinite(lam_all[g]).any() else math.nan
-    if np.all(rel_std < cfg.fixed_point_tol):
+    n_obs = len(f.scale)
+    min_cols = [k * len(STATS) + 2 for k in range(n_obs)]
+    med = np.median(f.feats[g], axis=0)
+    lam = float(np.nanmedian(f.lam[g])) if f.lam is not None and np.isfinite(f.lam[g]).any() else math.nan
+    if np.mean(f.at_rest[g]) > 0.5:  # most at rest (the stop froze them, or their spread is numerical)
         kind = "fixed_point"
-    elif lam_all is None:
+    elif f.lam is None:
         kind = "attractor"
     elif lam > cfg.chaos_threshold:
         kind = "chaotic"
+    elif lam < -cfg.chaos_threshold and (f.autonomous or _monotone(g, f, min_cols)):
+        # still approaching a stable equilibrium: a bounded motion of an autonomous flow other than an
+        # equilibrium has a zero exponent, and a monotone approach is no cycle in any flow
+        kind = "fixed_point"
     else:
         kind = "limit_cycle"
-    xm = np.median(x[g], axis=0)
-    rep = int(g[np.argmin(np.linalg.norm(x[g] - xm, axis=1))])
+    xm = np.median(f.x[g], axis=0)
+    rep = int(g[np.argmin(np.linalg.norm(f.x[g] - xm, axis=1))])
     return kind, med, lam, rep
 
 
-def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> Discovery:
-    """Name and order the groups (type, then decreasing size); ``kinds``: given types (continuation)."""
+def _monotone(g: np.ndarray, f: _Features, min_cols) -> bool:
+    """Whether most members end their window at an extreme of every observable (a monotone approach,
+    no oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
+    lo = f.feats[g][:, min_cols]
+    hi = f.feats[g][:, [c + 1 for c in min_cols]]
+    end = f.final[g]
+    return bool(np.mean(np.all((end == lo) | (end == hi), axis=1)) > 0.5)
+
+
+def _named(found, f: _Features, stats, kinds=None) -> Attractors:
+    """Name and order the attractors ``found`` (:func:`_found`; type, then decreasing size); ``kinds``: given
+    types (continuation)."""
     typed = []
-    for i, g in enumerate(groups):
-        kind, med, lam, rep = _describe(g, feats, x, scale, lam_all, cfg)
+    for i, (g, kind, med, lam, rep) in enumerate(found):
         kind = kinds[i] if kinds is not None else kind
         typed.append((TYPES.index(kind), -g.size, kind, g, med, lam, rep))
     typed.sort(key=lambda r: (r[0], r[1], r[6]))
-    labels = np.full(len(feats), -1, np.int64)
+    labels = np.full(len(f.feats), -1, np.int64)
     names, types, counts, fmed, lams, reps = [], [], [], [], [], []
     seen: dict[str, int] = {}
     for a, (_, _, kind, g, med, lam, rep) in enumerate(typed):
@@ -211,135 +346,114 @@ def _named(groups, feats, fnames, x, scale, lam_all, cfg, stats, kinds=None) -> 
         reps.append(rep)
         labels[g] = a
     stats.update(n_grouped=int((labels >= 0).sum()))
-    return Discovery(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
-                     features=np.asarray(fmed).reshape(len(names), len(fnames)), feature_names=fnames,
-                     lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=scale,
-                     stats=stats)
+    return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
+                      features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
+                      lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
+                      stats=stats)
 
 
-def continue_along(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
-                   atol: float = 0.0, rtol: float = 0.0) -> tuple[Discovery, list[dict[str, Any]]]:
-    """Attractors followed along one grid axis (Datseris, Rossi & Wagemakers, Chaos 33 (2023): the
-    "global continuation" of Attractors.jl, ``MatchBySSSetDistance`` with centroid distances).
+def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
+               atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False
+               ) -> tuple[Attractors, list[dict[str, Any]], float]:
+    """Attractors followed along one grid axis: each point's attractors found on their own (:func:`_found`,
+    features scaled by the whole sweep's ranges so distances compare between points), then matched from
+    point to point by :func:`stabjax.mapping.continuation.match_sequentially` (a group matches only an
+    attractor of its own type). Trajectories are laid out point-major (``n_points`` grid points, the same
+    number of samples each). Returns the discovery (labels over all trajectories), the births and deaths
+    (:func:`stabjax.mapping.continuation.events`) and the match threshold used."""
+    from . import continuation as C
 
-    Trajectories are laid out point-major (``n_points`` grid points, the same number of samples
-    each). Each point is grouped on its own (:func:`group`, features scaled by the whole sweep's
-    ranges so distances compare between points); the groups of point k are matched to the
-    attractors alive at point k - 1 by the distance between their representatives' scaled feature
-    vectors, pairs accepted greedily in increasing distance while both are free and the distance is
-    at most ``match_threshold``; an unmatched group is a new attractor (a birth), an attractor of
-    point k - 1 left unmatched ends there (a death). Greedy, not an optimal assignment (as
-    Attractors.jl); an attractor that vanishes and reappears gets a new identity. An attractor's type
-    is the one it has at most of its points. Returns the discovery (labels over all trajectories)
-    and the events ``{"attractor", "event": "birth" | "death", "index": grid index}``.
-    """
-    n_obs = len(observables)
-    feats, fnames = feature_table(results, observables)
-    valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1)
-    scale = observable_ranges(results, valid, n_obs, atol, rtol)
-    x = feats / np.repeat(scale, len(STATS))[None, :]
-    lam_all = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
-    n = len(feats)
-    per = n // n_points
-    members: list[list[np.ndarray]] = []  # global id -> member index arrays
-    kinds: list[list[str]] = []
-    alive: dict[int, np.ndarray] = {}  # global id -> representative scaled features at the last point
-    span: list[list[int]] = []  # global id -> [first point, last point]
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous)
+    per = len(f.feats) // n_points
+    found: list[list[C.Found]] = []
     for k in range(n_points):
         idx = np.arange(k * per, (k + 1) * per)
-        idx = idx[valid[idx]]
-        local = []
-        if idx.size:
-            lab, _ = group(x[idx], cfg)
-            for g in range(int(lab.max()) + 1 if lab.size else 0):
-                gi = idx[lab == g]
-                if gi.size:
-                    kind, _, _, rep = _describe(gi, feats, x, scale, lam_all, cfg)
-                    local.append((gi, kind, x[rep]))
-        pairs = sorted((float(np.linalg.norm(rep - alive[a])), j, a) for j, (_, _, rep) in enumerate(local)
-                       for a in alive)
-        taken_new, taken_old, ids = set(), set(), {}
-        for d, j, a in pairs:
-            if d <= cfg.match_threshold and j not in taken_new and a not in taken_old:
-                ids[j] = a
-                taken_new.add(j)
-                taken_old.add(a)
-        new_alive = {}
-        for j, (gi, kind, rep) in enumerate(local):
-            a = ids.get(j)
-            if a is None:
-                a = len(members)
-                members.append([])
-                kinds.append([])
-                span.append([k, k])
-            members[a].append(gi)
-            kinds[a].append(kind)
-            span[a][1] = k
-            new_alive[a] = rep
-        alive = new_alive
-    groups = [np.concatenate(m) for m in members]
-    majority = [max(TYPES, key=lambda t: (ks.count(t), -TYPES.index(t))) for ks in kinds]
-    disc = _named(groups, feats, fnames, x, scale, lam_all, cfg, {"points": n_points}, kinds=majority)
-    events = []
-    for a, g in enumerate(groups):
-        name = disc.names[int(disc.labels[g[0]])]
-        first, last = span[a]
-        if first > 0:
-            events.append({"attractor": name, "event": "birth", "index": first})
-        if last < n_points - 1:
-            events.append({"attractor": name, "event": "death", "index": last + 1})
-    events.sort(key=lambda e: (e["index"], e["event"], e["attractor"]))
-    return disc, events
+        idx = idx[f.valid[idx]]
+        found.append([C.Found(g, kind, f.x[rep]) for g, kind, _, _, rep in _found(f, cfg, idx)[0]])
+    threshold = C.default_threshold(found) if cfg.match_threshold is None else cfg.match_threshold
+    ids, spans = C.match_sequentially(found, threshold)
+    groups, kinds = C.merged(found, ids, len(spans))
+    disc = _named([(g, *_describe(g, f, cfg)) for g in groups], f, {"points": n_points}, kinds=[k[0] for k in kinds])
+    names = [disc.names[int(disc.labels[g[0]])] for g in groups]
+    return disc, C.events(spans, names, n_points), threshold
 
 
-# ---- the outcomes of a plan ----------------------------------------------------------------------
+# ---- the mapper -------------------------------------------------------------------------------------
+
+MAX_CODES = 127  # outcome codes are int8
 
 
-def plan_config(plan) -> DiscoveryConfig:
-    return DiscoveryConfig.from_dict(plan.scheme.decl.discovery or {})
+def continues(plan, cfg: DiscoveryConfig) -> bool:
+    """Whether the attractors are followed along the grid (one ``[grid]`` axis with ``[sample]`` and
+    ``continuation``) rather than grouped over the whole sweep at once."""
+    return bool(cfg.continuation and len(plan.grid) == 1 and plan.n_sample)
 
 
-def outcomes(plan, results: Mapping[str, np.ndarray]):
-    """(codes (N,) int8, the scheme with the attractors' names, data variables, coordinates) of a
-    discovering plan, from every trajectory's results."""
-    from ..fold import status as S
-    from ..model import outcomes as O
 
-    sch = plan.scheme
-    decl = sch.decl
-    cfg = plan_config(plan)
-    status = np.asarray(results["solver_status"])
-    events = None
-    if cfg.continuation and len(plan.grid) == 1 and plan.n_sample:
-        disc, events = continue_along(results, tuple(plan.system.observables), cfg, status == 0, plan.grid[0].size,
-                                      plan.icfg.atol, plan.icfg.rtol)
-    else:
-        disc = discover(results, tuple(plan.system.observables), cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
-    escape = decl.escape in sch.names
-    names = tuple(disc.names) + ((decl.escape,) if escape else ()) + (O.UNCLASSIFIED, O.FAILED_NAME)
-    if len(names) > 127:
-        raise ValidationError("outcomes.discovery", f"{len(disc.names)} attractors found: more than the outcome "
-                              "codes hold; raise eps or min_samples")
-    colors = [O.PALETTE[i % len(O.PALETTE)] for i in range(len(disc.names))]
-    colors += ([O.COLOR_ESCAPED] if escape else []) + [O.GREY_UNCLASSIFIED, O.GREY_FAILED]
-    new = O.OutcomeScheme(names, tuple(colors), decl)
-    code = np.where(disc.labels >= 0, disc.labels, names.index(O.UNCLASSIFIED))
-    ok = status == 0
-    if escape:
-        code = np.where(status == S.ESCAPED, names.index(decl.escape), code)
-        ok = ok | (status == S.ESCAPED)
-    code = np.where(ok, code, names.index(O.FAILED_NAME)).astype(np.int8)
-    data, coords = _attractor_vars(plan, disc, results, cfg)
-    if events is not None:
-        ax = plan.grid[0]
-        ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
-        data["attractor_events"] = ((), json.dumps(ev), {
-            "long_name": f"births and deaths of attractors along {ax.name} (JSON: attractor, event, first grid "
-                         f"index where it is present (birth) or absent again (death), the {ax.name} value there)"})
-    return code, new, data, coords
+class Discovery(Mapper):
+    """The outcomes are the attractors found in the whole sweep's features (a whole-set mapper; see the
+    module docstring). Before the run its scheme holds the fates alone (escape, unclassified, failed)."""
+
+    kind = "discovery"
+    whole_set = True
+
+    def __init__(self, decl, escape: bool):
+        self.escape = bool(escape)
+        self.cfg = DiscoveryConfig.from_dict(decl.discovery or {})
+        self.scheme = OutcomeScheme(*outcome_names(decl, (), self.escape), decl)
+
+    def check(self, plan, state: Any = None) -> None:
+        """Before integrating: a grouping of fewer than ``min_samples`` trajectories (the whole sweep, or each
+        grid point's samples under continuation) forms no group, and every trajectory would end
+        unclassified after the whole run."""
+        cfg = self.cfg
+        n, where = (plan.n_sample, "per grid point (continuation groups each point on its own)") \
+            if continues(plan, cfg) else (plan.size, "in the sweep")
+        if n < cfg.min_samples:
+            raise ValidationError("outcomes.discovery.min_samples", f"discovery calls a group of trajectories an "
+                                  f"attractor when at least min_samples = {cfg.min_samples} of them lie within eps of "
+                                  f"one another; there are {n} trajectories {where}, so every one would end "
+                                  f"unclassified: sample at least {cfg.min_samples} starts, or lower min_samples")
+
+    def map_set(self, plan, results: Mapping[str, np.ndarray], state: Any = None) -> Mapped:
+        """The attractors of every trajectory's results: codes, the scheme with the attractors' names, and
+        the attractors' variables."""
+        from ..fold import status as S
+
+        decl, cfg = self.decl, self.cfg
+        status = np.asarray(results["solver_status"])
+        events = None
+        obs, auto = tuple(plan.system.observables), is_autonomous(plan.system)
+        if continues(plan, cfg):
+            disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
+                                                 plan.icfg.rtol, auto)
+        else:
+            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto)
+        names, colors = outcome_names(decl, tuple(disc.names), self.escape)
+        if len(names) > MAX_CODES:
+            small = int(np.sum(disc.counts < 2 * cfg.min_samples))
+            raise ValidationError("outcomes.discovery.eps", f"{len(disc.names)} attractors found with eps = {cfg.eps:g} "
+                                  f"and min_samples = {cfg.min_samples} ({small} of them groups of fewer than "
+                                  f"{2 * cfg.min_samples} trajectories): more than the {MAX_CODES} outcome codes hold; "
+                                  "raise eps or min_samples")
+        code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
+        ok = status == 0
+        if self.escape:
+            code = np.where(status == S.ESCAPED, names.index(decl.escape), code)
+            ok = ok | (status == S.ESCAPED)
+        code = np.where(ok, code, names.index(FAILED_NAME)).astype(np.int8)
+        data, coords = _attractor_vars(plan, disc, results, cfg)
+        if events is not None:
+            ax = plan.grid[0]
+            ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
+            data["attractor_events"] = ((), json.dumps(ev), {
+                "long_name": f"births and deaths of attractors along {ax.name} (JSON: attractor, event, first grid "
+                             f"index where it is present (birth) or absent again (death), the {ax.name} value there)",
+                "match_threshold": threshold})
+        return Mapped(code, OutcomeScheme(names, colors, decl), data, coords)
 
 
-def _attractor_vars(plan, disc: Discovery, results, cfg: DiscoveryConfig):
+def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]

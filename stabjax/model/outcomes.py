@@ -1,8 +1,9 @@
-"""Named outcomes: which attractor (or fate) each trajectory reached, and basin stability.
+"""Named outcomes, as a model declares them: the declaration and its rule language.
 
-A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one
-integer code, stored as the dataset variable ``outcome`` with CF ``flag_values`` /
-``flag_meanings``. Codes are, in this order:
+A system (or a spec's ``[outcomes]`` table) declares its outcomes; every trajectory gets one integer
+code, stored as the dataset variable ``outcome`` with CF ``flag_values`` / ``flag_meanings``. The
+declaration (:class:`Outcomes`) says which outcomes there are and how to recognise them; assigning
+them is the mapping's (:mod:`stabjax.mapping.mapper`: one mapper per plan). Codes are, in this order:
 
 1. the **rule** outcomes, in declaration order: the first rule that holds wins. A rule is an
    expression over *late-window features* of the observables (``max(x)``, ``min(x)``,
@@ -19,13 +20,13 @@ integer code, stored as the dataset variable ``outcome`` with CF ``flag_values``
 4. ``unclassified``: no rule holds and no template is near;
 5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
 
-Nothing is absorbed silently: 4 and 5 are always present. A system that declares no outcomes gets
-its attractors discovered (:mod:`stabjax.mapping.discover`: ``fixed_point_1``, ``limit_cycle_1``,
-``chaotic_1``, ...). The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
+Nothing is absorbed silently: 4 and 5 are always present (:mod:`stabjax.mapping.declared`). A system
+that declares no outcomes gets its attractors discovered (:mod:`stabjax.mapping.discover`:
+``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ...), and so does a spec with ``[outcomes]
+discover = true``; ``[outcomes.discovery]`` (:class:`DiscoveryConfig`) sets how, and never chooses
+discovery by itself. The attitude models declare ``outcomes = VERDICTS``: their verdicts are their
 outcomes (converged, flipped, diverged, undecided, failed), with the same codes as ``verdict``.
-
-Basin stability (:func:`basin_stats`): per grid point and outcome, the fraction S of the N
-sampled trajectories, its standard error sqrt(S(1 - S)/N) and the 95 % Wilson score interval.
+Basin stability over the codes: :mod:`stabjax.mapping.basin`.
 """
 from __future__ import annotations
 
@@ -38,13 +39,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..fold import status as S
 from ..errors import ValidationError
 
 FEATURES = ("max", "min", "mean", "std", "final")
 LYAPUNOV = "lyapunov"  # bare name in rules and features: the largest Lyapunov exponent (stabjax.model.tangent)
 UNCLASSIFIED, FAILED_NAME, ESCAPED_NAME = "unclassified", "failed", "escaped"
-Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 MAX_RULE_CHARS = 500
 
 # named outcomes, in declaration order: Okabe & Ito's colour-blind-safe palette (blue, vermillion, bluish
@@ -254,22 +253,40 @@ VERDICTS = _Verdicts()
 
 @dataclass(frozen=True)
 class DiscoveryConfig:
-    """``[outcomes.discovery]``: the grouping and typing settings (defaults measured on the examples,
-    ``docs/performance.md``: eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic
-    attractor's feature cloud nor merges Duffing's period-3 cycles).
+    """``[outcomes.discovery]``: the grouping, typing and continuation settings of attractor discovery
+    (:mod:`stabjax.mapping.discover`). Defaults measured on the examples (``docs/performance.md``:
+    eps = 0.05 is the one value of 0.01 ... 0.2 that neither tears a chaotic attractor's feature cloud
+    nor merges Duffing's period-3 cycles).
+
+    The table configures discovery; it does not switch it on. Discovery runs for a model that declares no
+    outcomes, or with ``[outcomes] discover = true``; the table beside a model's rules, templates or
+    verdicts is refused naming it (as Attractors.jl and pyBasin take a mapper or predictor as an object
+    the user chooses, never from the presence of one of its settings; and a setting that would be
+    ignored is refused, like any unknown key).
 
     eps              DBSCAN radius, in units of each observable's range over the sweep
-    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample
+    min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample; a sweep (or,
+                     under continuation, a grid point) with fewer trajectories is refused before integrating
     subsample        trajectories grouped by DBSCAN itself; the others join their nearest core sample
-    fixed_point_tol  window std / range below this for every observable -> fixed point
-    chaos_threshold  median largest Lyapunov exponent above this -> chaotic
+    fixed_point_tol  window std / range below this for every observable -> fixed point (so is a window
+                     std within the fixed-point stop's 1000 solver tolerances, and a group the stop froze)
+    chaos_threshold  median largest Lyapunov exponent above this -> chaotic; below minus this, an
+                     autonomous model's group (or any monotone approach) is a fixed point still approaching
     lyapunov         integrate the tangent dynamics for the exponent (off: no chaotic/limit-cycle types)
     seed             of the subsample
-    continuation     with one [grid] axis: group each grid point on its own and match the attractors
-                     of neighbouring points (:func:`continue_along`); off: group all points together
-    match_threshold  largest distance (scaled features) between representatives of one attractor at
-                     neighbouring grid points (default inf, as Attractors.jl's MatchBySSSetDistance: the
-                     greedy order alone decides; a finite value lets a far jump be a death and a birth)
+    continuation     with one ``[grid]`` axis and ``[sample]``: group each grid point on its own and match
+                     the attractors of neighbouring points (:mod:`stabjax.mapping.continuation`), so each
+                     keeps its name along the axis and births and deaths are reported
+                     (``attractor_events``); a group matches only an attractor of its own type. false:
+                     group all points together (an attractor keeps one name across the grid by the
+                     pooled grouping)
+    match_threshold  the representatives of one attractor at neighbouring grid points lie less than this
+                     apart (scaled features, the units of eps); a longer jump is a death and a birth.
+                     Default (unset): from the data, the smallest distance between two attractors found at
+                     one grid point -- a jump that long is the step from one attractor to another
+                     (unbounded where no point holds two; the types still split); ``inf``: the greedy
+                     order alone decides (Attractors.jl's ``MatchBySSSetDistance`` default). The value
+                     used is the ``match_threshold`` attribute of ``attractor_events``
     """
 
     eps: float = 0.05
@@ -280,7 +297,7 @@ class DiscoveryConfig:
     lyapunov: bool = True
     seed: int = 0
     continuation: bool = True
-    match_threshold: float = math.inf
+    match_threshold: float | None = None  # None: from the data (mapping.continuation.default_threshold)
 
     @classmethod
     def from_dict(cls, d: Any, section: str = "outcomes.discovery") -> "DiscoveryConfig":
@@ -389,9 +406,15 @@ class Outcomes:
         if "discovery" in table:
             DiscoveryConfig.from_dict(table["discovery"], f"{section}.discovery")  # checked now
             kw["discovery"] = dict(table["discovery"])
-            kw["discover"] = kw["discover"] or "discover" not in table
         if ("rules" in table or "templates" in table) and "discover" not in table:
             kw["discover"] = False  # declared outcomes replace a discovering base declaration
+        if "discovery" in table and not kw["discover"]:
+            # the table configures discovery, it never chooses it (DiscoveryConfig): settings that would be
+            # ignored are refused, and declared outcomes are never replaced by the presence of a setting
+            raise ValidationError(f"{section}.discovery", "configures attractor discovery, which is off here: the "
+                                  "outcomes are declared (the model's or this table's rules, templates or verdicts); "
+                                  f"set {section}.discover = true to discover the attractors instead, or remove "
+                                  f"[{section}.discovery]")
         if kw["discover"] and "rules" not in table and "templates" not in table:
             kw["rules"], kw["templates"] = {}, {}  # discovery replaces the model's declared outcomes
         return cls(**kw)
@@ -452,33 +475,6 @@ class Outcomes:
         return ""
 
 
-@dataclass(frozen=True)
-class OutcomeScheme:
-    """The resolved outcomes of a plan: names (code = index), colours and how to assign them."""
-
-    names: tuple[str, ...]
-    colors: tuple[str, ...]
-    decl: Outcomes | None  # None: the verdicts are the outcomes
-
-    @property
-    def from_verdicts(self) -> bool:
-        return self.decl is None
-
-
-def scheme(system, decl: Outcomes | None, escape: bool) -> OutcomeScheme:
-    from ..fold import verdict as V
-
-    if decl is None:
-        return OutcomeScheme(tuple(V.NAMES), tuple(V.COLORS), None)
-    names = decl.names(escape)
-    user = len(decl.rules) + len(decl.templates)
-    colors = [PALETTE[i % len(PALETTE)] for i in range(user)]
-    if escape:
-        colors.append(COLOR_ESCAPED)
-    colors += [GREY_UNCLASSIFIED, GREY_FAILED]
-    return OutcomeScheme(names, tuple(colors), decl)
-
-
 def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ...]):
     """``feat(stat, observable)`` over the engine's ``feat_<stat>`` arrays (N, n_obs)."""
     index = {o: i for i, o in enumerate(observables)}
@@ -497,103 +493,3 @@ def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:
     obs, scalars = _names(system)
     cols = [parse(t, obs, scalars, "outcomes.features", boolean=False)(feat, params) for t in decl.features]
     return np.stack([np.asarray(c, float) for c in cols], axis=-1)
-
-
-def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params: Mapping[str, np.ndarray],
-           template_features: np.ndarray | None = None) -> np.ndarray:
-    """Outcome codes (int8, shape (N,)) of N trajectories.
-
-    ``results``: the engine's per-trajectory arrays (``verdict``, ``solver_status``, ``feat_*``);
-    ``params``: their parameters (N, ...); ``template_features``: (N, n_templates, n_features), the
-    feature vectors of the templates integrated at each trajectory's grid point.
-    """
-    if sch.from_verdicts:
-        v = S.verdicts(np.asarray(results["solver_status"]), np.asarray(results["verdict"]))
-        return (v[..., -1] if v.ndim > 1 else v).astype(np.int8)
-    decl = sch.decl
-    status = np.asarray(results["solver_status"])
-    n = status.shape[0]
-    code = np.full(n, -1, np.int16)
-    names = sch.names
-    feat = feature_getter(results, tuple(system.observables))
-
-    def par(name):
-        return np.asarray(params[name], float).reshape(n)
-
-    obs, scalars = _names(system)
-    for i, (name, text) in enumerate(decl.rules.items()):
-        hit = np.broadcast_to(parse(text, obs, scalars, f"outcomes.rules.{name}")(feat, par), (n,))
-        code = np.where((code < 0) & hit, i, code)
-    if decl.templates and template_features is not None:
-        x = feature_matrix(decl, system, feat, par)  # (N, F)
-        d = np.linalg.norm(x[:, None, :] - template_features, axis=-1)  # (N, T)
-        d = np.where(np.isfinite(d), d, np.inf)
-        j = np.argmin(d, axis=1)
-        dmin = d[np.arange(n), j]
-        limit = decl.max_distance if decl.max_distance is not None else 0.5 * min_template_spacing(template_features)
-        ok = dmin <= limit
-        code = np.where((code < 0) & ok, len(decl.rules) + j, code)
-    unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
-    code = np.where(code < 0, unclassified, code)
-    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed)
-    return code.astype(np.int8)
-
-
-def min_template_spacing(tf: np.ndarray) -> np.ndarray:
-    """Per trajectory (grid point): the smallest distance between two templates' feature vectors."""
-    t = tf.shape[-2]
-    if t < 2:
-        return np.full(tf.shape[:-2], np.inf)
-    d = np.linalg.norm(tf[..., :, None, :] - tf[..., None, :, :], axis=-1)
-    # a template that failed at a point (NaN features) is far from everything: it must not make the
-    # spacing NaN, which would leave every trajectory there unclassified
-    d = np.where(np.eye(t, dtype=bool) | ~np.isfinite(d), np.inf, d)
-    return d.min(axis=(-1, -2))
-
-
-COINCIDE_RTOL = 1e-6  # feature vectors this close (relative to their size) are one attractor
-
-
-def coinciding_templates(decl: Outcomes, tf: np.ndarray) -> tuple[int, str, str, float] | None:
-    """The first (point, template a, template b, distance) where two templates' feature vectors
-    coincide (distance <= COINCIDE_RTOL (1 + |feature vector|)), or None.
-
-    Coinciding templates make the default ``max_distance`` (half the smallest spacing) zero, and
-    every trajectory near them would end "unclassified" without a word; with a given ``max_distance``
-    the choice between the two is arbitrary. Either way the plan is refused before it runs.
-    """
-    t = tf.shape[-2]
-    if t < 2:
-        return None
-    names = list(decl.templates)
-    d = np.linalg.norm(tf[:, :, None, :] - tf[:, None, :, :], axis=-1)  # (P, T, T)
-    size = np.linalg.norm(tf, axis=-1)
-    scale = 1.0 + np.maximum(size[:, :, None], size[:, None, :])
-    with np.errstate(invalid="ignore"):
-        close = (d <= COINCIDE_RTOL * scale) & ~np.eye(t, dtype=bool)
-    if not close.any():
-        return None
-    p, a, b = (int(x[0]) for x in np.nonzero(close))
-    return p, names[a], names[b], float(d[p, a, b])
-
-
-# ---- basin stability ---------------------------------------------------------------------------------
-
-
-def basin_stats(codes: np.ndarray, n_outcomes: int, z: float = Z95) -> dict[str, np.ndarray]:
-    """Per outcome over the last axis (the samples): count, fraction S, SE sqrt(S(1-S)/N), Wilson interval.
-
-    Returns arrays of shape (*codes.shape[:-1], n_outcomes). The Wilson score interval keeps its
-    coverage near S = 0 or 1, where S +- z SE collapses to a point.
-    """
-    codes = np.asarray(codes)
-    n = codes.shape[-1]
-    counts = np.stack([(codes == k).sum(axis=-1) for k in range(n_outcomes)], axis=-1).astype(np.int64)
-    s = counts / n
-    se = np.sqrt(s * (1 - s) / n)
-    z2n = z * z / n
-    centre = (s + z2n / 2) / (1 + z2n)
-    half = z / (1 + z2n) * np.sqrt(s * (1 - s) / n + z2n / (4 * n))
-    # the interval contains S exactly; min/max only absorb rounding at S = 0 or 1
-    return dict(count=counts, fraction=s, se=se, ci_low=np.minimum(np.clip(centre - half, 0, 1), s),
-                ci_high=np.maximum(np.clip(centre + half, 0, 1), s))

@@ -31,7 +31,10 @@ from ..fold import verdict as VD
 from ..errors import ValidationError
 from ..model.params import Param, parse_value
 from ..model.loading import resolve as resolve_system
-from ..model.outcomes import VERDICTS, OutcomeScheme, Outcomes, scheme
+from ..mapping.classify import mapper_for
+from ..mapping.mapper import Mapper, OutcomeScheme
+from ..mapping.verdicts import Verdicts
+from ..model.outcomes import VERDICTS, Outcomes
 from .samplers import draw, sample_args
 from ..model.system import System
 
@@ -79,7 +82,8 @@ class Plan:
     n_sample: int = 0
     icfg: IntegrateConfig = field(default_factory=IntegrateConfig)
     vcfg: VerdictConfig = field(default_factory=VerdictConfig)
-    outcomes: OutcomeScheme | None = None  # None: the verdicts are the outcomes
+    # the outcome mapper, chosen once (stabjax.mapping.mapper): verdicts, rules + templates + escape, discovery
+    mapper: Mapper = field(default_factory=Verdicts)
     lyapunov: bool = False  # integrate the tangent dynamics: per-trajectory largest Lyapunov exponent
     start_labels: Any = None  # labels of the starts of a [sample] from = FILE (stabjax.plan.starts), or None
     starts_file: Path | None = None  # that FILE: an input of the sweep, never one of its outputs
@@ -108,7 +112,8 @@ class Plan:
 
     @property
     def scheme(self) -> OutcomeScheme:
-        return self.outcomes if self.outcomes is not None else scheme(self.system, None, False)
+        """The outcomes' names and colours as the mapper knows them before the run."""
+        return self.mapper.scheme
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -123,6 +128,11 @@ class Plan:
     @property
     def size(self) -> int:
         return int(np.prod(self.shape)) if self.shape else 1
+
+    def static_params(self) -> list[str]:
+        """Parameters equal in every chunk of the plan (fixed, not swept, not sampled): compiled in as constants."""
+        varied = {ax.param.name for ax in self.grid} | set(self.sample)
+        return [k for k in self.fixed if k not in varied]
 
     def fingerprint(self) -> str:
         """Identity of the computation: :func:`stabjax.plan.identity.fingerprint` (the one place it is computed)."""
@@ -431,14 +441,14 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     decl = None if system.outcomes is VERDICTS else (system.outcomes or Outcomes(discover=True))
     if "outcomes" in spec:
         decl = Outcomes.from_spec(spec["outcomes"], base=decl)
-    outcomes = None
+    escape = (icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius) is not None
     if decl is not None:
-        escape = (icfg.escape_radius if icfg.escape_radius is not None else system.escape_radius) is not None
         decl.check(system, where="outcomes", escape=escape)
-        outcomes = scheme(system, decl, escape)
+    mapper = mapper_for(system, decl, escape)  # chosen once: nothing downstream asks which kind of outcome
+    if decl is not None:
         # the fold also keeps late-window statistics of every observable, for the outcome rules
         # (named outcomes need nothing else: the attitude classifier's state is left out of the fold)
-        vcfg = vcfg.replace(features=True, feature_window=float(decl.window), verdicts=outcomes.from_verdicts)
+        vcfg = vcfg.replace(features=True, feature_window=float(decl.window), verdicts=mapper.uses_verdicts)
     # the tangent dynamics only when a rule, a feature, discovery or the user asks for the exponent
     lyap = decl is not None and decl.uses_lyapunov(system)
     n_obs = len(system.observables) + int(lyap)
@@ -454,25 +464,25 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
 
     integrated = tangent(system, window_start(icfg.t0, icfg.t1, vcfg.feature_window), float(icfg.t1)) if lyap \
         else system
-    icfg = _early(icfg, integrated, decl is not None)
+    icfg = _early(icfg, integrated, not mapper.uses_verdicts)
     if icfg.attractor_stop:
-        _check_attractor_stop(integrated, decl, grid, sample)
+        _check_attractor_stop(integrated, mapper, grid, sample)
     plan = Plan(system=system, name=sweep_name, spec=spec, fixed=fixed, grid=grid,
-                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, outcomes=outcomes, lyapunov=lyap,
+                sample=sample, n_sample=n_sample, icfg=icfg, vcfg=vcfg, mapper=mapper, lyapunov=lyap,
                 start_labels=None if from_file is None else from_file[1],
                 starts_file=None if from_file is None else from_file[2])
     return plan
 
 
-def _check_attractor_stop(integrated, decl, grid, sample) -> None:
+def _check_attractor_stop(integrated, mapper: Mapper, grid, sample) -> None:
     """Where the recurrence stop (stabjax.fold.stops) cannot apply, refuse it naming why."""
     from ..fold.stops import is_autonomous
 
     field = "integrate.attractor_stop"
-    if decl is None or integrated.classify is not None:
+    if mapper.uses_verdicts or integrated.classify is not None:
         raise ValidationError(field, f"{integrated.name}'s verdicts read the run up to t1; the stop needs named "
                                      "outcomes (rules or templates)")
-    if decl.discover:
+    if mapper.whole_set:
         raise ValidationError(field, "discovery groups the whole run's trajectories at the end; the stop needs "
                                      "declared outcomes (rules or templates)")
     if not is_autonomous(integrated):
@@ -487,9 +497,8 @@ def _check_attractor_stop(integrated, decl, grid, sample) -> None:
 
 
 def static_params(plan: Plan) -> list[str]:
-    """Parameters equal in every chunk of the plan (fixed, not swept, not sampled): compiled in as constants."""
-    varied = {ax.param.name for ax in plan.grid} | set(plan.sample)
-    return [k for k in plan.fixed if k not in varied]
+    """Parameters equal in every chunk of the plan: :meth:`Plan.static_params`."""
+    return plan.static_params()
 
 
 def check_plan(plan: Plan, chunk: int = 65536) -> None:

@@ -74,7 +74,7 @@ def outcome_table(ds: xr.Dataset) -> tuple[list[str], list[list[str]], str]:
     For a refinement result the points are placed by the algorithm, not drawn at random, so no
     fraction is an estimate of anything: the table counts points per label and says so.
     """
-    from ..model.outcomes import basin_stats
+    from ..mapping.basin import basin_stats
     from .kit import codes as all_codes
     from .kit import grid_dims, names_colors
 

@@ -147,7 +147,7 @@ class Result:
         """The window the classifier judges the end of a run on: the outcome features' last
         ``window`` fraction (named outcomes), else the verdict's last ``late_decades`` in log-time."""
         ic, vc = self.plan.icfg, self.plan.vcfg
-        decl = self.plan.outcomes.decl if self.plan.outcomes is not None else None
+        decl = self.plan.scheme.decl
         if self.kind in ("basin", "discovery") and decl is not None:
             w = float(decl.window)
             return ic.t1 - w * (ic.t1 - ic.t0), ic.t1

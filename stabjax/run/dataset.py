@@ -1,39 +1,30 @@
-"""The variables of a sweep's dataset, defined once for the chunk store and the netCDF file.
+"""The layout of a sweep's dataset, defined once for the chunk store and the netCDF file.
 
 A sweep's results reach the user two ways: the zarr chunk store (:mod:`stabjax.run.store`), which a
-user may open with ``xr.open_zarr`` while the sweep runs, and the netCDF file. Both are built by
-:func:`build` from the same per-trajectory arrays, so they hold the same variables: the store is
-created from :func:`build` over placeholders (its layout), then filled chunk by chunk with what
-:func:`derive_chunk` computes; the netCDF file is a copy of the finished store (or, for a sweep
-without an output file, :func:`build` over the arrays kept in memory).
+user may open with ``xr.open_zarr`` while the sweep runs, and the netCDF file. Both are laid out by
+:func:`build` from the same inputs, so they hold the same variables: the per-trajectory records
+(:func:`stabjax.run.derive.chunk`) and what the derive step computed from them
+(:class:`stabjax.run.derive.Derived`: outcomes, the mapper's variables, basin statistics, entropy,
+the starts file's agreement, theory, provenance). The store is created from :func:`build` over
+placeholders (its layout) and filled chunk by chunk; the variables known only when every trajectory is in
+(:func:`outcome_vars`) are added when the sweep finishes; the netCDF file is a copy of the finished
+store (or, for a sweep without an output file, :func:`build` over the records kept in memory).
 
-What is computed per chunk (so that it is stored with the chunk and checksummed with it): the
-engines' records, the verdict with escaped trajectories marked diverged, and the outcome. What is
-computed once: the coordinates, the theory variables (from the parameters alone) and the template
-features (before the first chunk: the outcome of a chunk needs them), and, when the plan samples,
-the basin statistics per grid point, which need every sample of a grid point (:func:`basin_vars`,
-written when the sweep finishes).
+This module computes nothing: names, dims, attributes and the CF conventions.
 """
 from __future__ import annotations
 
 import json
-import os
-import platform
-import subprocess
 import time
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import xarray as xr
 
 from ..fold import verdict as V
-from ..config import versions
-from ..plan.identity import provenance as identity_attrs
 from ..fold.status import ESCAPED as STATUS_ESCAPED
-from ..fold.status import verdicts as status_verdicts
+from ..mapping.mapper import grid_layout
 
-THEORY_CHUNK = 262_144  # trajectories per host-side pass over the parameters
 # per-trajectory results that are not classifier summaries
 _DOC = {"stopped_at": "time at which the integration of this trajectory ended (t1 unless it stopped early: "
                       "escape, stable fixed point, failure; see stop_reason)",
@@ -49,161 +40,54 @@ def trailing_dims(key: str, ndim_trailing: int) -> tuple[str, ...]:
     return extra + tuple(f"{key}_dim{i}" for i in range(len(extra), ndim_trailing))
 
 
-def grid_layout(plan) -> tuple[tuple[str, ...], tuple[int, ...]]:
-    """(dims, shape) of the plan's grid points: its dims without ``sample``."""
-    if plan.n_sample:
-        return tuple(plan.dims[:-1]), tuple(plan.shape[:-1])
-    return tuple(plan.dims), tuple(plan.shape)
-
-
-def template_features(plan) -> np.ndarray | None:
-    """(grid points, templates, features) of the plan's templates, or None (no templates): each
-    template integrated at the parameters of each grid point (its first trajectory)."""
-    from ..mapping.basin import template_features_at
-
-    sch = plan.outcomes
-    if sch is None or sch.decl is None or not sch.decl.templates:
-        return None
-    ns = max(plan.n_sample, 1)
-    g = plan.size // ns
-    return template_features_at(plan, plan.params_at(np.arange(g) * ns))
-
-
-def per_trajectory_outcomes(plan) -> bool:
-    """Whether a trajectory's outcome depends on it alone (rules, templates, verdicts), so that it is
-    computed and stored with its chunk. False for a scheme that groups the whole sweep (attractor
-    discovery, ``[outcomes] discover``): its outcome and basin variables come from
-    :func:`stabjax.mapping.basin.dataset_vars` over every trajectory, when the sweep finishes."""
-    decl = getattr(plan.scheme, "decl", None)
-    return not getattr(decl, "discover", False)
-
-
-def derive_chunk(plan, res: Mapping[str, np.ndarray], lo: int, hi: int, tf: np.ndarray | None) -> dict[str, np.ndarray]:
-    """The stored record of trajectories [lo, hi): the engine's results with escaped trajectories'
-    verdicts set to diverged (they ran away; not a solver failure) and, when the engine reports a
-    solver status and the outcomes are per trajectory (:func:`per_trajectory_outcomes`), the
-    ``outcome`` code of each trajectory (``tf``: :func:`template_features`)."""
-    out = {k: np.asarray(v) for k, v in res.items()}
-    if not plan.scheme.from_verdicts:
-        # the attitude classifier's summaries (verdict, decay exponents, flips) read observable 0 as an
-        # error and 1 as a size: they mean nothing for a model with its own outcomes, and are left out
-        out = {k: v for k, v in out.items() if k.startswith("feat_") or k not in V.SUMMARY_DOC}
-    if "verdict" in out and "solver_status" in out:
-        out["verdict"] = status_verdicts(out["solver_status"], out["verdict"])  # escaped: diverged (stabjax.fold.status)
-    if "solver_status" in out and per_trajectory_outcomes(plan):
-        from ..model import outcomes as O
-        from ..mapping.basin import CHUNK
-
-        sch = plan.scheme
-        if sch.from_verdicts:
-            out["outcome"] = np.asarray(O.assign(sch, plan.system, out, {}), np.int8)
-        else:
-            codes = np.empty(hi - lo, np.int8)
-            ns = max(plan.n_sample, 1)
-            for a in range(lo, hi, CHUNK):
-                b = min(hi, a + CHUNK)
-                sl = {k: v[a - lo:b - lo] for k, v in out.items()}
-                tfi = None if tf is None else tf[np.arange(a, b) // ns]
-                codes[a - lo:b - lo] = O.assign(sch, plan.system, sl, plan.params_at(np.arange(a, b)), tfi)
-            out["outcome"] = codes
-    return out
-
-
-def basin_vars(plan, codes) -> dict[str, tuple]:
-    """Per-grid-point basin statistics over the samples, from the outcome codes (shape = plan.shape)."""
-    from ..model import outcomes as O
-
-    if not plan.n_sample:
+def basin_vars(plan, stats: Mapping[str, Any] | None) -> dict[str, tuple]:
+    """The basin statistics (:func:`stabjax.mapping.basin.basin_stats` over the grid points, or the store's
+    placeholders) as variables over (grid axes..., ``outcome_name``); none without ``[sample]``."""
+    if stats is None:
         return {}
-    sch = plan.scheme
-    st = O.basin_stats(np.asarray(codes), len(sch.names))
-    return _basin_layout(plan, st)
+    gdims = grid_layout(plan)[0] + ("outcome_name",)
+    n = plan.n_sample
+    return {
+        "basin_count": (gdims, stats["count"], {"long_name": f"trajectories per outcome (of N = {n})", "units": "1"}),
+        "basin_fraction": (gdims, stats["fraction"], {"long_name": f"basin stability S: fraction of N = {n} sampled "
+                                                                   "trajectories", "units": "1"}),
+        "basin_se": (gdims, stats["se"], {"long_name": "standard error sqrt(S (1 - S) / N)", "units": "1"}),
+        "basin_ci_low": (gdims, stats["ci_low"], {"long_name": "95% Wilson score interval, lower end", "units": "1"}),
+        "basin_ci_high": (gdims, stats["ci_high"], {"long_name": "95% Wilson score interval, upper end", "units": "1"}),
+    }
 
 
-def outcome_extras(plan, codes, names: list[str]) -> dict[str, tuple]:
-    """Variables that need every trajectory's outcome code (shape = plan.shape): the agreement with the
-    labels of a starts file (:mod:`stabjax.plan.starts`) and the basin entropy of a 2-D grid of starts
-    (:mod:`stabjax.mapping.entropy`). The store adds them when the sweep finishes."""
-    from ..mapping import entropy
-    from ..plan import starts
-
-    codes = np.asarray(codes)
-    data = dict(starts.dataset_vars(plan, codes, list(names)))
-    if entropy.applies(plan):  # one start per cell of a 2-D grid of initial conditions: Daza et al. (2016)
-        r = entropy.basin_entropy(codes.reshape(plan.shape))
+def outcome_vars(plan, derived, codes) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(data variables, coordinates) of the outcomes, in the dataset's order: ``outcome`` (``codes``, shaped
+    like the plan) with its CF flags, the mapper's own variables, the basin statistics, the starts file's
+    labels and the basin entropy of ``derived`` (:class:`stabjax.run.derive.Derived`)."""
+    mapped = derived.mapped
+    sch = mapped.scheme
+    flags = dict(flag_values=np.arange(len(sch.names), dtype=np.int8), flag_meanings=" ".join(sch.names),
+                 flag_colors=" ".join(sch.colors))
+    data: dict[str, Any] = {"outcome": (plan.dims, codes, {"long_name": "outcome of the trajectory", **flags})}
+    coords: dict[str, Any] = {"outcome_name": ("outcome_name", np.array(sch.names, dtype=object),
+                                               {"long_name": "outcome name (code = index)"})}
+    data.update(mapped.data)
+    coords.update(mapped.coords)
+    data.update(basin_vars(plan, derived.basin))
+    data.update(derived.starts)
+    r = derived.entropy
+    if r is not None:
         meta = {"box": r["box"], "boxes": r["n_boxes"], "boundary_boxes": r["n_boundary_boxes"],
                 "cells_used": r["cells_used"], "units": "nats"}
         data["basin_entropy"] = ((), r["S_b"], {"long_name": "basin entropy S_b (Daza et al. 2016)", **meta})
         data["boundary_basin_entropy"] = ((), r["S_bb"], {
             "long_name": "boundary basin entropy S_bb (> ln 2: fractal boundary, sufficient condition)", **meta})
-    return data
+    return data, coords
 
 
-def _basin_layout(plan, st: Mapping[str, Any]) -> dict[str, tuple]:
-    gdims = grid_layout(plan)[0] + ("outcome_name",)
-    n = plan.n_sample
-    return {
-        "basin_count": (gdims, st["count"], {"long_name": f"trajectories per outcome (of N = {n})", "units": "1"}),
-        "basin_fraction": (gdims, st["fraction"], {"long_name": f"basin stability S: fraction of N = {n} sampled "
-                                                                "trajectories", "units": "1"}),
-        "basin_se": (gdims, st["se"], {"long_name": "standard error sqrt(S (1 - S) / N)", "units": "1"}),
-        "basin_ci_low": (gdims, st["ci_low"], {"long_name": "95% Wilson score interval, lower end", "units": "1"}),
-        "basin_ci_high": (gdims, st["ci_high"], {"long_name": "95% Wilson score interval, upper end", "units": "1"}),
-    }
-
-
-def basin_placeholders(plan, chunks: bool = True, empty=None) -> dict[str, tuple]:
-    """The basin variables' layout with placeholders (the store creates them; filled at the end):
-    ``empty(shape, dtype)`` (default: lazy dask zeros, never computed)."""
-    if not plan.n_sample:
-        return {}
-    if empty is None:
-        import dask.array as da
-
-        def empty(shape, dtype):
-            return da.zeros(shape, dtype=dtype, chunks=shape)
-    shape = grid_layout(plan)[1] + (len(plan.scheme.names),)
-    st = {k: empty(shape, np.dtype(np.int64 if k == "count" else float))
-          for k in ("count", "fraction", "se", "ci_low", "ci_high")}
-    return _basin_layout(plan, st)
-
-
-def _theory_vars(plan) -> tuple[dict[str, tuple[np.ndarray, dict]], str]:
-    # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
-    # alone are ~0.65 GB, and a concatenation would hold them twice
-    full: dict[str, np.ndarray] = {}
-    meta: dict[str, dict] = {}
-    main = ""
-
-    def put(key, lo, hi, val, dtype):
-        if key not in full:
-            full[key] = np.empty(plan.size, dtype=dtype)
-        full[key][lo:hi] = np.broadcast_to(val, (hi - lo,))
-
-    for lo in range(0, plan.size, THEORY_CHUNK):
-        hi = min(plan.size, lo + THEORY_CHUNK)
-        p = plan.system.check(plan.params_for(lo, hi))
-        th = plan.system.theory(p)
-        main = th.main
-        for name, pred in th.predicates.items():
-            put(f"theory_{name}", lo, hi, pred.ok, np.int8)
-            put(f"margin_{name}", lo, hi, pred.margin, float)
-            meta[f"theory_{name}"] = {"long_name": pred.doc, "flag_values": np.array([0, 1], np.int8),
-                                      "flag_meanings": "not_guaranteed guaranteed"}
-            meta[f"margin_{name}"] = {"long_name": f"signed margin of: {pred.doc} (> 0 inside)"}
-        for name, val in th.derived.items():
-            put(f"derived_{name}", lo, hi, val, float)
-            meta[f"derived_{name}"] = {"long_name": th.derived_doc.get(name, name)}
-    return {k: (v, meta[k]) for k, v in full.items()}, main
-
-
-def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
-          basin: Mapping[str, tuple] | None = None, whole: bool = True) -> xr.Dataset:
-    """The sweep's Dataset from its per-trajectory records (:func:`derive_chunk` output), each shaped
-    ``(*plan.shape, *trailing)`` (numpy, or dask placeholders for the store's layout). ``basin``:
-    the basin variables (default: computed from ``results["outcome"]``). Without a stored outcome
-    (a scheme over the whole sweep), ``whole`` adds :func:`whole_sweep_vars` (the store leaves them
-    out of its layout and adds them when the sweep finishes)."""
+def build(plan, records: Mapping[str, Any], derived) -> xr.Dataset:
+    """The sweep's Dataset: the per-trajectory ``records`` (:func:`stabjax.run.derive.chunk` output), each
+    shaped ``(*plan.shape, *trailing)`` (numpy, or dask placeholders for the store's layout), and the
+    computed variables of ``derived`` (:class:`stabjax.run.derive.Derived`). The outcome codes are the
+    records' ``outcome`` (a per-trajectory mapper) or the derived ones (a whole-set mapper); without
+    either (the store's layout of a whole-set mapper) the outcome variables are left out."""
     shape, dims = plan.shape, plan.dims
     coords: dict[str, Any] = {}
     data: dict[str, Any] = {}
@@ -225,7 +109,7 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
             prm = plan.system.params[k]
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
             data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
-    for k, v in results.items():
+    for k, v in records.items():
         if k == "outcome":
             continue
         extra = trailing_dims(k, v.ndim - len(shape))
@@ -241,36 +125,21 @@ def build(plan, results: Mapping[str, Any], tf: np.ndarray | None = None,
         data["stop_reason"][2].update(flag_values=np.arange(len(REASONS), dtype=np.int8), flag_meanings=" ".join(REASONS))
     if "verdict" in data:
         data["verdict"][2].update(flag_values=np.arange(len(V.NAMES), dtype=np.int8), flag_meanings=" ".join(V.NAMES))
-    if "outcome" in results:
-        sch = plan.scheme
-        flags = dict(flag_values=np.arange(len(sch.names), dtype=np.int8), flag_meanings=" ".join(sch.names),
-                     flag_colors=" ".join(sch.colors))
-        data["outcome"] = (dims, results["outcome"], {"long_name": "outcome of the trajectory", **flags})
-        coords["outcome_name"] = ("outcome_name", np.array(sch.names, dtype=object),
-                                  {"long_name": "outcome name (code = index)"})
-        if tf is not None:
-            gdims, gshape = grid_layout(plan)
-            data["template_features"] = ((*gdims, "template", "feature"), tf.reshape(*gshape, *tf.shape[1:]),
-                                         {"long_name": "feature vectors of the templates at each grid point"})
-            coords["template"] = ("template", np.array(list(sch.decl.templates), dtype=object))
-            coords["feature"] = ("feature", np.array(list(sch.decl.features), dtype=object))
-        data.update(basin if basin is not None else basin_vars(plan, results["outcome"]))
-        if whole:
-            data.update(outcome_extras(plan, np.asarray(results["outcome"]), list(sch.names)))
-    elif whole and "solver_status" in results:
-        flat = {k: np.asarray(v).reshape(plan.size, *np.shape(v)[len(shape):]) for k, v in results.items()}
-        wdata, wcoords = whole_sweep_vars(plan, flat, tf)
-        data.update(wdata)
-        coords.update(wcoords)
-    th, main = _theory_vars(plan)
-    for k, (v, attrs) in th.items():
-        data[k] = (dims, v.reshape(shape), attrs)
+    if derived.mapped is not None:
+        codes = records["outcome"] if "outcome" in records else derived.mapped.codes
+        if codes is not None:
+            odata, ocoords = outcome_vars(plan, derived, np.reshape(codes, shape) if isinstance(codes, np.ndarray)
+                                          else codes)
+            data.update(odata)
+            coords.update(ocoords)
+    values, meta, main = derived.theory
+    for k, v in values.items():
+        data[k] = (dims, v.reshape(shape), meta[k])
     ds = xr.Dataset(data, coords=coords)
-    ds.attrs.update(provenance(plan))
+    ds.attrs.update(derived.provenance)
     ds.attrs.update(theory_main=main, n_trajectories=int(plan.size))
     cf_attributes(ds, plan)
     return ds
-
 
 # ---- CF conventions ---------------------------------------------------------------------------------
 
@@ -336,14 +205,6 @@ def cf_attributes(ds: xr.Dataset, plan, *, activity: str = "sweep", trajectories
     return ds
 
 
-def whole_sweep_vars(plan, results: Mapping[str, Any], tf: np.ndarray | None = None) -> tuple[dict, dict]:
-    """(data variables, coordinates) of a classification over the whole sweep: the outcome and basin
-    variables from :func:`stabjax.mapping.basin.dataset_vars` over every trajectory (flat records, (N, ...))."""
-    from ..mapping.basin import dataset_vars
-
-    return dataset_vars(plan, {k: np.asarray(v) for k, v in results.items()}, tf)
-
-
 def run_attrs(*, wall: float, steps: int, batch: int, n_resumed: int) -> dict[str, Any]:
     return dict(wall_time_s=float(wall), total_steps=int(steps), batch_size=int(batch), chunks_resumed=int(n_resumed))
 
@@ -366,40 +227,3 @@ def engine_attrs(manifest: Mapping[str, Any], executor: str, note: str = "") -> 
     by = engines_of(manifest)
     return {"engine_note": note, "engine": ",".join(sorted(by)), "engine_chunks_json": json.dumps(by),
             "executor": executor}
-
-
-def _git_commit() -> str:
-    here = Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
-        if sha.returncode != 0:
-            return "unknown"
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=5)
-        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def provenance(plan) -> dict[str, Any]:
-    import jax
-
-    from ..plan.spec import jsonable
-
-    return {
-        "system": plan.system.name,
-        "sweep_name": plan.name,
-        "paper": plan.system.paper,
-        "spec_json": json.dumps(jsonable(plan.spec)),
-        "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
-        "integrate_json": json.dumps({**plan.icfg.__dict__, "settings": dict(plan.icfg.settings)}),
-        "verdict_json": json.dumps(plan.vcfg.__dict__),
-        "system_ref": str(plan.spec.get("system", plan.system.name)),
-        **identity_attrs(plan),  # fingerprint, model file and every local module it imports, with hashes
-        "outcomes_from_verdicts": int(plan.scheme.from_verdicts),
-        "versions_json": json.dumps(versions()),
-        "git_commit": _git_commit(),
-        "device": str(jax.devices()[0].device_kind) + f" x{jax.device_count()}",
-        "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus".strip(),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }

@@ -488,15 +488,13 @@ class ChunkStore:
         """The plan's template features: read back from the store when it has them (a resume
         classifies with the very numbers the first chunks used), else integrated now."""
         if self._tf is False:
-            from . import dataset as D
-
             if self.manifest.get("arrays") is not None and "template_features" in self.manifest.get("entries", []):
                 tf = np.asarray(self._data()["template_features"][...])
                 self._tf = tf.reshape(-1, *tf.shape[-2:])
             elif self._tf_given is not None:
                 self._tf = self._tf_given
             else:
-                self._tf = D.template_features(self.plan)
+                self._tf = self.plan.mapper.prepare(self.plan)
         return self._tf
 
     def _layout(self, records: Mapping[str, tuple[np.dtype, tuple[int, ...]]]):
@@ -509,6 +507,7 @@ class ChunkStore:
         the disk, and nothing needs Dask (whose array module takes ~0.7 s of CPU to import). Above, they
         are lazy Dask arrays, never computed (no memory). The arrays' metadata is the same either way."""
         from . import dataset as D
+        from . import derive
 
         shape, block = self.chunking.shape, self.chunking.block
         n = int(np.prod(shape)) if shape else 1
@@ -522,8 +521,7 @@ class ChunkStore:
             def empty(full, dtype, chunks=None):
                 return da.empty(full, chunks=chunks or full, dtype=dtype)
         holders = {k: empty(shape + tuple(t), np.dtype(dt), block + tuple(t)) for k, (dt, t) in records.items()}
-        ds = D.build(self.plan, holders, self.template_features(), basin=D.basin_placeholders(self.plan, empty=empty),
-                     whole=False)
+        ds = D.build(self.plan, holders, derive.initial(self.plan, self.template_features(), empty=empty))
         ds.attrs.update(stabjax_store=FORMAT, stabjax_complete=0)
         for k in [k for k, v in ds.variables.items() if v.dtype.kind == "U"]:  # zarr 3: variable-length strings
             ds[k] = ds[k].astype(object)                                      # have a spec, fixed-length not yet
@@ -535,9 +533,13 @@ class ChunkStore:
         return sorted(str(k) for k in ds.variables if k not in lazy)
 
     def _basin_names(self) -> set[str]:
+        """The basin statistics the layout holds as placeholders (none for a whole-set mapper: added at the end)."""
         from . import dataset as D
+        from .derive import BASIN_STATS
 
-        return set(D.basin_placeholders(self.plan, empty=lambda shape, dtype: None))
+        if not self.plan.n_sample or self.plan.mapper.whole_set:
+            return set()
+        return set(D.basin_vars(self.plan, dict.fromkeys(BASIN_STATS)))
 
     def _create(self, rec: Mapping[str, np.ndarray]):
         """Create the dataset's arrays (from the first chunk's keys, dtypes and trailing shapes): the
@@ -596,14 +598,15 @@ class ChunkStore:
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         """Store chunk ``i`` (the engine's results, trimmed to the chunk's trajectories): its record
-        (:func:`stabjax.run.dataset.derive_chunk`: verdicts, outcome) into the arrays, then the manifest
+        (:func:`stabjax.run.derive.chunk`: verdicts, outcome) into the arrays, then the manifest
         entry with the checksum of every array's block."""
         import zarr
 
         from . import dataset as D
+        from . import derive
 
         lo, hi = self.bounds(i)
-        rec = D.derive_chunk(self.plan, res, lo, hi, self.template_features())
+        rec = derive.chunk(self.plan, res, lo, hi, self.template_features())
         try:
             if self.manifest.get("arrays") is None:
                 self._create(rec)
@@ -624,7 +627,8 @@ class ChunkStore:
                 if "outcome" in rec and self._basin_per_chunk():
                     # a reader of the running store sees the statistics of every finished grid point (the
                     # chunk holds all its samples); finish() computes them all again from the stored outcomes
-                    for k, (_, values, _) in D.basin_vars(self.plan, rec["outcome"].reshape(block)).items():
+                    stats = derive.basin(self.plan, rec["outcome"].reshape(block))
+                    for k, (_, values, _) in D.basin_vars(self.plan, stats).items():
                         g[k][region[:-1] + (slice(None),)] = values
             entry = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else 0}
             entry.update(info or {})
@@ -635,9 +639,11 @@ class ChunkStore:
             raise self._io_error(f"chunk {i}", exc) from None
 
     def finish(self, attrs: Mapping[str, Any]):
-        """After the last chunk: the basin statistics (from the stored outcomes) and the run's
-        attributes (wall time, steps, engines); the store then reads as the finished dataset."""
+        """After the last chunk: the variables that need every trajectory (the derive step over the stored
+        outcomes, or a whole-set mapper over the stored records: basin statistics, entropy, ...) and the
+        run's attributes (wall time, steps, engines); the store then reads as the finished dataset."""
         from . import dataset as D
+        from . import derive
 
         if not self.complete():
             raise StoreError(f"{self.path}: {len(self.manifest['chunks'])} of {self.n_chunks} chunks finished")
@@ -645,16 +651,20 @@ class ChunkStore:
             if self.manifest.get("arrays") is None:  # a plan with no trajectory cannot happen; be explicit
                 raise StoreError(f"{self.path} has no arrays")
             g = self._data()
-            if "outcome" in self.manifest["arrays"]:
-                codes = g["outcome"][...]
-                for k, (_, values, _) in D.basin_vars(self.plan, codes).items():
-                    g[k][...] = values
-                extras = D.outcome_extras(self.plan, codes, list(self.plan.scheme.names))
-                if extras:  # need every code (starts-file agreement, basin entropy): added now
-                    self._add_vars(extras, {})
-            elif "solver_status" in self.manifest["arrays"]:  # outcomes over the whole sweep: added now
-                self._add_vars(*D.whole_sweep_vars(self.plan, load_results(self.path, self.manifest),
-                                                   self.template_features()))
+            arrays = self.manifest["arrays"]
+            if "outcome" in arrays or "solver_status" in arrays:
+                # stored outcomes (a per-trajectory mapper), or the whole-set mapper over every stored record
+                records = {"outcome": np.asarray(g["outcome"][...]).reshape(-1)} if "outcome" in arrays \
+                    else load_results(self.path, self.manifest)
+                derived = derive.finish(self.plan, records, self.template_features(), with_theory=False)
+                data, coords = D.outcome_vars(self.plan, derived, derived.mapped.codes.reshape(self.plan.shape))
+                held = set(self.manifest.get("variables", []))
+                for k in D.basin_vars(self.plan, derived.basin):
+                    if k in held:  # placeholders since the store's creation
+                        g[k][...] = data[k][1]
+                added = {k: v for k, v in data.items() if k not in held}
+                if added:  # what needs every outcome (starts-file agreement, basin entropy; a whole-set mapper's all)
+                    self._add_vars(added, coords)
             _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
             # everything else the store holds (basin statistics, a classification over the whole sweep):
             # checksummed as written, so that export and a resume read nothing else
@@ -667,9 +677,8 @@ class ChunkStore:
 
 
     def _add_vars(self, data: Mapping[str, tuple], coords: Mapping[str, tuple]):
-        """Variables known only when every chunk is in (a classification over the whole sweep:
-        :func:`stabjax.run.dataset.whole_sweep_vars`; what needs every outcome code:
-        :func:`stabjax.run.dataset.outcome_extras`), written as new arrays of the group, listed in the
+        """Variables known only when every chunk is in (:func:`stabjax.run.dataset.outcome_vars`: a
+        whole-set mapper's outcomes; what needs every outcome code), written as new arrays of the group, listed in the
         manifest first and placed in the dataset's order as :func:`stabjax.run.dataset.build` places them."""
         import xarray as xr
 

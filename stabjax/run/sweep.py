@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import os
 import platform
 import time
@@ -29,10 +28,10 @@ import numpy as np
 import xarray as xr
 
 from . import dataset as D
+from . import derive
 from ..fold import stops
 from .. import engines
 from . import signals
-from ..fold import verdict as V
 from ..config import setup_jax
 from ..engines.base import N_SUMMARY_FIELDS
 from ..errors import OutputError, ValidationError
@@ -93,15 +92,14 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
 class _Memory:
     """Chunk records kept in memory (a sweep without an output file); the store's interface."""
 
-    def __init__(self, plan: Plan, batch: int, template_features: np.ndarray | None = None):
+    def __init__(self, plan: Plan, batch: int, state: Any = None):
         self.plan = plan
         self.chunking = Chunking(plan.shape, batch)
         self.batch, self.n = batch, plan.size
         self.n_chunks = self.chunking.n_chunks
         self.results: dict[str, np.ndarray] = {}
         self.manifest: dict[str, Any] = {"chunks": {}}
-        # before the first chunk: its outcomes need them
-        self.tf = template_features if template_features is not None else D.template_features(plan)
+        self.state = state  # the mapper's (stabjax.run.derive.prepare): before the first chunk, whose outcomes need it
 
     def pending(self) -> list[int]:
         return [i for i in range(self.n_chunks) if str(i) not in self.manifest["chunks"]]
@@ -118,7 +116,7 @@ class _Memory:
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         lo, hi = self.bounds(i)
-        for k, v in D.derive_chunk(self.plan, res, lo, hi, self.tf).items():
+        for k, v in derive.chunk(self.plan, res, lo, hi, self.state).items():
             if k not in self.results:
                 self.results[k] = np.empty((self.n, *v.shape[1:]), dtype=v.dtype)
             self.results[k][lo:hi] = v
@@ -126,8 +124,7 @@ class _Memory:
                                            **(info or {})}
 
     def dataset(self) -> xr.Dataset:
-        shape = self.plan.shape
-        return D.build(self.plan, {k: v.reshape(shape + v.shape[1:]) for k, v in self.results.items()}, self.tf)
+        return assemble(self.plan, self.results, state=self.state)
 
     def close(self):
         pass
@@ -196,11 +193,11 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         batch_size = min(choose_batch_size(plan, None, memory_limit), max(PILOT_MIN, -(-plan.size // 8)))
     batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
     check_plan(plan)
-    tf = templates_first(plan)  # before the store exists: a refusal leaves nothing behind
+    state = derive.prepare(plan)  # templates integrated and checked before the store exists: a refusal leaves nothing
     n = plan.size
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
-    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=tf) \
-        if store_path is not None else _Memory(plan, batch, tf)
+    sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=state) \
+        if store_path is not None else _Memory(plan, batch, state)
     try:
         run = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
                           overrides=overrides)
@@ -211,7 +208,17 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             ds = sink.dataset()
             ds.attrs.update(attrs)
             return ds
-        sink.finish(attrs)
+        try:
+            sink.finish(attrs)
+        except ValidationError:
+            # the whole-set mapper refused every record (too many attractors for the outcome codes): a store of
+            # these settings cannot give a result, and a run with others is another computation: none is kept
+            if not keep_partial:
+                sink.discard()
+                sink.close()
+                with contextlib.suppress(OSError):
+                    store_path.rmdir()
+            raise
         lazy = n > LAZY_ABOVE
         ds = S.open_store(store_path, dask=lazy)  # the netCDF file is a copy of the store (chunk by chunk: lazy)
         if not lazy:
@@ -351,29 +358,6 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
     return dict(wall=time.perf_counter() - t_start, steps=sink.steps(), batch=batch, n_resumed=n_resumed)
 
 
-def templates_first(plan: Plan) -> np.ndarray | None:
-    """The template feature vectors at every grid point, integrated before any chunk of the sweep, or
-    None without templates. Two templates that coincide somewhere are refused here (naming them, the
-    point and their distance): otherwise the default ``max_distance`` is zero there and every
-    trajectory ends "unclassified" without a word, after the whole run (issue 22, item 6)."""
-    from ..model.outcomes import coinciding_templates
-
-    tf = D.template_features(plan)
-    if tf is None:
-        return None
-    hit = coinciding_templates(plan.outcomes.decl, tf)
-    if hit is not None:
-        p, a, b, d = hit
-        where = ""
-        if plan.grid:
-            idx = np.unravel_index(p, tuple(ax.size for ax in plan.grid))
-            where = " at " + ", ".join(f"{ax.name} = {np.asarray(ax.values[i]).tolist()}" for ax, i in zip(plan.grid, idx))
-        raise ValidationError("outcomes.templates", f"templates {a!r} and {b!r} coincide{where} (feature distance "
-                              f"{d:.3g}): they reach the same attractor, so no trajectory there could be told between "
-                              "them; drop one, or choose initial conditions in different basins")
-    return tf
-
-
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
              progress: bool = False, restart: bool = False, t1: float | None = None, **kw) -> xr.Dataset:
     """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.plan.spec` for the format."""
@@ -385,17 +369,19 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
                     overrides={"t1": None if t1 is None else float(t1)}, **kw)
 
 
-# ---- dataset assembly: stabjax.run.dataset ------------------------------------------------------------
-
-provenance = D.provenance
-
-
-def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, wall: float = float("nan"), steps: int = 0,
-             batch: int = 0, n_resumed: int = 0, template_features: np.ndarray | None = None) -> xr.Dataset:
-    """The Dataset of a plan from the engines' flat per-trajectory results (every trajectory)."""
-    tf = template_features if template_features is not None else D.template_features(plan)
-    rec = D.derive_chunk(plan, results, 0, plan.size, tf)
-    ds = D.build(plan, {k: v.reshape(plan.shape + v.shape[1:]) for k, v in rec.items()}, tf)
+def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, state: Any = None, wall: float = float("nan"),
+             steps: int = 0, batch: int = 0, n_resumed: int = 0) -> xr.Dataset:
+    """The Dataset of a plan from its per-trajectory records (every trajectory, flat (N, ...), as
+    :func:`stabjax.run.derive.chunk` stores them, or the engines' raw results, whose records are derived
+    here): the derive step over all of them, laid out by :func:`stabjax.run.dataset.build`. ``state``: the
+    mapper's (:func:`stabjax.run.derive.prepare`; integrated now when not given)."""
+    if state is None:
+        state = plan.mapper.prepare(plan)
+    if "outcome" not in results:  # the engines' results (a whole-set mapper's records are unchanged by it)
+        results = derive.chunk(plan, results, 0, plan.size, state)
+    derived = derive.finish(plan, results, state)
+    shape = plan.shape
+    ds = D.build(plan, {k: np.asarray(v).reshape(shape + np.shape(v)[1:]) for k, v in results.items()}, derived)
     ds.attrs.update(D.run_attrs(wall=wall, steps=steps, batch=batch, n_resumed=n_resumed))
     return ds
 

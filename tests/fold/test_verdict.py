@@ -298,3 +298,59 @@ def test_slow_approach_from_inverted_start_is_the_transient():
         e = np.where(ts < t_s, 3.1 * (1 - ts / (t_s + 1.0)) + 0.09, 0.09 * np.exp(-(ts - t_s) / 5.0))
         r = run(e, ts=ts)
         assert r["verdict"] == want and r["n_excursions"] == 0, t_s
+
+
+def test_window_std_of_a_large_offset_is_the_spread_not_the_cancellation():
+    """x = c + a sin(t) with c = 1e3, a = 1e-6: the window std is a's spread (two-pass NumPy on the same
+    checkpoints), to the plain sum's rounding (~n eps c = 4e-10 for n = 2000 in-window checkpoints);
+    E[x^2] - E[x]^2 would cancel to ~sqrt(eps) c = 1.5e-5, 20x the spread itself. A constant is 0."""
+    cfg = V.bind(CFG.replace(features=True), 0.0, 1e4, n_obs=2)
+    c, a = 1e3, 1e-6
+    x = c + a * np.sin(TS)
+    r = run(np.ones_like(TS) * 0.5, size=x, cfg=cfg)
+    w = TS >= 5e3
+    n = int(w.sum())
+    assert abs(r["feat_std"][1] - x[w].std()) <= n * np.finfo(float).eps * c, (r["feat_std"][1], x[w].std())
+    assert run(np.ones_like(TS) * 0.5, size=np.full_like(TS, np.pi * 1e3), cfg=cfg)["feat_std"][1] == 0.0
+
+
+def test_window_std_is_stable_in_every_engine():
+    """The same fold in the native (C), fused and diffrax engines: observable c + y of the oscillator
+    y'' = -y (y(0) = 0, y'(0) = a) with c = 1e3 and a = 1e-6 (u' = 0 holds c as state). The std over the
+    window is a / sqrt(2) up to the window's sampling (two-pass NumPy of the closed form at the engines'
+    checkpoints) and the fold's rounding (n eps c); the solver's error on y (rtol 1e-10 of a) is below both."""
+    import jax.numpy as jnp
+
+    from stabjax import Outcomes, Param, ParamSet, System
+    from stabjax.run.sweep import run_spec
+
+    class Offset(System):
+        name = "offset_oscillator_test"
+        params = ParamSet((Param("c", 1e3, "offset"), Param("a", 1e-6, "amplitude", kind="initial")))
+        state = (("u", ()), ("y", ()), ("v", ()))
+        observables = ("x",)
+        observable_doc = ("c + y",)
+        outcomes = Outcomes(rules={"any": "std(x) >= 0"}, window=0.5)
+
+        def initial_state(self, p):
+            return jnp.stack([p["c"], 0.0 * p["a"], p["a"]])
+
+        def rhs(self, t, y, p):
+            return jnp.stack([0.0 * y[0], y[2], -y[1]])
+
+        def observe(self, t, y, p):
+            return jnp.stack([y[0] + y[1]])
+
+    for engine in ("native", "fused", "diffrax"):
+        spec = {"system": Offset, "grid": {"a": [1e-6]},
+                "integrate": {"t1": 200.0, "n_checkpoints": 4000, "rtol": 1e-10, "atol": 1e-20, "engine": engine}}
+        from stabjax.plan.spec import make_plan
+
+        plan = make_plan(spec)
+        ds = run_spec(spec)
+        assert ds.attrs["engine"] == engine
+        ts = V.checkpoint_times(plan.icfg.checkpoints(), plan.vcfg)
+        w = ts >= 100.0
+        ref = (1e3 + 1e-6 * np.sin(ts[w])).std()
+        got = float(ds["feat_std"].values.ravel()[0])
+        assert abs(got - ref) <= w.sum() * np.finfo(float).eps * 1e3 + 1e-10 * 1e-6, (engine, got, ref)

@@ -1,8 +1,12 @@
-"""Basin stability runs in chunks: the same fractions whatever the chunk size; N = 10^6 at one point."""
+"""Basin stability (stabjax.mapping.basin): the Wilson interval and the standard error; runs in chunks: the
+same fractions whatever the chunk size; N = 10^6 at one point."""
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import binomtest
+
+from stabjax.mapping.basin import basin_stats
 
 from stabjax.plan.spec import make_plan
 from stabjax.run.sweep import run_plan
@@ -69,3 +73,28 @@ def test_a_million_samples_at_one_point(tmp_path):
     ds = run_plan(plan, tmp_path / "m.nc", batch_size=65536)
     assert int(ds["basin_count"].sum()) == 1_000_000
     assert ds["basin_se"].shape == (1, 4)
+
+
+@pytest.mark.parametrize("k, n", [(0, 10), (3, 20), (10, 10), (57, 200), (1, 1000)])
+def test_basin_stats_against_scipy_wilson(k, n):
+    codes = np.array([0] * k + [1] * (n - k))
+    st = basin_stats(codes[None, :], 3)
+    s = k / n
+    assert st["count"][0].tolist() == [k, n - k, 0]
+    np.testing.assert_allclose(st["fraction"][0], [s, 1 - s, 0])
+    np.testing.assert_allclose(st["se"][0, 0], np.sqrt(s * (1 - s) / n), rtol=1e-15)
+    ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+    np.testing.assert_allclose([st["ci_low"][0, 0], st["ci_high"][0, 0]], [ci.low, ci.high], rtol=1e-12, atol=1e-15)
+    assert st["ci_low"][0, 2] == 0 and st["ci_high"][0, 2] > 0  # an outcome never seen still has an upper bound
+
+
+def test_standard_error_matches_the_spread_over_independent_samples():
+    """S's SE is the binomial one: over 400 independent batches of N = 200 the spread of S agrees."""
+    rng = np.random.default_rng(0)
+    p, n = 0.3, 200
+    batches = (rng.random((400, n)) < p).astype(int)
+    st = basin_stats(batches, 2)
+    spread = st["fraction"][:, 1].std(ddof=1)
+    # the sample std of 400 estimates is within ~3.5 % of sigma = sqrt(p(1-p)/n) (chi distribution, 3 sigma ~ 11 %)
+    assert abs(spread / np.sqrt(p * (1 - p) / n) - 1) < 0.11
+    assert abs(st["se"][:, 1].mean() / np.sqrt(p * (1 - p) / n) - 1) < 0.02

@@ -72,6 +72,7 @@ R = {"near": "max(angle) < 0.05"}
     ({"templates": {"t": {"nope": 1}}, "features": ["max(angle)"]}, "outcomes.templates.t.nope"),
     ({"templates": {"t": {}}, "features": ["max(angle)"]}, "outcomes.templates.t"),
     ({"templates": {"t": {"alpha": 0.5}}, "features": ["max(angle"]}, "outcomes.features[0]"),
+    ({"discovery": {"eps": 0.1}}, "outcomes.discovery"),  # configures discovery, never switches it on
 ])
 def test_outcomes_table_errors_name_their_field(table, field):
     """Each malformed ``[outcomes]`` entry is refused while planning, naming the field at fault."""

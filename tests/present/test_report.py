@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from clirun import status  # noqa: E402
-from stabjax.model.outcomes import basin_stats
+from stabjax.mapping.basin import basin_stats
 from stabjax.present.kit import kind, open_result
 from stabjax.present.report import warnings
 

@@ -205,7 +205,7 @@ def test_single_template_says_the_distance_is_unbounded(tmp_path, capsys):
 
 
 def test_template_spacing_ignores_a_failed_template():
-    from stabjax.model.outcomes import min_template_spacing
+    from stabjax.mapping.declared import min_template_spacing
 
     tf = np.array([[[0.0], [1.0], [np.nan]], [[0.0], [3.0], [10.0]]])
     np.testing.assert_array_equal(min_template_spacing(tf), [1.0, 3.0])

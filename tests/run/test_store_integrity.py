@@ -205,12 +205,12 @@ def test_a_running_sampled_sweep_shows_the_basin_statistics_of_its_finished_grid
 def test_outcomes_over_the_whole_sweep_are_added_when_it_finishes(tmp_path, monkeypatch):
     """A classification that needs every trajectory (attractor discovery) cannot be stored chunk by
     chunk: the store then holds the engines' records only, and finishing adds the outcome and basin
-    variables from basin.dataset_vars over all of them. The dataset must equal the one whose outcomes
+    variables from the derive step over all of them. The dataset must equal the one whose outcomes
     were computed per chunk (the reference, run before the switch), in memory and from the store."""
-    from stabjax.run import dataset as D
+    from stabjax.mapping.mapper import Mapper
 
     ref = run_plan(make_plan(tomllib.loads(SAMPLED)), None, batch_size=5)
-    monkeypatch.setattr(D, "per_trajectory_outcomes", lambda plan: False)
+    monkeypatch.setattr(Mapper, "whole_set", True)  # a per-trajectory mapper taken down the whole-set path
     spec = tmp_path / "s.toml"
     spec.write_text(SAMPLED)
     out = tmp_path / "w.nc"

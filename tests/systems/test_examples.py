@@ -14,7 +14,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from stabjax.fold import verdict as V
-from stabjax.model.outcomes import FAILED_NAME, UNCLASSIFIED, Rule, min_template_spacing
+from stabjax.mapping.declared import min_template_spacing
+from stabjax.model.outcomes import FAILED_NAME, UNCLASSIFIED, Rule
 from stabjax.plan.spec import load_spec, make_plan
 from stabjax.run.sweep import run_plan
 
