@@ -152,7 +152,8 @@ def _units(plan, cfg: ShockConfig) -> str:
 
 def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str, ...], base, *,
              wall: float = float("nan"), engines=frozenset(), rounds_resumed: int = 0, label=None) -> xr.Dataset:
-    from ..run.dataset import cf_attributes, provenance
+    from ..run.dataset import cf_attributes
+    from ..run.derive import provenance
 
     G, d = search.G, cfg.dim
     gshape = tuple(ax.size for ax in plan.grid)

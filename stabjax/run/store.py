@@ -658,10 +658,10 @@ class ChunkStore:
                     else load_results(self.path, self.manifest)
                 derived = derive.finish(self.plan, records, self.template_features(), with_theory=False)
                 data, coords = D.outcome_vars(self.plan, derived, derived.mapped.codes.reshape(self.plan.shape))
-                held = set(self.manifest.get("variables", []))
-                for k in D.basin_vars(self.plan, derived.basin):
-                    if k in held:  # placeholders since the store's creation
-                        g[k][...] = data[k][1]
+                held = set(self.manifest.get("variables", [])) & set(g.array_keys())
+                for k in held & set(data):  # placeholders since the store's creation; or written by an earlier
+                    values = np.asarray(data[k][1])  # finish and damaged since (a resume computes them again)
+                    g[k][...] = values.astype(object) if values.dtype.kind == "U" else values
                 added = {k: v for k, v in data.items() if k not in held}
                 if added:  # what needs every outcome (starts-file agreement, basin entropy; a whole-set mapper's all)
                     self._add_vars(added, coords)
