@@ -236,7 +236,7 @@ def test_helper_edited_between_kill_9_and_resume_in_new_processes(project):
     import sys
     from pathlib import Path
 
-    from conftest import kill_after_chunks
+    from killing import kill_after_chunks
 
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(root), JAX_PLATFORMS="cpu", STABJAX_THREADS="1")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import kill_after_chunks
+from killing import kill_after_chunks
 
 from stabjax.run import distributed as D
 from stabjax.run import store as S

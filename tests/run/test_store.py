@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import kill_after_chunks
+from killing import kill_after_chunks
 import xarray as xr
 
 from stabjax.run.sweep import export_store
