@@ -23,19 +23,19 @@ def theories(ds: xr.Dataset) -> list[str]:
     return [str(v)[len("theory_radius_"):] for v in ds.data_vars if str(v).startswith("theory_radius_")]
 
 
-def _name(ds: xr.Dataset, code) -> str:
+def outcome_name(ds: xr.Dataset, code) -> str:
     names = str(ds.attrs.get("outcome_names", "")).split()
     code = int(code)
     return names[code] if 0 <= code < len(names) else "none"
 
 
-def _grid(ds: xr.Dataset) -> list[str]:
+def grid_dims(ds: xr.Dataset) -> list[str]:
     return list(ds["shock_norm"].dims)
 
 
 def _points(ds: xr.Dataset):
     """(selection dict, point dataset) of every grid point."""
-    dims = _grid(ds)
+    dims = grid_dims(ds)
     if not dims:
         yield {}, ds
         return
@@ -58,7 +58,7 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
     flags = []
     for sel, p in _points(ds):
         where = ", ".join(f"{k} = {float(v):g}" for k, v in sel.items())
-        att = _name(ds, p["base_outcome"].values)
+        att = outcome_name(ds, p["base_outcome"].values)
         hi, lo = float(p["shock_norm"].values), float(p["shock_norm_lo"].values)
         if np.isnan(lo):
             row = f"  {where or 'start'}: the unshocked start reaches {att}: no search"
@@ -67,7 +67,7 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
         else:
             w = ", ".join(f"{c} = {v:.4g}" for c, v in zip(ds["component"].values, p["shock_witness"].values))
             row = (f"  {where or 'start'}: from {att}: |delta*| = {hi:.4g} (bracket [{lo:.4g}, {hi:.4g}]) "
-                   f"-> {_name(ds, p['shock_witness_outcome'].values)}; witness {w}")
+                   f"-> {outcome_name(ds, p['shock_witness_outcome'].values)}; witness {w}")
         for th in theories(ds):
             v = int(p[f"theory_verdict_{th}"].values)
             r = float(p[f"theory_radius_{th}"].values)
@@ -98,7 +98,7 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
 
 # ---- figures --------------------------------------------------------------------------------------------
 
-_TH_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))))
+THEORY_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))))
 
 
 def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None):
@@ -111,7 +111,7 @@ def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset 
     fig, axs = plt.subplots(1, 2 if plane else 1, figsize=(12.5 if plane else 6.8, 5.4), constrained_layout=True,
                             squeeze=False)
     ax = axs[0, 0]
-    dims = _grid(ds)
+    dims = grid_dims(ds)
     if len(dims) == 1:
         _curve(ax, ds, dims[0])
     elif len(dims) == 2:
@@ -137,7 +137,7 @@ def _unit(ds):
 
 def _theory_lines(ax, ds, x=None):
     for i, th in enumerate(theories(ds)):
-        col, ls = _TH_STYLES[i % len(_TH_STYLES)]
+        col, ls = THEORY_STYLES[i % len(THEORY_STYLES)]
         r = np.asarray(ds[f"theory_radius_{th}"].values, float)
         r = np.where(np.isinf(r), np.nan, r)
         what = str(ds[f"theory_radius_{th}"].attrs.get("theorem", "")).split(": ", 1)[-1].split(";")[0] or th
@@ -160,7 +160,7 @@ def _red_flags(ax, ds, x=None):
 
 def _single(ax, ds):
     hi, lo = float(ds["shock_norm"].values), float(ds["shock_norm_lo"].values)
-    att = _name(ds, ds["base_outcome"].values)
+    att = outcome_name(ds, ds["base_outcome"].values)
     if np.isfinite(hi):
         ax.errorbar([0], [hi], yerr=[[hi - lo], [0]], fmt="o", color="#0072B2", capsize=6, ms=8,
                     label=f"minimal fatal shock found: {hi:.4g} (bracket [{lo:.4g}, {hi:.4g}])")
@@ -205,7 +205,7 @@ def _map(fig, ax, ds, dims):
 
 def _plane(ax, ds, basin):
     """The start plane at the first grid point: exits along the scanned directions, the shock ball, the witness."""
-    p = ds.isel({d: 0 for d in _grid(ds)})
+    p = ds.isel({d: 0 for d in grid_dims(ds)})
     comps = [str(c) for c in ds["component"].values]
     base = np.asarray(p["shock_witness"].values - p["shock_delta"].values, float)
     if not np.all(np.isfinite(base)):
@@ -227,13 +227,13 @@ def _plane(ax, ds, basin):
         ax.plot(*(base + circ * (hi0 / scale)[:, None]).T, "-", color="#0072B2", lw=2,
                 label=f"shock ball of radius |delta*| = {hi0:.4g} in the search's norm")
         w = np.asarray(p["shock_witness"].values, float)
-        ax.plot(*w, "*", color="red", ms=15, mec="k", label=f"witness: reaches {_name(ds, p['shock_witness_outcome'].values)}")
+        ax.plot(*w, "*", color="red", ms=15, mec="k", label=f"witness: reaches {outcome_name(ds, p['shock_witness_outcome'].values)}")
     for i, name in enumerate(theories(ds)):
         r = float(p[f"theory_radius_{name}"].values)
         if np.isfinite(r) and r > 0:
-            col, ls = _TH_STYLES[i % len(_TH_STYLES)]
+            col, ls = THEORY_STYLES[i % len(THEORY_STYLES)]
             ax.plot(*(base + circ * (r / scale)[:, None]).T, color=col, ls=ls, lw=1.6, label=f"region of {name}")
-    ax.plot(*base, "o", color="k", ms=6, label=f"the attractor's start ({_name(ds, p['base_outcome'].values)})")
+    ax.plot(*base, "o", color="k", ms=6, label=f"the attractor's start ({outcome_name(ds, p['base_outcome'].values)})")
     ax.set_xlabel(comps[0])
     ax.set_ylabel(comps[1])
     ax.set_aspect("equal", adjustable="datalim")
@@ -294,4 +294,237 @@ def report_parts(ds: xr.Dataset) -> list[tuple[str, str]]:
     return [("Minimal fatal shock", f"<pre>{text}</pre>"),
             ("Figure", f"<figure><img alt='minimal fatal shock' src='data:image/png;base64,{png}'><figcaption>"
                        "The minimal fatal shock with its bracket and the theorems' guaranteed radii."
-                       "</figcaption></figure>")]
+                       "</figcaption></figure>"),
+            ("Witnesses", witness_table(ds))]
+
+
+def witness_table(ds: xr.Dataset, limit: int = 40) -> str:
+    """HTML table of the witness start of every grid point (the first ``limit``): the start, the outcome it reaches
+    (and re-checked with tighter tolerances) and the ``stabjax simulate`` command that replays it."""
+    import html
+
+    from ..explore.shock_result import witness_replay
+
+    e = html.escape
+    comps = [str(c) for c in ds["component"].values]
+    head = "".join(f"<th>{e(h)}</th>" for h in ("grid point", "|delta*|", "witness start", "reaches", "command"))
+    rows, found = [], 0
+    for sel, p in _points(ds):
+        rep = witness_replay(ds, **sel)
+        if not rep["found"]:
+            continue
+        found += 1
+        if found > limit:
+            continue
+        reach = outcome_name(ds, p["shock_witness_outcome"].values)
+        if "shock_witness_recheck" in ds:
+            reach += f" (re-checked: {outcome_name(ds, p['shock_witness_recheck'].values)})"
+        start = ", ".join(f"{c} = {v:.10g}" for c, v in zip(comps, p["shock_witness"].values))
+        cells = [e(", ".join(f"{k} = {float(v):g}" for k, v in sel.items()) or "start"),
+                 f"{float(p['shock_norm'].values):.6g}", e(start), e(reach), f"<code>{e(rep['command'])}</code>"]
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    if not rows:
+        return "<p>No fatal shock was found at any grid point: no witness to replay.</p>"
+    more = f"<p>... and {found - limit} more witnesses (in the file)</p>" if found > limit else ""
+    return (f"<p>Each witness is a fatal start: replay it with its command (or click its grid point in "
+            f"<code>stabjax view</code>).</p><table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody>"
+            f"</table>{more}")
+
+
+# ---- the viewer's model (stabjax view): what a click on a grid point means -------------------------------------
+# Pure functions of the loaded result (and, for the starts, of its rebuilt plan); the Bokeh page that draws them is
+# stabjax.present.view. A grid point is addressed by its flat index ``g``, C order over the grid axes.
+
+FOUND, NONE_FOUND, NOT_SEARCHED, RED_FLAG = "#0072B2", "#009E73", "#bdbdbd", "#d62728"
+
+
+def point_of(ds: xr.Dataset, g: int) -> dict:
+    """The selection (one value per grid axis) of flat grid index ``g``; ``{}`` without a grid."""
+    dims = grid_dims(ds)
+    if not dims:
+        return {}
+    idx = np.unravel_index(int(g), [ds.sizes[d] for d in dims])
+    return {d: ds[d].values[i] for d, i in zip(dims, idx)}
+
+
+def _refuted(ds: xr.Dataset) -> np.ndarray:
+    """Flat mask of the grid points where some theorem is refuted (a red flag)."""
+    n = int(np.prod([ds.sizes[d] for d in grid_dims(ds)]))
+    bad = np.zeros(n, bool)
+    for th in theories(ds):
+        bad |= np.asarray(ds[f"theory_verdict_{th}"].values).ravel() == 0
+    return bad
+
+
+def point_words(ds: xr.Dataset) -> list[str]:
+    """One line per grid point (flat order): |delta*| and its bracket, the outcome of the witness, a red flag."""
+    hi = np.asarray(ds["shock_norm"].values, float).ravel()
+    lo = np.asarray(ds["shock_norm_lo"].values, float).ravel()
+    wo = np.asarray(ds["shock_witness_outcome"].values).ravel()
+    base = np.asarray(ds["base_outcome"].values).ravel()
+    bad = _refuted(ds)
+    out = []
+    for k in range(hi.size):
+        if np.isnan(lo[k]):
+            out.append(f"not searched: the unshocked start reaches {outcome_name(ds, base[k])}")
+        elif np.isnan(hi[k]):
+            out.append(f"no fatal shock up to {lo[k]:.4g} from {outcome_name(ds, base[k])}")
+        else:
+            out.append(f"|delta*| = {hi[k]:.4g} in [{lo[k]:.4g}, {hi[k]:.4g}]: {outcome_name(ds, base[k])} -> "
+                       f"{outcome_name(ds, wo[k])}" + ("; RED FLAG" if bad[k] else ""))
+    return out
+
+
+def view_columns(ds: xr.Dataset, leading: int = 0) -> tuple[dict, dict]:
+    """(columns, settings) of the viewer's figure of ``|delta*|``, one clickable glyph per grid point (``idx``: its
+    flat grid index): without a grid one dot with its bracket; along one axis ``|delta*|(p)`` with the bracket
+    (``lo``, ``hi``), where no fatal shock was found the bracket's lower end (no witness there); on two or more axes
+    a map of ``|delta*|`` over the last two (at index ``leading`` of the first of three, 0 of any others), a red
+    flag's cell outlined. Settings: ``glyph``, axis labels and ``theory`` ({name: (x, radius)} lines along an axis,
+    {name: radius} without a grid)."""
+    from .labels import axis_label
+
+    dims = grid_dims(ds)
+    hi = np.asarray(ds["shock_norm"].values, float)
+    lo = np.asarray(ds["shock_norm_lo"].values, float)
+    words = point_words(ds)
+    bad = _refuted(ds)
+    ylab = f"size of the shock, {ds.attrs.get('norm', '')}"[:80] + _unit(ds)
+    found = np.isfinite(hi.ravel())
+    color = np.where(bad, RED_FLAG, np.where(found, FOUND, np.where(np.isfinite(lo.ravel()), NONE_FOUND,
+                                                                    NOT_SEARCHED))).tolist()
+    radius = {th: np.asarray(ds[f"theory_radius_{th}"].values, float) for th in theories(ds)}
+    if len(dims) <= 1:
+        x = np.asarray(ds[dims[0]].values, float) if dims else np.zeros(1)
+        y = np.where(found, hi.ravel(), lo.ravel())
+        data = dict(x=x, y=y, lo=lo.ravel(), hi=hi.ravel(), idx=np.arange(y.size), color=color, name=words)
+        theory = {th: ((x, np.where(r.ravel() > 0, r.ravel(), np.nan)) if dims else float(r)) for th, r in radius.items()}
+        return data, dict(glyph="scatter", x_label=axis_label(ds, dims[0], math=False) if dims else "",
+                          y_label=ylab, theory=theory, dim=dims[0] if dims else None)
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    from .maps import cell_edges
+
+    shape = [ds.sizes[d] for d in dims]
+    sel = (leading,) + (0,) * (len(dims) - 3) if len(dims) >= 3 else ()
+    yd, xd = dims[-2:]
+    flat = np.arange(hi.size).reshape(shape)[sel]
+    log = {d: bool(ds[d].attrs.get("log_axis", 0)) for d in (xd, yd)}
+    xe, ye = cell_edges(ds[xd].values, log[xd]), cell_edges(ds[yd].values, log[yd])
+    iy, ix = (a.ravel() for a in np.meshgrid(np.arange(len(ye) - 1), np.arange(len(xe) - 1), indexing="ij"))
+    idx = flat[iy, ix]
+    h = hi.ravel()[idx]
+    span = (np.nanmin(hi), np.nanmax(hi)) if np.isfinite(hi).any() else (0.0, 1.0)
+    cmap = colormaps["viridis"]
+    scaled = (h - span[0]) / (span[1] - span[0]) if span[1] > span[0] else np.full(h.size, 0.5)
+    fill = [to_hex(cmap(s)) if np.isfinite(s) else color[k] for s, k in zip(scaled, idx)]
+    data = dict(left=xe[ix], right=xe[ix + 1], bottom=ye[iy], top=ye[iy + 1], x=np.asarray(ds[xd].values, float)[ix],
+                y=np.asarray(ds[yd].values, float)[iy], idx=idx, color=fill,
+                line=[RED_FLAG if bad[k] else "white" for k in idx], name=[words[k] for k in idx])
+    return data, dict(glyph="quad", x_label=axis_label(ds, xd, math=False), y_label=axis_label(ds, yd, math=False),
+                      theory={}, span=span, dim=None)
+
+
+def plane_columns(ds: xr.Dataset, g: int, base: np.ndarray | None = None) -> dict | None:
+    """The start plane at grid point ``g`` when the shock moves two entries of the parameters (None otherwise):
+    ``lo``/``hi`` the scanned directions' exit brackets, ``ball`` the ball of radius ``|delta*|`` in the search's
+    norm, ``theory`` the theorems' balls ({name: (x, y)}), ``witness`` and ``base`` (the unshocked start's entries:
+    ``base`` if given, else the witness less its shock), as in the figure of :func:`plot_shock`."""
+    if not (ds.sizes.get("component", 0) == 2 and "direction_scale" in ds):
+        return None
+    p = ds.isel(dict(zip(grid_dims(ds), np.unravel_index(int(g), [ds.sizes[d] for d in grid_dims(ds)])))) if grid_dims(ds) else ds
+    w = np.asarray(p["shock_witness"].values, float)
+    if base is None:
+        base = w - np.asarray(p["shock_delta"].values, float)
+    base = np.asarray(base, float) if np.all(np.isfinite(base)) else np.zeros(2)
+    U = ds["direction_vector"].values
+    sc = np.asarray(p["direction_scale"].values, float)
+
+    def along(r):
+        pts = base + (U / sc[:, None]) * np.asarray(r, float)[:, None]
+        ok = np.all(np.isfinite(pts), axis=1)
+        return dict(x=pts[ok, 0], y=pts[ok, 1])
+
+    th = np.linspace(0, 2 * np.pi, 361)
+    circ = np.stack([np.cos(th), np.sin(th)], 1)
+    scale = _norm_of(ds, p, circ)
+
+    def ball(r):
+        pts = base + circ * (r / scale)[:, None]
+        return pts[:, 0], pts[:, 1]
+
+    hi = float(p["shock_norm"].values)
+    theory = {}
+    for name in theories(ds):
+        r = float(p[f"theory_radius_{name}"].values)
+        if np.isfinite(r) and r > 0:
+            theory[name] = ball(r)
+    found = np.all(np.isfinite(w))
+    bx, by = ball(hi) if np.isfinite(hi) else ([], [])
+    return dict(lo=along(p["direction_exit_lo"].values), hi=along(p["direction_exit_hi"].values),
+                ball=dict(x=bx, y=by), theory=theory, base=dict(x=[base[0]], y=[base[1]]),
+                witness=dict(x=[w[0]] if found else [], y=[w[1]] if found else [], idx=[int(g)] if found else []),
+                components=[str(c) for c in ds["component"].values])
+
+
+def starts(r, g: int) -> dict:
+    """The two starts a click on grid point ``g`` re-simulates (``r``: a :class:`stabjax.present.viewmodel.Result`):
+    ``witness`` -- every parameter of the witness start, from :func:`stabjax.explore.shock_result.witness_replay`
+    (None where no fatal shock was found), with the ``command`` that replays it -- and ``base``, the unshocked start
+    the search shocked: the spec's start at that grid point, moved onto its attractor first with ``settle = true``
+    (:func:`stabjax.explore.shock_config.settle`, as the search did)."""
+    from ..explore.shock_result import witness_replay
+
+    sel = point_of(r.ds, g)
+    rep = witness_replay(r.ds, **sel)
+    plan = r.plan
+    base = plan.system.check(plan.params_at(np.array([int(g)])))  # as the search's base_points
+    if settings(r.ds).get("settle"):
+        from ..explore.shock_config import settle, shock_config
+
+        base = settle(plan, shock_config(plan), base)
+    witness = {k: np.asarray(v, float) for k, v in rep["params"].items()} if rep["found"] else None
+    return dict(sel=sel, witness=witness, command=rep["command"], base={k: np.asarray(v)[0] for k, v in base.items()})
+
+
+def settings(ds: xr.Dataset) -> dict:
+    """The recorded ``[shock]`` table (``shock_json``)."""
+    return json.loads(ds.attrs.get("shock_json", "{}"))
+
+
+def point_rows(ds: xr.Dataset, g: int) -> list[tuple[str, str]]:
+    """(what, value) rows of grid point ``g`` for the viewer: the attractor shocked, ``|delta*|`` and its bracket,
+    the shock and the witness start with the outcome it reached (and re-checked), the effort, each theorem's
+    verdict, the statistical statement."""
+    sel = point_of(ds, g)
+    p = ds.sel(sel) if sel else ds
+    comps = [str(c) for c in ds["component"].values]
+    hi, lo = float(p["shock_norm"].values), float(p["shock_norm_lo"].values)
+    rows = [("grid point", ", ".join(f"{k} = {float(v):.6g}" for k, v in sel.items()) or "(no grid)"),
+            ("attractor shocked", f"{outcome_name(ds, p['base_outcome'].values)} (the unshocked start's outcome)"),
+            ("norm", str(ds.attrs.get("norm", "")))]
+    if np.isnan(lo):
+        return rows + [("search", "none: the unshocked start does not reach the attractor searched")]
+    if np.isnan(hi):
+        rows.append(("minimal fatal shock", f"none found up to {lo:.6g}: no witness"))
+    else:
+        rows.append(("minimal fatal shock", f"|delta*| = {hi:.6g}, bracket [{lo:.6g}, {hi:.6g}]"))
+        rows.append(("shock delta*", ", ".join(f"{c} {v:+.6g}" for c, v in zip(comps, p["shock_delta"].values))))
+        rows.append(("witness start", ", ".join(f"{c} = {v:.10g}" for c, v in zip(comps, p["shock_witness"].values))))
+        rows.append(("witness reaches", outcome_name(ds, p["shock_witness_outcome"].values) + " (recorded by the search)"))
+        if "shock_witness_recheck" in ds:
+            rows.append(("re-checked", f"{outcome_name(ds, p['shock_witness_recheck'].values)} with rtol and atol / 100"))
+    und = float(p["shock_undecided_norm"].values)
+    if np.isfinite(und):
+        rows.append(("undecided", f"a shocked start of norm {und:.4g} was left undecided (counted as not fatal)"))
+    rows.append(("effort", f"{int(p['shock_trajectories'].values):,} trajectories at this grid point"))
+    words = {0: "RED FLAG: a fatal start inside the guaranteed region", 1: "consistent (within the resolution)",
+             2: "conservative", 3: "not applicable (its hypotheses fail here)"}
+    for th in theories(ds):
+        v = int(p[f"theory_verdict_{th}"].values)
+        rg = float(p[f"theory_radius_{th}"].values)
+        f_lo, f_hi = float(p[f"theory_factor_lo_{th}"].values), float(p[f"theory_factor_hi_{th}"].values)
+        extra = f" by {f_lo:.3g}" + (f"..{f_hi:.3g}" if np.isfinite(f_hi) else "+") if v == 2 else ""
+        rows.append((f"theorem {th}", f"{words.get(v, '?')}{extra}; guaranteed radius {rg:.6g}"))
+    return rows

@@ -18,7 +18,9 @@ What it shows (one page, :func:`build`):
   fired or the nearest template and its distance, the attractor a discovery put it on, escape,
   the classifier's summary numbers);
 * the feature space of the samples coloured by outcome (with the templates), and the basin
-  fractions along a swept parameter with their 95 % Wilson bands.
+  fractions along a swept parameter with their 95 % Wilson bands;
+* for a minimal-fatal-shock result, ``|delta*|`` per grid point, where a click replays the witness start
+  beside the unshocked start (:mod:`stabjax.present.viewshock`).
 
 A running or interrupted sweep's chunk store (``RESULT.nc.zarr``) can be viewed too: finished chunks are
 shown, the others are marked pending, and the page refreshes as chunks land; when the sweep finishes and
@@ -53,6 +55,10 @@ def build(doc, r: Result, refresh_s: float = 2.0) -> None:
                               Spinner, TapTool)
     from bokeh.plotting import figure
 
+    if r.kind == "shock":  # its own page: delta* per grid point, a click replays the witness
+        from .viewshock import build_shock
+
+        return build_shock(doc, r)
     names, colors = r.names_colors()
     state: dict[str, Any] = {"leading": 0, "idx": None}
     dims = r.grid_dims()

@@ -134,21 +134,29 @@ class Result:
 
     def simulate(self, idx: int, n_times: int = 1500) -> xr.Dataset:
         """Trajectory ``idx`` again, with the result's system, solver, tolerances and horizon."""
+        return self.run(self.params_of(idx), n_times)
+
+    def run(self, params, n_times: int = 1500) -> xr.Dataset:
+        """The trajectory from ``params`` with the result's system, solver, tolerances and horizon (a shock
+        result's witness and unshocked starts, :func:`stabjax.present.shock.starts`)."""
         from ..engines.simulate import simulate
 
         ic = self.plan.icfg
         lin = np.linspace(ic.t0, ic.t1, n_times // 2)
         geo = ic.t0 + np.geomspace(max((ic.t1 - ic.t0) * 1e-5, 1e-12), ic.t1 - ic.t0, n_times // 2)
         ts = np.unique(np.clip(np.concatenate([lin, geo]), ic.t0, ic.t1))
-        return simulate(self.plan.system, self.params_of(idx), t1=ic.t1, t0=ic.t0, ts=ts, solver=ic.solver,
+        return simulate(self.plan.system, params, t1=ic.t1, t0=ic.t0, ts=ts, solver=ic.solver,
                         rtol=ic.rtol, atol=ic.atol, max_steps=ic.max_steps)
 
     def late_window(self) -> tuple[float, float]:
         """The window the classifier judges the end of a run on: the outcome features' last
-        ``window`` fraction (named outcomes), else the verdict's last ``late_decades`` in log-time."""
+        ``window`` fraction (named outcomes), else the verdict's last ``late_decades`` in log-time; a shock
+        search for an excitability threshold judges the whole run."""
         ic, vc = self.plan.icfg, self.plan.vcfg
         decl = self.plan.scheme.decl
-        if self.kind in ("basin", "discovery") and decl is not None:
+        if self.kind == "shock" and kit.json_attr(self.ds, "shock_json", {}).get("excitability"):
+            return ic.t0, ic.t1
+        if self.kind in ("basin", "discovery", "shock") and decl is not None:
             w = float(decl.window)
             return ic.t1 - w * (ic.t1 - ic.t0), ic.t1
         return ic.t0 + (ic.t1 - ic.t0) * 10.0 ** (-float(vc.late_decades)), ic.t1
