@@ -4,7 +4,8 @@
   sections, each setting with its type, default and meaning), so the tables cannot drift from the code. Where
   the code declares a setting without a one-line meaning (``IntegrateConfig``'s fields, the ``[refine]`` keys),
   the meaning is written below in ``MEANINGS`` and the build fails when a declared setting has none or a
-  written one names a setting that no longer exists.
+  written one names a setting that no longer exists. The ``[shock]`` keys (``SHOCK_KEYS``) take their meanings
+  from the field table of ``stabjax/explore/shock_config.py``'s docstring, one row per key, under the same rule.
 * ``<!-- api:NAME -->`` becomes the mkdocstrings directives of the public names of ``stabjax._API`` (the
   public API), grouped by the subpackage that defines them: a name added to ``_API`` appears on its own.
 * A link from a page to a file of the repository outside ``docs/`` (``../results/default.png``,
@@ -156,6 +157,31 @@ def field_docs(cls) -> dict[str, str]:
     return out
 
 
+def rst_field_table(doc: str) -> dict[str, str]:
+    """The rows of the reST simple tables of a docstring whose first column is one key in double backquotes
+    (``````key``   meaning``, continuation lines indented under the meaning), by key; the meaning's double
+    backquotes become Markdown's single ones."""
+    out: dict[str, str] = {}
+    current = None
+    inside = False  # from a border line to the blank line after the table
+    for line in doc.splitlines():
+        if re.match(r"^=+(\s+=+)+\s*$", line):
+            inside, current = True, None
+            continue
+        if not line.strip():
+            inside, current = False, None
+            continue
+        m = re.match(r"^``(\w+)``\s{2,}(\S.*)$", line) if inside else None
+        if m:
+            current = m[1]
+            out[current] = m[2].strip()
+        elif current and line.startswith(" "):
+            out[current] += " " + line.strip()
+        else:
+            current = None
+    return {k: v.replace("``", "`") for k, v in out.items()}
+
+
 def _record_table(cls, section: str, meanings: dict[str, str]) -> str:
     rows = ["| setting | type | default | meaning |", "|---|---|---|---|"]
     names = [f.name for f in dataclasses.fields(cls) if f.name not in NOT_IN_SPECS.get(section, ())]
@@ -237,6 +263,19 @@ def table(name: str) -> str:
         if missing:
             _fail(f"[refine] keys without a meaning: {missing}")
         return "\n".join(["| key | meaning |", "|---|---|"] + [f"| `{k}` | {_cell(written[k])} |" for k in REFINE_KEYS])
+    if name == "shock":
+        from stabjax.explore import shock_config
+
+        rows = rst_field_table(inspect.getdoc(shock_config) or "")
+        keys = shock_config.SHOCK_KEYS
+        missing = [k for k in keys if k not in rows]
+        if missing:
+            _fail(f"[shock] keys without a meaning: {missing} (a row each in the field table of the docstring of "
+                  "stabjax/explore/shock_config.py)")
+        stale = sorted(set(rows) - set(keys))
+        if stale:
+            _fail(f"the field table of stabjax/explore/shock_config.py names {stale}, which are not [shock] keys")
+        return "\n".join(["| key | meaning |", "|---|---|"] + [f"| `{k}` | {_cell(rows[k])} |" for k in keys])
     if name == "dists":
         from stabjax.plan.samplers import _DISTS, _REQUIRED
 

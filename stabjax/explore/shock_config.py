@@ -19,26 +19,32 @@ component), so that a region made of two balls, ``|w1| < lam l`` and ``|delta| <
 one ball ``max(|w1|/lam, |delta|) < l``. A weight is a number or an expression of the scalar parameters
 (``"1/lam"``), evaluated at each grid point.
 
-Fields (``stabjax.explore.shock`` says what the search does with them):
+Fields, one row per key of :data:`SHOCK_KEYS` (``stabjax.explore.shock`` says what the search does with them; the
+documentation's settings table is generated from these rows):
 
-=================  =====================================================================================
-``components``     initial-condition parameters shocked (required): ``["x0", "v0"]``, ``["dw0", "S0"]``, ``"J0[1]"``
-``unit``           shocked vector parameters put back on the unit sphere (e.g. ``["s0"]``)
-``settle``         shock the state the spec's start reaches at t1 (a template's start, say), not the start itself
-``space``          ``"params"`` (default) or ``"state"``: what the norm measures
-``norm``           ``"euclidean"`` (default) or ``"max"`` over ``blocks``
-``blocks``         with ``norm = "max"``: lists of component (or state component) names
-``weights``        name -> number or expression of the scalar parameters (``{w = "1/lam"}``)
-``attractor``      the outcome the unshocked start must reach (default: whatever it reaches)
-``target``         only these outcomes are fatal (the excitability threshold into their basins)
-``excitability``   a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
-``max_radius``     the largest shock searched, in the norm's units (required)
-``directions``     directions scanned (64), ``radii``: radii per direction and rungs of CMA-ES's ladder (8)
-``resolution``     bracket width to reach, absolute; or ``rel_resolution``, a fraction of delta* (0.01)
-``refine``         ``"cma"`` (default) or ``"none"``; ``popsize`` (pycma's default 4 + 3 ln d), ``generations`` (40)
-``seed``           of the directions and of CMA-ES (0)
-``theory``         the system's theorems to hold against the result: predicates or derived radii
-=================  =====================================================================================
+===================  ===================================================================================
+``components``       initial-condition parameters shocked (required): ``["x0", "v0"]``, ``["dw0", "S0"]``, ``"J0[1]"``
+``unit``             shocked vector parameters put back on the unit sphere (e.g. ``["s0"]``)
+``settle``           shock the state the spec's start reaches at t1 (a template's start, say), not the start itself
+                     (default false)
+``space``            ``"params"`` (default) or ``"state"``: what the norm measures
+``norm``             ``"euclidean"`` (default) or ``"max"`` over ``blocks``
+``weights``          name -> number or expression of the scalar parameters (``{w = "1/lam"}``)
+``blocks``           with ``norm = "max"``: lists of component (or state component) names (default: one per component)
+``attractor``        the outcome the unshocked start must reach (default: whatever it reaches)
+``target``           only these outcomes are fatal (the excitability threshold into their basins)
+``excitability``     a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
+``directions``       directions scanned (64)
+``radii``            radii per direction in the scan, and rungs of CMA-ES's ladder (8)
+``max_radius``       the largest shock searched, in the norm's units (required)
+``resolution``       bracket width to reach, absolute (default: ``rel_resolution``)
+``rel_resolution``   bracket width to reach, a fraction of delta* (0.01)
+``refine``           ``"cma"`` (default) or ``"none"``: the local refinement of the best shock by CMA-ES
+``popsize``          CMA-ES's population per generation (pycma's default 4 + 3 ln d)
+``generations``      CMA-ES's generations at most (40)
+``seed``             of the directions and of CMA-ES (0)
+``theory``           the system's theorems to hold against the result: predicates or derived radii
+===================  ===================================================================================
 
 Here too: the start to shock at each grid point (:func:`base_points`, :func:`settle`). Kept apart from the search so
 that the table can be checked (``stabjax sweep`` refuses a bad table before anything

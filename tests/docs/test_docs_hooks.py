@@ -29,6 +29,7 @@ def test_tables_hold_every_declared_setting(hooks):
     from stabjax.config import IntegrateConfig, VerdictConfig
     from stabjax.engines import SETTINGS
     from stabjax.explore.refine_config import REFINE_KEYS
+    from stabjax.explore.shock_config import SHOCK_KEYS
     from stabjax.model.outcomes import DiscoveryConfig, Outcomes
     from stabjax.plan.spec import TOP_KEYS
 
@@ -42,8 +43,10 @@ def test_tables_hold_every_declared_setting(hooks):
     assert _names(hooks.table("refine")) == list(REFINE_KEYS)
     assert sorted(_names(hooks.table("top"))) == sorted(TOP_KEYS)
     assert _names(hooks.table("engine")) == [s.name for ss in SETTINGS.values() for s in ss]
+    assert _names(hooks.table("shock")) == list(SHOCK_KEYS)
     # every meaning is a sentence of its own, none empty
-    for name in ("integrate", "verdict", "outcomes", "discovery", "refine", "top", "engine", "dists", "status"):
+    for name in ("integrate", "verdict", "outcomes", "discovery", "refine", "top", "engine", "dists", "status",
+                 "shock"):
         rows = [r for r in hooks.table(name).splitlines()[2:]]
         assert rows and all(r.rstrip(" |").rsplit("|", 1)[-1].strip() for r in rows), name
 
@@ -60,6 +63,27 @@ def test_a_setting_without_a_meaning_stops_the_build(hooks, monkeypatch):
         hooks.table("refine")
     with pytest.raises(PluginError, match="unknown table"):
         hooks.table("nonesuch")
+
+
+def test_shock_keys_take_their_meanings_from_the_field_table(hooks, monkeypatch):
+    """The [shock] table is the field table of shock_config.py's docstring, in SHOCK_KEYS' order, a continuation
+    line joined to its row; a key without a row, or a row naming no key, stops the build."""
+    from mkdocs.exceptions import PluginError
+
+    from stabjax.explore import shock_config
+
+    table = hooks.table("shock")
+    settle = next(r for r in table.splitlines() if r.startswith("| `settle` |"))
+    assert settle.endswith("not the start itself (default false) |")  # the row's second line, joined
+    assert "| `components` | initial-condition parameters shocked (required): `[\"x0\", \"v0\"]`" in table
+    doc = shock_config.__doc__
+    monkeypatch.setattr(shock_config, "__doc__", re.sub(r"^``popsize``.*\n", "", doc, flags=re.M))
+    with pytest.raises(PluginError, match="popsize"):
+        hooks.table("shock")
+    monkeypatch.setattr(shock_config, "__doc__", re.sub(r"^(``seed``.*\n)", r"\1``gone``  a removed key\n", doc,
+                                                         flags=re.M))
+    with pytest.raises(PluginError, match="names \\['gone'\\]"):
+        hooks.table("shock")
 
 
 def test_docstring_field_lists_are_read_whole(hooks):
