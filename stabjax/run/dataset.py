@@ -165,6 +165,8 @@ def basin_placeholders(plan, chunks: bool = True) -> dict[str, tuple]:
 
 
 def _theory_vars(plan) -> tuple[dict[str, tuple[np.ndarray, dict]], str]:
+    from ..model import theory_eval
+
     # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
     # alone are ~0.65 GB, and a concatenation would hold them twice
     full: dict[str, np.ndarray] = {}
@@ -179,7 +181,7 @@ def _theory_vars(plan) -> tuple[dict[str, tuple[np.ndarray, dict]], str]:
     for lo in range(0, plan.size, THEORY_CHUNK):
         hi = min(plan.size, lo + THEORY_CHUNK)
         p = plan.system.check(plan.params_for(lo, hi))
-        th = plan.system.theory(p)
+        th = theory_eval.evaluate(plan.system, p)  # once per distinct set of the parameters it reads
         main = th.main
         for name, pred in th.predicates.items():
             put(f"theory_{name}", lo, hi, pred.ok, np.int8)
