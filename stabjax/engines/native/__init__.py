@@ -77,9 +77,9 @@ class _Kernel:
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
         self.fixed = stops.active(system, icfg)
         self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late,
-                                 (float(icfg.rtol), float(icfg.atol)) if self.fixed else None,
+                                 (float(icfg.rtol), float(icfg.atol), stops.window_start(self.ts, vcfg))
+                                 if self.fixed else None,
                                  icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None)
-        self.k_w = stops.window_index(self.ts, vcfg)
         self.width = width
         self.source = kernel_source(self.model, width, escape_radius(system, icfg),
                                     fp_every=stops.fixed_point_every(len(self.ts)))
@@ -194,15 +194,10 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     ain, y0 = model.host_inputs(dyn, n)
     raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
     c = model.c_tree_from(raw["c"])
-    fp = raw["fp"] == stops.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
-    if fp.any():
-        K = len(kern.ts)
-        ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
-        n_in = np.where(fp, K - np.maximum(ck, kern.k_w), 0).astype(np.float64)
-        # the remaining checkpoints observe the frozen state (NumPy, batched: no compile per batch size)
-        ff = stops.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
-        c = {k: np.where(fp.reshape((-1,) + (1,) * (np.ndim(v) - 1)), ff[k], v) for k, v in c.items()}
     summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
+    fp = raw["fp"] == stops.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
+    if fp.any():  # finished at the equilibrium: its features (stabjax.fold.stops.at_equilibrium)
+        summ = stops.at_equilibrium(summ, fp, raw["obs"][:, : max(model.n_obs, 1)])
     summ["n_steps"] = raw["nacc"]
     summ["n_rejected"] = raw["nrej"]
     summ["solver_status"] = raw["status"]

@@ -344,11 +344,12 @@ class NativeModel:
     """
 
     def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
-                 fixed_point: tuple[float, float] | None = None, known=None):
+                 fixed_point: tuple[float, float, float] | None = None, known=None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.system = system
-        self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.fold.stops
+        # (rtol, atol, t_window): also emit f_fp, the stop test of stabjax.fold.equilibrium
+        self.fixed_point = fixed_point
         self.known = known  # stabjax.fold.stops.KnownAttractors: also emit f_at, the recurrence stop's test
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
@@ -443,17 +444,27 @@ class NativeModel:
                                            "double *restrict out")
         self.functions = rhs + "\n" + obs + "\n" + upd
         if self.fixed_point is not None:
-            # -- the fixed-point stop test (stabjax.fold.stops.at_fixed_point) -> out[0] = 1.0 / 0.0 --
-            from ...fold import stops
+            # -- the fixed-point stop test (stabjax.fold.equilibrium.fixed_point_stop) -> out[0] = 1.0 / 0.0,
+            #    out[1 .. n] = the equilibrium it reached
+            from ...fold import equilibrium
 
             em = CEmit()
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-            rt, at = self.fixed_point
-            closed = jax.make_jaxpr(lambda t, yy, a: stops.at_fixed_point(system.rhs, t, yy, a, rt, at))(
+            rt, at, tw = self.fixed_point
+            closed = jax.make_jaxpr(lambda t, yy, a: equilibrium.fixed_point_stop(system.rhs, t, yy, a, rt, at, tw))(
+                ex_t, ex_y, ex_args)
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_, np.float64])
+            self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+                                                "const double *restrict a, double *restrict out")
+            # -- its cheap first question (stabjax.fold.equilibrium.near_stable) -> out[0] = 1.0 / 0.0 --
+            em = CEmit()
+            y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+            closed = jax.make_jaxpr(lambda t, yy, a: equilibrium.near_stable(system.rhs, t, yy, a, rt, at))(
                 ex_t, ex_y, ex_args)
             outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
             _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_])
-            self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+            self.functions += "\n" + _function("f_fpre", em.lines, "const double t, const double *restrict y, "
                                                 "const double *restrict a, double *restrict out")
         if self.known is not None:
             # -- the recurrence stop's test (stabjax.fold.stops.near_attractor) -> out[0] = k or -1.0 --

@@ -495,18 +495,29 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     else:  # the stop tests of stabjax.fold.stops, after a step that reached a checkpoint: FP[l] = its stop code
         from ...fold.stops import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
 
-        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
+        # FPT: the test's verdict (row 0) and the equilibrium it reached (rows 1 .. NS)
+        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[(1 + NS) * W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN, "
+                                         "FPP[W] ALIGN;\n"
                                          "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN, ATM[W] ALIGN, NXA[W] ALIGN;\n"
                                          "    for (int l = 0; l < W; l++) { NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
         src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
         every_fp = int(fp_every)  # checkpoints between fixed-point tests (stabjax.fold.stops.fixed_point_every)
-        fp_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);"
-                   if model.fixed_point is not None else "")
+        # the cheap question first (near a stable equilibrium), the whole test only where a lane says yes
+        fp_call = ("""#pragma omp simd
+                for (int l = 0; l < W; l++) f_fpre(T[l], Y + l, A + l, FPP + l, W);
+                double anyp = 0.0;
+                #pragma omp simd reduction(max:anyp)
+                for (int l = 0; l < W; l++) { FPP[l] = FPM[l] != 0.0 && FPP[l] != 0.0 ? 1.0 : 0.0; anyp = FPP[l] > anyp ? FPP[l] : anyp; }
+                if (anyp != 0.0) {
+                    #pragma omp simd
+                    for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
+                }""" if model.fixed_point is not None else "")
         at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, AKT + l, W);"
                    if known is not None else "")
         fp_mask = "R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0" if model.fixed_point is not None else "0.0"
         at_mask = "R0[l] != 0.0 && (double)CK[l] >= NXA[l] ? 1.0 : 0.0" if known is not None else "0.0"
-        fp_hit = f"FPM[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
+        fp_hit = (f"FPM[l] != 0.0 && FPP[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0"
+                  if model.fixed_point is not None else "0.0")
         # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.fold.stops)
         at_hit = "" if known is None else f"""
                     const double k = AKT[l], m = ATM[l];
@@ -548,8 +559,8 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
         esc_guard = " && !escaped" if escape is not None else ""
         src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
         src = src.replace("/*FP_OUT*/", f"""jb->fp_out[j] = fixedp ? (int32_t)FP[l] : 0;
-            if (fixedp) {{
-                f_obs(T[l], Y + l, A + l, OB0 + l, W);
+            if (fixedp) {{  /* the observables at the equilibrium itself (a fixed point), else at the state */
+                f_obs(T[l], (FP[l] == {HIT_FIXED_POINT}.0 ? FPT + W : Y) + l, A + l, OB0 + l, W);
                 for (int q = 0; q < NO; q++) jb->oout[j * NO + q] = OB0[q * W + l];
             }}""")
     return src
