@@ -23,7 +23,7 @@ from stabjax.plan.spec import Plan, load_spec, make_plan
 
 # ---- benchmark ----------------------------------------------------------------------------------
 
-BENCH_SPEC = Path(__file__).resolve().parent / "sweeps" / "refine_default.toml"  # package data
+BENCH_SPEC = Path(__file__).resolve().parents[1] / "stabjax" / "sweeps" / "refine_default.toml"  # package data
 
 
 def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict:
@@ -44,7 +44,7 @@ def full_lattice_spec(spec: Mapping[str, Any], plan: Plan | None = None) -> dict
 
 def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | None = None, full: bool = True,
               full_rows: int | None = None, out: str | Path | None = None,
-              full_from: str | Path | None = None) -> dict[str, Any]:
+              full_from: str | Path | None = None, keep: list | None = None) -> dict[str, Any]:
     """Trajectories and trajectory-steps of the refinement against the full lattice of the same resolution.
 
     ``full_rows``: integrate only that many evenly spaced rows (first axis) of the full lattice and scale
@@ -53,6 +53,7 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
     the refinement did not find, and checks that the labels at the shared points agree. ``out``: keep the
     full lattice's dataset there; ``full_from``: compare with such a dataset instead of integrating the full
     lattice again (same lattice and fingerprint required; its recorded steps and wall time are reported).
+    ``keep``: a list the refinement's dataset is appended to.
     """
     from stabjax.run.sweep import run_plan
 
@@ -66,6 +67,8 @@ def benchmark(spec: Mapping[str, Any] | str | Path = BENCH_SPEC, *, t1: float | 
     t = time.perf_counter()
     ds = refine_plan(plan)
     wall_ref = time.perf_counter() - t
+    if keep is not None:
+        keep.append(ds)
     res: dict[str, Any] = {
         "system": plan.system.name, "axes": [ax.name for ax in plan.grid],
         "coarse": [ax.size for ax in plan.grid], "levels": list(cfg.levels), "tol": list(cfg.tol),

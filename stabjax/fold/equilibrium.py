@@ -85,7 +85,7 @@ def jacobian(rhs, t, y, args):
     f = None
     cols = []
     for i in range(n):
-        fi, ji = jax.jvp(lambda z: rhs(t, z, args), (y,), (jnp.asarray(eye[i], y.dtype),))
+        fi, ji = jax.jvp(lambda z: rhs(t, z, args), (y,), (eye[i].astype(y.dtype),))
         f = fi if f is None else f
         cols.append(ji)
     return f, jnp.stack(cols, axis=1)
@@ -98,7 +98,7 @@ def charpoly_adjugate(J):
     n = J.shape[0]
     eye = np.eye(n)
     M = jnp.zeros_like(J)
-    c = jnp.ones((), J.dtype)
+    c = np.ones((), J.dtype)  # constants in NumPy: a jnp constant is an eager dispatch at every trace
     a = []
     for k in range(1, n + 1):
         M = J @ M + c * eye
@@ -112,11 +112,11 @@ def hurwitz(a):
     """All roots of ``lambda^n + a[0] lambda^(n-1) + ... + a[n-1]`` in the open left half-plane
     (Routh's table; a zero or negative first-column entry: False). Plain arithmetic, unrolled."""
     n = a.shape[0]
-    coeffs = [jnp.ones((), a.dtype)] + [a[i] for i in range(n)]
+    coeffs = [np.ones((), a.dtype)] + [a[i] for i in range(n)]
     row0 = coeffs[0::2]
     row1 = coeffs[1::2]
-    zero = jnp.zeros((), a.dtype)
-    ok = jnp.ones((), bool)
+    zero = np.zeros((), a.dtype)
+    ok = np.ones((), bool)
     width = len(row0)
     row0 = row0 + [zero] * (width - len(row0))
     row1 = row1 + [zero] * (width - len(row1))
@@ -133,7 +133,7 @@ def shifted(a, mu):
     """Coefficients (leading 1 left out) of ``p(lambda - mu)``: the characteristic polynomial of ``J + mu I``
     from that of ``J`` (Taylor shift by repeated synthetic division, O(n^2), unrolled)."""
     n = a.shape[0]
-    c = [jnp.ones((), a.dtype)] + [a[i] for i in range(n)]
+    c = [np.ones((), a.dtype)] + [a[i] for i in range(n)]
     for i in range(n):
         for j in range(1, n + 1 - i):
             c[j] = c[j] - mu * c[j - 1]
@@ -170,12 +170,12 @@ def lyapunov(J, s):
     # (J^T P + P J)_ij = sum_k J_ki P_kj + P_ik J_kj
     rows = []
     for (i, j) in idx:
-        row = [jnp.zeros((), J.dtype)] * m
+        row = [np.zeros((), J.dtype)] * m
         for k in range(n):
             row[pos[(k, j)]] = row[pos[(k, j)]] + J[k, i]
             row[pos[(i, k)]] = row[pos[(i, k)]] + J[k, j]
         rows.append(jnp.stack(row))
-    rhs = jnp.asarray([-1.0 if i == j else 0.0 for (i, j) in idx], J.dtype)
+    rhs = np.asarray([-1.0 if i == j else 0.0 for (i, j) in idx], J.dtype)
     v = jnp.linalg.solve(jnp.stack(rows), rhs)
     P = jnp.stack([jnp.stack([v[pos[(i, j)]] for j in range(n)]) for i in range(n)])
     R = J.T @ P + P @ J + np.eye(n)

@@ -339,15 +339,47 @@ def with_known(plan, results: dict):
 
 def near_attractor(obs, known: KnownAttractors):
     """Index (float) of the known attractor within whose radius ``obs`` lies, -1.0 if none (traced, one
-    trajectory; the radii never overlap, so at most one holds). Plain arithmetic and min reductions."""
-    pts = known.points  # constants: the lane-wise and C translations fold them
-    scale = np.asarray(known.scale)
-    o = obs[: pts.shape[2]] / scale
-    k_out = jnp.asarray(-1.0, jnp.float64)
-    for k in range(pts.shape[0]):
-        d2 = jnp.min(jnp.sum((o[None, :] - pts[k] / scale) ** 2, axis=1))
-        k_out = jnp.where(d2 <= known.eps[k] ** 2, float(k), k_out)
+    trajectory; the radii never overlap, so at most one holds). Plain arithmetic and min reductions; the
+    clouds are constants here (the fused engine folds them), data in :func:`near_attractor_data`."""
+    sp, scale, eps2 = attractor_arrays(known)
+    return near_attractor_data(obs, sp, scale, eps2)
+
+
+def attractor_arrays(known: KnownAttractors) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(points / scale (K, P, n_obs), scale (n_obs,), eps^2 (K,))``: what the test reads."""
+    scale = np.asarray(known.scale, np.float64)
+    return known.points / scale, scale, np.asarray(known.eps, np.float64) ** 2
+
+
+def near_attractor_data(obs, sp, scale, eps2):
+    """:func:`near_attractor` with the clouds as arrays (constants or data: the native engine reads them from
+    memory, so that its compiled kernel serves every set of the same shape, :class:`AttractorLayout`)."""
+    K, _, n = sp.shape
+    o = obs[:n] / scale
+    k_out = np.float64(-1.0)
+    for k in range(K):
+        d2 = jnp.min(jnp.sum((o[None, :] - sp[k]) ** 2, axis=1))
+        k_out = jnp.where(d2 <= eps2[k], float(k), k_out)
     return k_out
+
+
+@dataclass(frozen=True)
+class AttractorLayout:
+    """The shape of a :class:`KnownAttractors` and its dwell, without its clouds: what a compiled kernel
+    depends on (the clouds are its data, :func:`attractor_data`)."""
+
+    shape: tuple
+    dwell: float
+
+
+def layout(known: KnownAttractors) -> AttractorLayout:
+    return AttractorLayout(tuple(known.shape), float(known.dwell))
+
+
+def attractor_data(known: KnownAttractors) -> np.ndarray:
+    """The clouds as one float64 vector, in the order :func:`near_attractor_data` reads them."""
+    sp, scale, eps2 = attractor_arrays(known)
+    return np.ascontiguousarray(np.concatenate([sp.ravel(), scale, eps2]), np.float64)
 
 
 def substitute(res: dict, known: KnownAttractors) -> dict:
@@ -377,5 +409,6 @@ __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAI
            "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "fixed_point_stop", "equilibrium", "near_stable",
            "window_index", "window_start", "at_equilibrium", "DISTANCE_TOL",
            "stop_reasons", "KnownAttractors", "known_attractors", "known_for", "with_known", "near_attractor", "substitute", "attractor_stop_active",
-           "STOP_ATTRACTOR", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS", "TEST_EVERY",
+           "STOP_ATTRACTOR", "near_attractor_data", "attractor_arrays", "AttractorLayout", "layout",
+           "attractor_data", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS", "TEST_EVERY",
            "fixed_point_every"]

@@ -85,6 +85,7 @@ class CEmit(Lanes):
     """
 
     drop_zero_terms = True  # see Lanes.drop_zero_terms
+    reciprocal = True  # x / d as x * (1 / d) for a variable d (see bind_elem); False: a true division
 
     def __init__(self, prefix="v"):
         super().__init__(1)
@@ -122,7 +123,7 @@ class CEmit(Lanes):
         if name in _INFIX and not boolean:
             return self.new(dt, f"{r[0]} {_INFIX[name]} {r[1]}")
         if name == "div":
-            if fl and isinstance(es[1], Sym):
+            if fl and isinstance(es[1], Sym) and self.reciprocal:
                 # one reciprocal per denominator (s/|s| divides three components by one norm): a
                 # division costs ~8x a multiplication on AVX-512; x * (1/d) is within 1 ulp of x / d
                 inv = self.recip.get(es[1].name)
@@ -350,7 +351,7 @@ class NativeModel:
         self.system = system
         # (rtol, atol, t_window): also emit f_fp, the stop test of stabjax.fold.equilibrium
         self.fixed_point = fixed_point
-        self.known = known  # stabjax.fold.stops.KnownAttractors: also emit f_at, the recurrence stop's test
+        self.known = known  # stabjax.fold.stops.AttractorLayout: also emit f_at, the recurrence stop's test
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
         self.dyn_shapes = {k: tuple(dyn_shapes[k]) for k in self.dyn_keys}
@@ -467,18 +468,32 @@ class NativeModel:
             self.functions += "\n" + _function("f_fpre", em.lines, "const double t, const double *restrict y, "
                                                 "const double *restrict a, double *restrict out")
         if self.known is not None:
-            # -- the recurrence stop's test (stabjax.fold.stops.near_attractor) -> out[0] = k or -1.0 --
+            # -- the recurrence stop's test (stabjax.fold.stops.near_attractor_data) -> out[0] = k or -1.0; the
+            #    clouds are data (kd: stabjax.fold.stops.attractor_data), so one kernel serves every set of
+            #    this shape; a true division by the scale, as by the constants it replaces (bit for bit)
             from ...fold import stops
 
+            sds, f64 = jax.ShapeDtypeStruct, jnp.float64
             em = CEmit()
+            em.reciprocal = False
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-            kn = self.known
-            closed = jax.make_jaxpr(lambda t, yy, a: stops.near_attractor(
-                jnp.ravel(system.observe(t, yy, a)), kn))(ex_t, ex_y, ex_args)
-            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            K, P, n = self.known.shape
+            data = []
+            k = 0
+            for shape in ((K, P, n), (n,), (K,)):
+                o = obj(shape)
+                for i in np.ndindex(shape):
+                    o[i] = Sym(f"kd[{k}]", np.float64)
+                    k += 1
+                data.append(o)
+            closed = jax.make_jaxpr(lambda t, yy, a, sp, sc, e2: stops.near_attractor_data(
+                jnp.ravel(system.observe(t, yy, a)), sp, sc, e2))(
+                ex_t, ex_y, ex_args, sds((K, P, n), f64), sds((n,), f64), sds((K,), f64))
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em) + data)
             _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
             self.functions += "\n" + _function("f_at", em.lines, "const double t, const double *restrict y, "
-                                                "const double *restrict a, double *restrict out")
+                                                "const double *restrict a, const double *restrict kd, "
+                                                "double *restrict out")
 
     # -- host side ----------------------------------------------------------------------------
     @functools.cached_property
