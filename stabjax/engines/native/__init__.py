@@ -70,6 +70,11 @@ def _build(source: str) -> ctypes.CDLL:
 
 
 
+# a features-only fold observes of the checkpoints before its window only the last of each step (kernel_source);
+# False: every one (the tests compare both, bit for bit)
+SKIP_BEFORE_WINDOW = True
+
+
 class _Kernel:
     def __init__(self, system, icfg, vcfg, static, dyn_shapes, width, eval_only=False):
         ts = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
@@ -83,7 +88,7 @@ class _Kernel:
         self.width = width
         # a fold of the late-window features alone (named outcomes) reads no checkpoint before the window
         # but the last one (kernel_source)
-        window_from = 0 if vcfg.verdicts else stops.window_index(self.ts, vcfg)
+        window_from = 0 if vcfg.verdicts or not SKIP_BEFORE_WINDOW else stops.window_index(self.ts, vcfg)
         self.source = kernel_source(self.model, width, escape_radius(system, icfg),
                                     fp_every=stops.fixed_point_every(len(self.ts)), window_from=window_from)
         if eval_only:
@@ -136,11 +141,15 @@ def update(kern: _Kernel, c: np.ndarray, t: float, obs: np.ndarray) -> np.ndarra
 
 
 def bucket(n: int) -> int:
-    """The batch size the host-side JAX functions are compiled for: ``n`` rounded up to a power of two (at
-    least 64). They are jitted per shape; a refinement's rounds of 258, 530, 1093, ... trajectories each
-    compiled them anew (measured: ~1.8 s of every ~2 s round of the pendulum's start-plane refinement,
-    against ~0.2 s in the kernel). Rows are independent, so padding changes no row."""
-    return max(64, 1 << (int(n) - 1).bit_length())
+    """The batch size the host-side JAX functions are compiled for: ``n`` rounded up to a power of two, at
+    least :data:`MIN_BUCKET`. They are jitted per shape; a refinement's rounds of 258, 530, 1093, ...
+    trajectories each compiled them anew (measured: ~1.8 s of every ~2 s round of the pendulum's start-plane
+    refinement, against ~0.2 s in the kernel); below MIN_BUCKET one compile serves every size, and the padded
+    rows cost microseconds. Rows are independent, so padding changes no row."""
+    return max(MIN_BUCKET, 1 << (int(n) - 1).bit_length())
+
+
+MIN_BUCKET = 4096
 
 
 def _padded(tree, n: int, m: int):
