@@ -11,7 +11,7 @@ feature window -- closer than the run without the stop can resolve. Every rule, 
 step therefore sees the same features, up to the full run's own numerical error around ``x*``.
 
 The test at an accepted state ``y`` at time ``t`` (plain JAX on one trajectory: the fused engine evaluates
-it lane-wise, the native engine translates it to C, the diffrax engine calls it as an ``Event``):
+it lane-wise, the native engine translates it to C; the diffrax engine runs every start to t1):
 
 1. ``J = df/dy`` (one JVP per state component); its characteristic polynomial and adjugate by
    **Faddeev-LeVerrier**; **Routh-Hurwitz**: every eigenvalue in the open left half-plane (a zero or
@@ -282,11 +282,6 @@ def at_fixed_point(rhs, t, y, args, rtol: float, atol: float, t_window: float):
     return fixed_point_stop(rhs, t, y, args, rtol, atol, t_window)[0]
 
 
-def equilibrium(rhs, t, y, args, rtol: float, atol: float):
-    """The equilibrium the chord-Newton steps of :func:`fixed_point_stop` reach from ``y``."""
-    return fixed_point_stop(rhs, t, y, args, rtol, atol, jnp.inf)[1]
-
-
 __all__ = ["DISTANCE_TOL", "CHORD_STEPS", "CONVERGED", "SMITH_DOUBLINGS", "RESIDUAL_MAX", "MARGIN_MAX", "SHIFT_SHARE",
            "BISECTIONS", "jacobian", "charpoly_adjugate", "hurwitz", "shifted", "abscissa", "lyapunov", "smith", "near_stable",
-           "fixed_point_stop", "at_fixed_point", "equilibrium"]
+           "fixed_point_stop", "at_fixed_point"]

@@ -59,8 +59,8 @@ import numpy as np
 from dataclasses import dataclass
 
 from ..errors import ValidationError
-from .equilibrium import (DISTANCE_TOL, at_fixed_point, charpoly_adjugate, equilibrium, fixed_point_stop, hurwitz,
-                          jacobian, near_stable)
+from .equilibrium import (DISTANCE_TOL, at_fixed_point, charpoly_adjugate, fixed_point_stop, hurwitz, jacobian,
+                          near_stable)
 
 # the lane engines ask for a known attractor at most once per TEST_EVERY checkpoints of a lane (the test is
 # a few hundred flops against constant clouds), and for a fixed point at most once per fixed_point_every(K):
@@ -406,7 +406,7 @@ def attractor_stop_active(system, icfg) -> bool:
 
 
 __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAILED", "is_autonomous", "resolve",
-           "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "fixed_point_stop", "equilibrium", "near_stable",
+           "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "fixed_point_stop", "near_stable",
            "window_index", "window_start", "at_equilibrium", "DISTANCE_TOL",
            "stop_reasons", "KnownAttractors", "known_attractors", "known_for", "with_known", "near_attractor", "substitute", "attractor_stop_active",
            "STOP_ATTRACTOR", "near_attractor_data", "attractor_arrays", "AttractorLayout", "layout",

@@ -148,8 +148,7 @@ def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_ev
             const double b5 = 47.37952196281928122 * (th - 1.203071208372362603) * (th - 0.658047292653547382) * th2;
             const double b6 = -34.87065786149660974 * (th - 1.2) * (th - 0.666666666666666667) * th2;
             const double b7 = 2.5 * (th - 1) * (th - 0.6) * th2;"""
-    cmix_macro = " \\\n            ".join(f"C[{q} * W + l] = has != 0.0 ? CN[{q} * W + l] : C[{q} * W + l];"
-                                       for q in range(model.n_c))
+    cmix_body = _unrolled(model.n_c, lambda q: f"C[{q} * W + l] = has != 0.0 ? CN[{q} * W + l] : C[{q} * W + l];")
     commit_body = _unrolled(NS, lambda q: f"Y[{q} * W + l] = kp != 0.0 ? YN[{q} * W + l] : Y[{q} * W + l]; "
                                           f"KS[0][{q} * W + l] = kp != 0.0 ? KS[6][{q} * W + l] : KS[0][{q} * W + l];")
     decls = _vector_decls()
@@ -162,7 +161,7 @@ def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_ev
 #define NTV {max(model.n_tv, 1)}  /* t-only values of the rhs shared by the sixth and seventh stage */
 #define ALIGN __attribute__((aligned(64)))
 #define NI (4 * W)      /* checkpoint items observed together */
-#define QCAP 256        /* FIFO capacity per lane; a full FIFO is emptied by one classifier pass (PASS) */
+#define QCAP 256        /* FIFO capacity per lane; a full FIFO is drained one item at a time (DRAIN_ONE) */
 #define QLONG 240       /* extra classifier passes in a step while some FIFO is longer than this */
 #define QBUSY (3 * W / 4) /* a classifier pass runs only while this many lanes have an item waiting */
 
@@ -197,7 +196,7 @@ typedef struct {{
     double *tout;
     int32_t *fp_out;
     double *oout;
-    int64_t *drains;  /* [0] classifier passes forced by a full FIFO (overflow), [1] by a finishing lane */
+    int64_t *drains;  /* [0] items drained from a full FIFO (overflow), [1] drained when a lane finished */
     const double *known;  /* the recurrence stop's clouds (stabjax.fold.stops.attractor_data), or NULL */
 }} job_t;
 
@@ -263,35 +262,22 @@ int64_t stabjax_run(const job_t *jb) {{
         }} else {{ IDX[l] = -1; ACT[l] = 0.0; NEXTT[l] = INFINITY; }} \\
     }} while (0)
 
-/* one classifier pass: pop one item from every lane whose FIFO holds one, update those lanes' states
-   through the vector code (every lane computed, lanes without an item keep their state). A full FIFO
-   and a finishing lane's FIFO are emptied by such passes too, so the other lanes' waiting items go
-   along; each lane's updates keep their order and their vector code, so no result depends on when a
-   pass runs (a pass for one lane's item alone did the same work for one item: measured, 962,833 such
-   drains of 8 M items on the pendulum example, 2000 starts, about half the kernel's time) */
-#define PASS() do {{ \\
-        for (int l_ = 0; l_ < W; l_++) {{ \\
-            if (QN[l_] > 0) {{ \\
-                const int p_ = QH[l_]; \\
-                HAS[l_] = 1.0; TC[l_] = FT[l_ * QCAP + p_]; \\
-                for (int q = 0; q < NO; q++) OBS[q * W + l_] = FO[(l_ * QCAP + p_) * NO + q]; \\
-                QH[l_] = (p_ + 1) % QCAP; QN[l_]--; \\
-            }} else {{ \\
-                HAS[l_] = 0.0; TC[l_] = T[l_]; \\
-            }} \\
-        }} \\
+/* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
+   calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block) */
+#define DRAIN_ONE(L) do {{ \\
+        const int p_ = QH[L]; \\
+        for (int l_ = 0; l_ < W; l_++) TC[l_] = T[l_];  /* other lanes: computed, discarded */ \\
+        TC[L] = FT[(L) * QCAP + p_]; \\
+        for (int q = 0; q < NO; q++) OBS[q * W + (L)] = FO[((L) * QCAP + p_) * NO + q]; \\
         _Pragma("omp simd") \\
         for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W); \\
-        _Pragma("omp simd") \\
-        for (int l = 0; l < W; l++) {{ \\
-            const double has = HAS[l]; \\
-            {cmix_macro} \\
-        }} \\
+        for (int q = 0; q < NC; q++) C[q * W + (L)] = CN[q * W + (L)]; \\
+        QH[L] = (p_ + 1) % QCAP; QN[L]--; \\
     }} while (0)
 
 /* append an observed checkpoint (time TT, observables OO[q * STRIDE]) to lane L's FIFO */
 #define PUSH(L, TT, OO, STRIDE) do {{ \\
-        if (QN[L] == QCAP) {{ PASS(); n_over++; }} \\
+        if (QN[L] == QCAP) {{ DRAIN_ONE(L); n_over++; }} \\
         const int pos_ = (QH[L] + QN[L]) % QCAP; \\
         FT[(L) * QCAP + pos_] = (TT); \\
         for (int q = 0; q < NO; q++) FO[((L) * QCAP + pos_) * NO + q] = (OO)[q * (STRIDE)]; \\
@@ -423,7 +409,25 @@ int64_t stabjax_run(const job_t *jb) {{
             int busy = 0, qmax = 0;
             for (int l = 0; l < W; l++) {{ busy += QN[l] > 0; qmax = QN[l] > qmax ? QN[l] : qmax; }}
             if (busy == 0 || (busy < QBUSY && qmax <= QLONG)) break;
-            PASS();
+            int any = 0;
+            for (int l = 0; l < W; l++) {{
+                if (QN[l] > 0) {{
+                    const int pos = QH[l];
+                    HAS[l] = 1.0; TC[l] = FT[l * QCAP + pos];
+                    for (int q = 0; q < NO; q++) OBS[q * W + l] = FO[(l * QCAP + pos) * NO + q];
+                    QH[l] = (pos + 1) % QCAP; QN[l]--; any = 1;
+                }} else {{
+                    HAS[l] = 0.0; TC[l] = T[l];
+                }}
+            }}
+            if (!any) break;
+            #pragma omp simd
+            for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);
+            #pragma omp simd
+            for (int l = 0; l < W; l++) {{
+                const double has = HAS[l];
+                {cmix_body}
+            }}
         }}
 
         /* commit */
@@ -458,7 +462,7 @@ int64_t stabjax_run(const job_t *jb) {{
                                       | (!(TN[l] - T[l] > {flit(MIN_STEP_REL)} * fabs(T[l])) & (T[l] < t1)));
             if (!({done} | fixedp)) continue;
             const int64_t j = IDX[l];
-            while (QN[l] > 0) {{ PASS(); n_late++; }}
+            while (QN[l] > 0) {{ DRAIN_ONE(l); n_late++; }}
             for (int q = 0; q < NC; q++) jb->cout[j * NC + q] = C[q * W + l];
             for (int q = 0; q < NS; q++) jb->yout[j * NS + q] = Y[q * W + l];
             jb->tout[j] = T[l];
