@@ -76,6 +76,12 @@ def _error(message: str) -> None:
     err_console.print("[bold red]error:[/bold red] " + escape(message), highlight=False)
 
 
+def _answers_without_running(args: list[str]) -> bool:
+    """Whether the command line only asks for the version or a help text (typer answers those before any
+    command runs), or for nothing (the help): then neither JAX nor any numerical module is imported."""
+    return not args or any(a in ("--version", "--help", "-h") for a in args)
+
+
 def main(argv: list[str] | None = None):
     """Entry point: runs the app and turns every outcome into an exit status that tells the truth.
 
@@ -86,19 +92,27 @@ def main(argv: list[str] | None = None):
     included); 128 + N interrupted by signal N: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (both handled like
     Ctrl-C, :mod:`stabjax.run.signals`).
     """
-    import matplotlib
+    import os
 
     from ..run import signals
-    from ..config import setup_jax
     from ..errors import StabjaxError
 
     # the CLI only writes figures to files: a non-interactive backend, chosen here and not on import of the
-    # plotting modules (a user importing stabjax.present.maps in Jupyter keeps inline figures)
-    matplotlib.use("Agg")
+    # plotting modules (a user importing stabjax.present.maps in Jupyter keeps inline figures); through the
+    # environment, so that matplotlib is imported only by a command that draws (issue 32: --help in < 0.5 s)
+    if "matplotlib" in sys.modules:
+        sys.modules["matplotlib"].use("Agg")
+    else:
+        os.environ["MPLBACKEND"] = "Agg"
     previous = signals.install()
     click_exception = _click_exception()
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
-        setup_jax()  # validates the environment: a bad variable is an error naming it, not a traceback
+        if not _answers_without_running(args):  # the version or a help text: no NumPy, no JAX (< 0.5 s)
+            from ..config import setup_jax
+
+            setup_jax()  # validates the environment (a bad variable is an error naming it, not a traceback),
+            # then JAX's global options, before any command computes
         # standalone_mode=False: errors come back to this function instead of exiting inside typer;
         # typer then *returns* the status of a ``typer.Exit`` (and 130 for Ctrl-C) instead of raising it
         rv = app(args=argv, standalone_mode=False)

@@ -8,7 +8,6 @@ import json
 from pathlib import Path
 from typing import Any, Optional
 
-import numpy as np
 import typer
 
 from rich.console import Console
@@ -144,6 +143,8 @@ def open_result_file(file: Path):
 
 
 def jsonable(x: Any):
+    import numpy as np
+
     if isinstance(x, dict):
         return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

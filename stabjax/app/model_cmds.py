@@ -5,7 +5,6 @@ import json
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
@@ -38,6 +37,8 @@ def systems(
     The list stays one line per system so it fits a screen and greps well; the parameters,
     state, observables and outcomes of one system are shown with ``stabjax systems NAME``
     (``--json`` gives everything for all of them)."""
+    import numpy as np
+
     from ..errors import ValidationError
     from ..model.loading import resolve
     from ..model.registry import all_names, lookup
@@ -107,6 +108,8 @@ def simulate(
     force: bool = ForceOpt,
 ):
     """Integrate one trajectory; save the state and observables at the requested times."""
+    import numpy as np
+
     from ..engines.simulate import simulate as sim
     from ..errors import ValidationError
     from ..model.loading import resolve
@@ -159,6 +162,8 @@ def theory(
     as_json: bool = typer.Option(False, "--json"),
 ):
     """Evaluate every theorem/corollary of the system's paper at the given parameters."""
+    import numpy as np
+
     from ..model.loading import resolve
 
     sysm = resolve(system, base_dir=Path.cwd())

@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 
 from ..plan.identity import spec_digest
@@ -204,6 +203,8 @@ def _start_executor(executor, scheduler: str | None, timeout: float) -> None:
 def run_status(ds, out: Optional[Path] = None) -> int:
     """The exit status a finished sweep deserves: 0 when every trajectory is classified, 1 (said in one
     line) when some failed (the solver did not reach t1), or when named outcomes classified none."""
+    import numpy as np
+
     from ..fold import verdict as V
 
     if ds is None:

@@ -40,6 +40,10 @@ its step size collapsed below ~10 ulp of t: diffrax would reject steps until ``m
 diffrax would end with (``max_steps_reached`` = 1); with an escape radius, one whose accepted
 state leaves the ball is stopped at once with :data:`stabjax.fold.status.ESCAPED`. For FAILED
 trajectories only ``verdict``, ``solver_status`` and the step counts are meaningful.
+
+Length: about 570 lines, over the project's ~550-line guide, because the device loop (``_device_loop``) is
+one closure whose step, checkpoint, stop and refill parts share the lane state; split, each part would take
+that state as a dozen arguments.
 """
 from __future__ import annotations
 
@@ -86,7 +90,7 @@ class _Model:
     """
 
     def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
-                 fixed_point: tuple[float, float] | None = None, known=None):
+                 fixed_point: tuple[float, float, float] | None = None, known=None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
@@ -114,9 +118,12 @@ class _Model:
             self.rhs = LaneFn(system.rhs, ex_t, ex_y, ex_args)
             self.obs = LaneFn(system.observe, ex_t, ex_y, ex_args)
             self.upd = LaneFn(lambda c, t, o: V.update(c, t, o, vcfg, t_late), ex_c, ex_t, ex_obs)
-            # the stop test at a stable fixed point (stabjax.fold.stops), fixed_point = (rtol, atol)
+            # the stop test at a stable fixed point (stabjax.fold.equilibrium), fixed_point = (rtol, atol, t_window):
+            # whether to stop, and the equilibrium
             self.fp = None if fixed_point is None else LaneFn(
-                lambda t, y, a: stops.at_fixed_point(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
+                lambda t, y, a: stops.fixed_point_stop(system.rhs, t, y, a, *fixed_point), ex_t, ex_y, ex_args)
+            self.fp_pre = None if fixed_point is None else LaneFn(
+                lambda t, y, a: stops.near_stable(system.rhs, t, y, a, *fixed_point[:2]), ex_t, ex_y, ex_args)
             # the recurrence stop's test: the known attractor near the observation (stabjax.fold.stops)
             self.at = None if known is None else LaneFn(
                 lambda t, y, a: stops.near_attractor(jnp.ravel(system.observe(t, y, a)), known), ex_t, ex_y, ex_args)
@@ -135,6 +142,7 @@ class _Model:
         o = self.observe(L, t, y0, args_objs)
         if self.fp is not None:
             self.at_fixed_point(L, t, y0, args_objs)
+            self.near_stable(L, t, y0, args_objs)
         if self.at is not None:
             self.near_attractor(L, t, y0, args_objs)
         c = flat_rows(self.c_spec.objs([jnp.zeros((L,), d) for d, n in zip(self.c_spec.dtypes, self.c_spec.sizes)
@@ -178,9 +186,15 @@ class _Model:
         out = Lanes(L).eval_closed(self.obs.closed, [obj0(t), obj1(y)] + args_objs)
         return flat_rows(out, L, [np.float64])
 
-    def at_fixed_point(self, L, t, y, args_objs):
-        out = Lanes(L).eval_closed(self.fp.closed, [obj0(t), obj1(y)] + args_objs)
+    def near_stable(self, L, t, y, args_objs):
+        out = Lanes(L).eval_closed(self.fp_pre.closed, [obj0(t), obj1(y)] + args_objs)
         return flat_rows(out, L, [np.bool_])[0]
+
+    def at_fixed_point(self, L, t, y, args_objs):
+        """(stop (L,) bool, the equilibrium's rows)."""
+        out = Lanes(L).eval_closed(self.fp.closed, [obj0(t), obj1(y)] + args_objs)
+        rows = flat_rows(out, L, [np.bool_, np.float64])
+        return rows[0], rows[1:]
 
     def near_attractor(self, L, t, y, args_objs):
         out = Lanes(L).eval_closed(self.at.closed, [obj0(t), obj1(y)] + args_objs)
@@ -219,10 +233,10 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
     f64 = jnp.float64
     fixed = stops.active(system, icfg)
     known = icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None
-    model = _Model(system, static, dyn_shapes, vcfg, t_late, (rtol, atol) if fixed else None, known)
+    model = _Model(system, static, dyn_shapes, vcfg, t_late,
+                   (rtol, atol, stops.window_start(ts_np, vcfg)) if fixed else None, known)
     n_state = model.n_state
     radius = escape_radius(system, icfg)
-    k_w = stops.window_index(ts_np, vcfg)  # first checkpoint of the feature window
 
     def run(p: Mapping[str, jnp.ndarray], one):
         with materializing(one.reshape(())):
@@ -286,15 +300,13 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
         def sel(mask, a, b):
             return jax.tree.map(lambda x, y: jnp.where(mask, x, y), a, b)
 
-        def finish_and_refill(carry, done, status, at_fp):
+        def finish_and_refill(carry, done, status, at_fp, x_star):
             lane, idx, nxt, out = carry
             ctree = model.c_spec.tree(lane["vc"], L)
-            if fixed:  # the remaining checkpoints observe the frozen state (stabjax.fold.stops.fast_forward)
-                obs = jnp.stack(model.observe(L, lane["t"], lane["y"], model.args_objs(lane["args"])), axis=-1)
-                n_in = K - jnp.maximum(lane["ck"], k_w)
-                ff = jax.vmap(stops.fast_forward, in_axes=(-1, 0, 0), out_axes=-1)(ctree, n_in, obs)
-                ctree = jax.tree.map(lambda a, b: jnp.where(at_fp == stops.HIT_FIXED_POINT, a, b), ff, ctree)
             summ = v_finalize(ctree, status == STATUS_OK)
+            if fixed:  # finished at the equilibrium: its features (stabjax.fold.stops.at_equilibrium)
+                obs = jnp.stack(model.observe(L, lane["t"], x_star, model.args_objs(lane["args"])), axis=-1)
+                summ = stops.at_equilibrium(summ, at_fp == stops.HIT_FIXED_POINT, obs, xp=jnp)
             summ["fixed_point"] = at_fp.astype(jnp.int32)
             summ["stopped_at"] = lane["t"]
             summ["n_steps"] = lane["nacc"]
@@ -387,12 +399,23 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 done = done | escaped
                 status = jnp.where(escaped, STATUS_ESCAPED, status)
             at_fp = jnp.zeros(done.shape, jnp.int32)  # stop code: stabjax.fold.stops.HIT_*
+            x_star = y  # the equilibrium a fixed-point stop reached (only read where one did)
             if fixed or known is not None:  # at an accepted step that reached a checkpoint
                 can = active & stepped & keep & (n_ck > 0) & ~done
-                if fixed:  # a stable equilibrium, within tolerance; asked every fixed_point_every(K) checkpoints
+                if fixed:  # certainly at a stable equilibrium (stabjax.fold.equilibrium); asked every
+                    # fixed_point_every(K) checkpoints
                     test = can & (ck >= nt)
-                    at_fp = lax.cond(jnp.any(test), lambda: test & model.at_fixed_point(L, t_prev, y, args),
-                                     lambda: jnp.zeros_like(done)).astype(jnp.int32) * stops.HIT_FIXED_POINT
+
+                    def whole(near):
+                        hit, xs = model.at_fixed_point(L, t_prev, y, args)
+                        return near & hit, xs
+
+                    def ask():  # the cheap question first, the whole test only where a lane says yes
+                        near = test & model.near_stable(L, t_prev, y, args)
+                        return lax.cond(jnp.any(near), whole, lambda nr: (nr, list(y)), near)
+
+                    hit, x_star = lax.cond(jnp.any(test), ask, lambda: (jnp.zeros_like(done), list(y)))
+                    at_fp = hit.astype(jnp.int32) * stops.HIT_FIXED_POINT
                     lane["nt"] = jnp.where(test, ck + stops.fixed_point_every(K), nt).astype(jnp.int32)
                 if known is not None:  # the same known attractor at every test over a span of dwell
                     test = can & (ck >= lane["na"])
@@ -409,7 +432,8 @@ def _device_loop(system, icfg, vcfg, lanes: int, static: Mapping[str, np.ndarray
                 status = jnp.where(at_fp != 0, STATUS_OK, status)
             status = status.astype(jnp.int32)
             carry = (lane, idx, nxt, out)
-            return lax.cond(jnp.any(done), lambda c: finish_and_refill(c, done, status, at_fp), lambda c: c, carry)
+            return lax.cond(jnp.any(done), lambda c: finish_and_refill(c, done, status, at_fp, x_star), lambda c: c,
+                            carry)
 
         def cond(carry):
             return jnp.any(carry[1] < M)
@@ -530,7 +554,9 @@ class FusedEngine(Engine):
         st, dyn = split_static(params, static)
         shapes = tuple(sorted((k, np.shape(v)[1:]) for k, v in dyn.items()))
         _Model(system, st, dict(shapes), vcfg, V.late_start(vcfg, float(icfg.t0), float(icfg.t1)),
-               (float(icfg.rtol), float(icfg.atol)) if stops.active(system, icfg) else None,
+               (float(icfg.rtol), float(icfg.atol),
+                stops.window_start(V.checkpoint_times(icfg.checkpoints(), vcfg), vcfg))
+               if stops.active(system, icfg) else None,
                icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None)
 
     def default_chunk(self, plan) -> int:

@@ -8,9 +8,9 @@ from ``ref`` (the window's first value), the count of checkpoints, the last valu
 (:func:`stabjax.fold.verdict.update` decides which checkpoints lie in it).
 
 Like the verdict fold these are traced into the fused and diffrax engines and translated to C for the
-native engine (elementwise arithmetic and selects only), and the fixed-point stop folds the checkpoints
-left after it with the same :func:`fold_observation` (:func:`stabjax.fold.stops.fast_forward`), so every
-engine computes the same numbers the same way.
+native engine (elementwise arithmetic and selects only), so every engine computes the same numbers the same
+way; a run the fixed-point stop finished takes the features of its equilibrium instead
+(:func:`stabjax.fold.stops.at_equilibrium`).
 """
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ INIT = (-np.inf, np.inf, 0.0, 0.0, 0.0, np.nan, 0.0)  # before the window
 
 def fold_observation(fe, obs, w, xp=jnp):
     """The feature rows :data:`ROWS` after ``w`` more checkpoints in the window that all observe
-    ``obs`` (``w`` = 0 or 1 per checkpoint in :func:`stabjax.fold.verdict.update`; the count of checkpoints left after a stop,
-    :func:`stabjax.fold.stops.fast_forward`), ``obs`` being the last value. Lane-wise arithmetic and
-    selects only; with ``xp=numpy`` on a batch (leading dims, ``w`` shaped (..., 1)).
+    ``obs`` (``w`` = 0 or 1 per checkpoint in :func:`stabjax.fold.verdict.update`), ``obs`` being the last
+    value. Lane-wise arithmetic and selects only; with ``xp=numpy`` on a batch (leading dims, ``w`` shaped
+    (..., 1)).
 
     The spread is summed about the window's first value (``ref``), not as a sum of squares: the
     textbook E[x^2] - E[x]^2 keeps the rounding of the squares, ~sqrt(eps) |x| (1.5e-8 for an x at rest

@@ -2,40 +2,20 @@
 
 Escape (``max_i |y_i| > escape_radius``) already stops a trajectory in every engine. This module
 adds the second decided fate: the trajectory has reached a **stable equilibrium**. Everything here
-is plain JAX on one trajectory, so the three engines run the one definition: the fused engine
-evaluates it lane-wise, the native engine translates it into C like the model's ``rhs``, the
-diffrax engine calls it as an ``Event``.
+is plain JAX on one trajectory, so the lane engines run the one definition: the fused engine
+evaluates it lane-wise, the native engine translates it into C like the model's ``rhs``. The diffrax
+engine runs every trajectory to t1 (a vmapped loop steps the whole batch until its last lane ends, so a
+stop saves it nothing: :mod:`stabjax.engines.diffrax_engine`).
 
-The test, at an accepted state ``x`` (the engines ask at steps that reach a checkpoint):
-
-1. ``J = df/dx`` at ``x`` by forward mode, one JVP per state component (no Jacobian routine, so
-   the lane-wise and C translations see only the model's own primitives, products and sums).
-2. Its characteristic polynomial ``det(lambda I - J) = lambda^n + a_1 lambda^(n-1) + ... + a_n``
-   by **Faddeev-LeVerrier** (n matrix products and traces, no pivoting, no branches), which also
-   gives the adjugate, hence ``J^-1 = -M_n / c_0`` at no extra cost.
-3. **Routh-Hurwitz**: all eigenvalues in the open left half-plane iff every entry of the first
-   column of the Routh table is > 0 (leading coefficient 1). A zero entry (an eigenvalue on the
-   imaginary axis, or a degenerate table) counts as *not* stable, so the test can only err towards
-   not stopping. Unrolled for the state size: divisions and products, no branches.
-4. **Distance to the equilibrium**: Newton's step ``delta = J^-1 f(x)`` is the distance to the
-   equilibrium to first order (``f(x*) = 0 = f(x) + J (x* - x) + O(|delta|^2)``). The trajectory
-   stops when ``RMS_i(delta_i / (atol + rtol |x_i|)) <= DISTANCE_TOL`` (1000): within 1000 tolerance
-   units of the equilibrium, in the norm the step-size controller uses. Why not 1: the full run
-   itself gets no closer. Near a stable equilibrium the controller lengthens the steps until they sit
-   on the method's stability boundary, where the error estimate is at the tolerance, and the numerical
-   solution hovers at a fixed scaled distance for ever. Measured with Tsit5, rtol = atol = 1e-8: 5-20
-   units on the pendulum example (t = 300 .. 700), 240-570 units at Lorenz-63's C+ (r = 24.4, t = 800 ..
-   4000: the step is held by the fast eigenvalue -13.6 while the slow focus turns at 9.6 rad/s). 1000
-   lies above both; a system whose plateau lies higher never stops (the safe failure: no gain). And it
-   lies far below any outcome's tolerance: the features of a stopped run differ from the full run's by
-   at most ~1000 (atol + rtol |x|) (1e-5 relative at rtol = 1e-8), while rule bounds and template
-   neighbourhoods are ~1e-3 and up and discovery's grouping scale is never below 1e4 tolerances. This is
-   the "|f| below a threshold from the tolerances": ``|f|`` measured through ``J^-1``, which makes it
-   dimensionally right -- a slow equilibrium (small eigenvalues, near a bifurcation) needs a much
-   smaller ``|f|`` than a fast one -- and a saddle with ``f = 0`` fails step 3. The late-window features
-   of the stopped run are those of the frozen state (mean = x, std = 0, min = max = x, see
-   :func:`fast_forward`); the full run's stay within the plateau above of the same equilibrium, so no
-   outcome changes.
+The test (:mod:`stabjax.fold.equilibrium`, issue 29): the linearisation at the state is Hurwitz, Newton's
+chord steps converge to the equilibrium ``x*``, and a quadratic Lyapunov function of the linearisation
+proves the trajectory within one tolerance unit of ``x*`` per component from the start of the feature window
+on. The stopped run then **finishes at the equilibrium**: its late-window features are those of ``x*``
+(mean = min = max = final = the observables at ``x*``, spread 0: :func:`at_equilibrium`), the trajectory's
+limit, which the run without the stop approaches to within its own numerical plateau. The stop depends on no
+rule bound and holds at any tolerance: at pyBasin's atol = 1e-6 the previous criterion (the state frozen
+within 1000 tolerance units, |omega| ~ 1e-3 on the pendulum) turned 126 of 10^4 rest-point starts
+``unclassified``.
 
 Why autonomous systems only: for ``f(t, x)`` an equilibrium of the frozen field at one time is not
 one at later times (a forced oscillator's "rest" is a moment of its forcing). The model's rhs and
@@ -79,10 +59,8 @@ import numpy as np
 from dataclasses import dataclass
 
 from ..errors import ValidationError
-from .features import fold_observation  # the feature rows are the fold's: one definition
-
-# stop within this many tolerance units (atol + rtol |x_i|, RMS) of the equilibrium (module docstring)
-DISTANCE_TOL = 1000.0
+from .equilibrium import (DISTANCE_TOL, at_fixed_point, charpoly_adjugate, fixed_point_stop, hurwitz, jacobian,
+                          near_stable)
 
 # the lane engines ask for a known attractor at most once per TEST_EVERY checkpoints of a lane (the test is
 # a few hundred flops against constant clouds), and for a fixed point at most once per fixed_point_every(K):
@@ -189,74 +167,6 @@ def active(system, icfg) -> bool:
     return icfg.early_stop is True and system.classify is None and is_autonomous(system)
 
 
-# ---- the test ------------------------------------------------------------------------------------------------
-
-def jacobian(rhs, t, y, args):
-    """``f(t, y)`` and ``J = df/dy`` (n forward-mode JVPs, columns stacked)."""
-    n = y.shape[0]
-    eye = np.eye(n)  # constants: the lane-wise and C translations fold them
-    f = None
-    cols = []
-    for i in range(n):
-        fi, ji = jax.jvp(lambda z: rhs(t, z, args), (y,), (jnp.asarray(eye[i], y.dtype),))
-        f = fi if f is None else f
-        cols.append(ji)
-    return f, jnp.stack(cols, axis=1)
-
-
-def charpoly_adjugate(J):
-    """Faddeev-LeVerrier: ``(a, M)`` with ``det(lambda I - J) = lambda^n + a[0] lambda^(n-1) + ... + a[n-1]``
-    and ``M`` the last matrix of the recursion, so that ``J^-1 = -M / a[n-1]`` (when invertible).
-    Matrix products and traces only (unrolled for the static size n)."""
-    n = J.shape[0]
-    eye = np.eye(n)
-    M = jnp.zeros_like(J)
-    c = jnp.ones((), J.dtype)
-    a = []
-    for k in range(1, n + 1):
-        M = J @ M + c * eye
-        P = J @ M
-        c = -sum(P[i, i] for i in range(n)) / k
-        a.append(c)
-    return jnp.stack(a), M
-
-
-def hurwitz(a):
-    """All roots of ``lambda^n + a[0] lambda^(n-1) + ... + a[n-1]`` in the open left half-plane
-    (Routh's table; a zero or negative first-column entry: False). Plain arithmetic, unrolled."""
-    n = a.shape[0]
-    coeffs = [jnp.ones((), a.dtype)] + [a[i] for i in range(n)]
-    row0 = coeffs[0::2]
-    row1 = coeffs[1::2]
-    zero = jnp.zeros((), a.dtype)
-    ok = jnp.ones((), bool)
-    width = len(row0)
-    row0 = row0 + [zero] * (width - len(row0))
-    row1 = row1 + [zero] * (width - len(row1))
-    for _ in range(n):  # rows 1 .. n of the table; each first entry must be > 0
-        lead = row1[0]
-        ok = ok & (lead > 0)
-        safe = jnp.where(lead > 0, lead, 1.0)
-        nxt = [(lead * row0[j + 1] - row0[0] * row1[j + 1]) / safe for j in range(width - 1)] + [zero]
-        row0, row1 = row1, nxt
-    return ok
-
-
-def at_fixed_point(rhs, t, y, args, rtol: float, atol: float):
-    """The stop predicate (traced, one trajectory): ``y`` lies within the solver tolerance of an
-    equilibrium whose Jacobian is Hurwitz (see the module docstring). Returns a bool scalar."""
-    f, J = jacobian(rhs, t, y, args)
-    a, M = charpoly_adjugate(J)
-    stable = hurwitz(a)
-    det_like = a[-1]  # c_0 = det(-J): > 0 for a Hurwitz J (all its coefficients are)
-    safe = jnp.where(det_like != 0, det_like, 1.0)
-    delta = -(M @ f) / safe  # J^-1 f
-    scale = atol + rtol * jnp.abs(y)
-    dist = jnp.sqrt(jnp.mean((delta / scale) ** 2))
-    finite = jnp.all(jnp.isfinite(f)) & jnp.isfinite(dist)
-    return stable & finite & (dist <= DISTANCE_TOL)
-
-
 # ---- the fold after a stop ----------------------------------------------------------------------------------
 
 def window_index(ts: np.ndarray, vcfg) -> int:
@@ -267,18 +177,29 @@ def window_index(ts: np.ndarray, vcfg) -> int:
     return int(np.argmax(inw)) if inw.any() else len(ts)
 
 
-def fast_forward(c, n_in, obs, xp=jnp):
-    """The fold state ``c`` after ``n_in`` more checkpoints inside the feature window, all observing
-    ``obs`` (the frozen state's observables), and ``obs`` as the final value: the late-window
-    features of a run that stays at the stopped state (mean, min, max include it; its spread adds
-    nothing). The attitude-verdict entries of the fold are left as they were at the stop (those
-    verdicts are never computed from a stopped run, :func:`resolve`). One trajectory in JAX (the
-    fused engine vmaps it), or with ``xp=numpy`` a batch at once (leading dims; ``n_in`` shaped
-    (..., 1)): the native engine applies it on the host without a compile per batch size."""
-    if "feat" not in c:
-        return c
-    out = dict(c)
-    out["feat"] = fold_observation(c["feat"], obs, n_in, xp)
+def window_start(ts: np.ndarray, vcfg) -> float:
+    """Time of the first checkpoint inside the feature window: a fixed-point stop comes before it."""
+    ts = np.asarray(ts, float)
+    k = window_index(ts, vcfg)
+    return float(ts[k]) if k < len(ts) else float(ts[-1])
+
+
+def at_equilibrium(res: dict, stopped, obs, xp=np) -> dict:
+    """Engine summaries with the late-window features of every trajectory in ``stopped`` (bool, (N,)) set to
+    those of the equilibrium it stopped at: ``obs`` (N, n_obs), the observables at ``x*`` (max = min = mean =
+    final = obs, std = 0). The stop comes before the window (:mod:`stabjax.fold.equilibrium`), so the window
+    holds the equilibrium alone; written on the summaries, not the fold's running sums, whatever their
+    layout. NumPy (the native and diffrax engines' results) or ``xp=jnp`` inside a compiled loop."""
+    if "feat_mean" not in res:
+        return res
+    out = dict(res)
+    for key in _FEAT_KEYS:
+        v = res[key]
+        m = min(int(v.shape[-1]), int(obs.shape[-1]))
+        o = obs[..., :m].astype(v.dtype)
+        val = xp.zeros_like(o) if key == "feat_std" else o
+        head = xp.where(stopped[:, None], val, v[..., :m])
+        out[key] = head if m == v.shape[-1] else xp.concatenate([head, v[..., m:]], axis=-1)
     return out
 
 
@@ -418,15 +339,47 @@ def with_known(plan, results: dict):
 
 def near_attractor(obs, known: KnownAttractors):
     """Index (float) of the known attractor within whose radius ``obs`` lies, -1.0 if none (traced, one
-    trajectory; the radii never overlap, so at most one holds). Plain arithmetic and min reductions."""
-    pts = known.points  # constants: the lane-wise and C translations fold them
-    scale = np.asarray(known.scale)
-    o = obs[: pts.shape[2]] / scale
-    k_out = jnp.asarray(-1.0, jnp.float64)
-    for k in range(pts.shape[0]):
-        d2 = jnp.min(jnp.sum((o[None, :] - pts[k] / scale) ** 2, axis=1))
-        k_out = jnp.where(d2 <= known.eps[k] ** 2, float(k), k_out)
+    trajectory; the radii never overlap, so at most one holds). Plain arithmetic and min reductions; the
+    clouds are constants here (the fused engine folds them), data in :func:`near_attractor_data`."""
+    sp, scale, eps2 = attractor_arrays(known)
+    return near_attractor_data(obs, sp, scale, eps2)
+
+
+def attractor_arrays(known: KnownAttractors) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(points / scale (K, P, n_obs), scale (n_obs,), eps^2 (K,))``: what the test reads."""
+    scale = np.asarray(known.scale, np.float64)
+    return known.points / scale, scale, np.asarray(known.eps, np.float64) ** 2
+
+
+def near_attractor_data(obs, sp, scale, eps2):
+    """:func:`near_attractor` with the clouds as arrays (constants or data: the native engine reads them from
+    memory, so that its compiled kernel serves every set of the same shape, :class:`AttractorLayout`)."""
+    K, _, n = sp.shape
+    o = obs[:n] / scale
+    k_out = np.float64(-1.0)
+    for k in range(K):
+        d2 = jnp.min(jnp.sum((o[None, :] - sp[k]) ** 2, axis=1))
+        k_out = jnp.where(d2 <= eps2[k], float(k), k_out)
     return k_out
+
+
+@dataclass(frozen=True)
+class AttractorLayout:
+    """The shape of a :class:`KnownAttractors` and its dwell, without its clouds: what a compiled kernel
+    depends on (the clouds are its data, :func:`attractor_data`)."""
+
+    shape: tuple
+    dwell: float
+
+
+def layout(known: KnownAttractors) -> AttractorLayout:
+    return AttractorLayout(tuple(known.shape), float(known.dwell))
+
+
+def attractor_data(known: KnownAttractors) -> np.ndarray:
+    """The clouds as one float64 vector, in the order :func:`near_attractor_data` reads them."""
+    sp, scale, eps2 = attractor_arrays(known)
+    return np.ascontiguousarray(np.concatenate([sp.ravel(), scale, eps2]), np.float64)
 
 
 def substitute(res: dict, known: KnownAttractors) -> dict:
@@ -453,7 +406,9 @@ def attractor_stop_active(system, icfg) -> bool:
 
 
 __all__ = ["REASONS", "STOP_NONE", "STOP_ESCAPED", "STOP_FIXED_POINT", "STOP_FAILED", "is_autonomous", "resolve",
-           "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "window_index", "fast_forward",
+           "active", "jacobian", "charpoly_adjugate", "hurwitz", "at_fixed_point", "fixed_point_stop", "near_stable",
+           "window_index", "window_start", "at_equilibrium", "DISTANCE_TOL",
            "stop_reasons", "KnownAttractors", "known_attractors", "known_for", "with_known", "near_attractor", "substitute", "attractor_stop_active",
-           "STOP_ATTRACTOR", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS", "TEST_EVERY",
+           "STOP_ATTRACTOR", "near_attractor_data", "attractor_arrays", "AttractorLayout", "layout",
+           "attractor_data", "HIT_NONE", "HIT_FIXED_POINT", "HIT_ATTRACTOR0", "CLOUD_POINTS", "TEST_EVERY",
            "fixed_point_every"]

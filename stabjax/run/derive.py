@@ -143,7 +143,10 @@ def finish(plan, records: Mapping[str, Any], state: Any, *, with_theory: bool = 
 
 def theory(plan) -> tuple[dict[str, np.ndarray], dict[str, dict], str]:
     """The model's theorem predicates, their margins and derived quantities at every trajectory's
-    parameters (flat, (N,)), their attributes, and the name of the main predicate."""
+    parameters (flat, (N,)), their attributes, and the name of the main predicate (evaluated once per
+    distinct set of the parameters each reads, :mod:`stabjax.model.theory_eval`)."""
+    from ..model import theory_eval
+
     # filled in place chunk by chunk (not concatenated): at 10^7 trajectories the theory variables
     # alone are ~0.65 GB, and a concatenation would hold them twice
     full: dict[str, np.ndarray] = {}
@@ -158,7 +161,7 @@ def theory(plan) -> tuple[dict[str, np.ndarray], dict[str, dict], str]:
     for lo in range(0, plan.size, THEORY_CHUNK):
         hi = min(plan.size, lo + THEORY_CHUNK)
         p = plan.system.check(plan.params_for(lo, hi))
-        th = plan.system.theory(p)
+        th = theory_eval.evaluate(plan.system, p)  # once per distinct set of the parameters it reads
         main = th.main
         for name, pred in th.predicates.items():
             put(f"theory_{name}", lo, hi, pred.ok, np.int8)

@@ -336,6 +336,17 @@ def l_116(I, H, lam, K, n_grid: int = 4001, tol: float = 1e-7):
     bshape = np.broadcast_shapes(I.shape[:-1], H.shape[:-1], lam.shape, K.shape)
     I, H = (np.broadcast_to(a, bshape + (3,)).reshape(-1, 3) for a in (I, H))
     lam, K = (np.broadcast_to(a, bshape).reshape(-1) for a in (lam, K))
+    if lam.size > 1:  # l depends on the model's parameters alone: once per distinct row, not per start (issue 32)
+        from ..model.theory_eval import distinct_rows
+
+        first, inv = distinct_rows(I, H, lam, K)
+        if len(first) < lam.size:
+            return _l_116_rows(I[first], H[first], lam[first], K[first], n_grid, tol)[inv].reshape(bshape)
+    return _l_116_rows(I, H, lam, K, n_grid, tol).reshape(bshape)
+
+
+def _l_116_rows(I, H, lam, K, n_grid: int, tol: float):
+    """:func:`l_116` on rows: I, H (M, 3) (H a unit vector), lam, K (M,)."""
     b3 = H[:, 2]
     s = np.linspace(0.0, 1.0, n_grid)
     lo_, hi_ = -1 - b3, 1 - b3
@@ -362,7 +373,7 @@ def l_116(I, H, lam, K, n_grid: int = 4001, tol: float = 1e-7):
             np.linalg.norm(d, axis=-1) > 1e-6)
     dn = np.where(good, np.linalg.norm(d, axis=-1), np.inf)
     out = dn.min(axis=-1)
-    return np.where(np.isfinite(out), out, np.nan).reshape(bshape)
+    return np.where(np.isfinite(out), out, np.nan)
 
 
 # ---------------------------------------------------------------------------------------------

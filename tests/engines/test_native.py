@@ -275,3 +275,85 @@ def test_huge_trig_arguments():
         ref = np.asarray(SYS.rhs(t, jnp.asarray(y), SYS.prepare(q)))
         dy, _ = native.evaluate(kern, t, y, a[0])
         np.testing.assert_allclose(dy, ref, rtol=1e-12, atol=1e-14, err_msg=f"t={t}")
+
+
+# ---- time to answer (issue 32) ------------------------------------------------------------------------------------
+
+def _example_plan(name, **integ):
+    from pathlib import Path
+
+    from stabjax.plan.spec import load_spec, make_plan
+
+    spec = load_spec(Path(__file__).resolve().parents[2] / "stabjax" / "examples" / name / "spec.toml")
+    spec["sample"]["n"] = 48
+    spec["integrate"] = {**spec["integrate"], **integ}
+    return make_plan(spec)
+
+
+@pytest.mark.parametrize("name", ["pendulum", "lorenz"])
+def test_features_only_fold_skips_early_checkpoints_bit_for_bit(name, monkeypatch):
+    """A fold of the late-window features alone observes, of the checkpoints before its window, only the last
+    of each step: every summary equals the run that observes every checkpoint, bit for bit, also the last
+    value of trajectories that escape before the window (the broken-butterfly Lorenz example)."""
+    from stabjax.run.sweep import static_params
+
+    plan = _example_plan(name, early_stop=False)
+    assert not plan.vcfg.verdicts
+    p = plan.params_for(0, plan.size)
+    runs = {}
+    for skip in (True, False):
+        monkeypatch.setattr(native, "SKIP_BEFORE_WINDOW", skip)
+        native.clear_cache()
+        runs[skip] = native.solve(plan.integrated, p, plan.icfg, plan.vcfg, static=static_params(plan))
+    native.clear_cache()
+    if name == "lorenz":
+        assert (runs[True]["solver_status"] != 0).any()  # escapes before the window: their last values kept
+    for k in runs[False]:
+        np.testing.assert_array_equal(runs[True][k], runs[False][k], err_msg=k)
+
+
+def test_recurrence_clouds_are_data_of_one_kernel():
+    """Two sets of known attractors of one shape run on one compiled kernel (the clouds are its data, no C
+    compile per run); a kernel built for them refuses to run without them, and the other way round."""
+    import dataclasses
+
+    from stabjax.fold import stops
+    from stabjax.run.sweep import static_params
+
+    plan = _example_plan("pendulum", early_stop=False, attractor_stop=True)
+    p = plan.params_for(0, plan.size)
+    known = stops.KnownAttractors(labels=(0, 1), cloud=tuple(np.linspace(-1.0, 1.0, 2 * 48 * 2)), shape=(2, 48, 2),
+                                  scale=(1.0, 1.0), eps=(0.1, 0.1), dwell=50.0, features=tuple(np.zeros(2 * 5 * 2)),
+                                  fshape=(2, 5, 2))
+    other = dataclasses.replace(known, cloud=tuple(np.linspace(-2.0, 3.0, 2 * 48 * 2)), eps=(0.2, 0.05))
+    k1, dyn = native.kernel_for(plan.integrated, plan.icfg.replace(known_attractors=known), plan.vcfg, p,
+                                static=static_params(plan))
+    k2, _ = native.kernel_for(plan.integrated, plan.icfg.replace(known_attractors=other), plan.vcfg, p,
+                              static=static_params(plan))
+    assert k1 is k2 and k1.model.known == stops.layout(known)
+    ain, y0 = native.host_inputs(k1.model, dyn, plan.size)
+    with pytest.raises(ValueError, match="clouds"):
+        native.run_raw(k1, ain, y0)
+    plain, _ = native.kernel_for(plan.integrated, plan.icfg, plan.vcfg, p, static=static_params(plan))
+    with pytest.raises(ValueError, match="clouds"):
+        native.run_raw(plain, ain, y0, known=stops.attractor_data(known))
+
+
+def test_host_functions_compile_per_bucket_and_padding_changes_no_row():
+    from stabjax.run.sweep import static_params
+
+    assert native.bucket(1) == native.bucket(native.MIN_BUCKET) == native.MIN_BUCKET
+    assert native.bucket(native.MIN_BUCKET + 1) == 2 * native.MIN_BUCKET
+    plan = _example_plan("pendulum")
+    p = plan.params_for(0, 37)
+    kern, dyn = native.kernel_for(plan.integrated, plan.icfg, plan.vcfg, p, static=static_params(plan))
+    a1, y1 = native.host_inputs(kern.model, dyn, 37)
+    a2, y2 = kern.model.host_inputs(dyn, 37)
+    np.testing.assert_array_equal(a1, a2)
+    np.testing.assert_array_equal(y1, y2)
+    c = kern.model.c_tree_from(np.random.default_rng(0).normal(size=(37, kern.model.n_c)))
+    ok = np.arange(37) % 3 != 0
+    padded = native.finalize(kern, c, ok)
+    direct = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(ok)).items()}
+    for k in direct:
+        np.testing.assert_array_equal(padded[k], direct[k], err_msg=k)

@@ -740,3 +740,52 @@ def test_multi_horizon_refinement_through_the_runner(oscillator):
     np.testing.assert_array_equal(ds["point_label_by_horizon"].values, v)
     for h in range(2):
         np.testing.assert_array_equal(v[:, h][np.abs(k - C1) > DELTA], closed_form(k, C1)[np.abs(k - C1) > DELTA])
+
+
+# ---- the refiner's bookkeeping, vectorised (issue 32: it was most of a refinement's wall time) ---------------------
+
+def _reference_segments(ref, h=-1):
+    """The per-leaf loop the vectorised Refiner.segments replaced."""
+    out = set()
+    for lo, ext in ref.leaves:
+        for a, origin, e in ref.cell_edges(lo, ext, h):
+            known = np.nonzero(e >= 0)[0]
+            for u, w in zip(known[:-1], known[1:]):
+                cu, cw = ref.cls[e[u]], ref.cls[e[w]]
+                if cu >= 0 and cw >= 0 and cu != cw:
+                    p, q = list(origin), list(origin)
+                    p[a] += int(u)
+                    q[a] += int(w)
+                    out.add((a, tuple(p), tuple(q)))
+    return sorted(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_vectorised_straddle_and_segments_equal_the_per_cell_loops(seed):
+    from pathlib import Path
+
+    from stabjax.explore.refine import Refiner
+    from stabjax.explore.refine_config import refine_config
+    from stabjax.plan.spec import load_spec, make_plan
+
+    spec = load_spec(Path(__file__).resolve().parents[2] / "stabjax" / "sweeps" / "refine_pendulum.toml")
+    plan = make_plan(spec)
+    ref = Refiner(plan, refine_config(plan))
+    rng = np.random.default_rng(seed)
+    n0, n1 = ref.shape
+    # labels: mostly unknown, a few classes, on a random set of lattice points
+    ref.labs[:] = np.where(rng.random(ref.labs.shape) < 0.3, rng.integers(0, len(ref.cls) - 1, ref.labs.shape), -1)
+    # a random quadtree of leaves over the lattice
+    leaves, work = [], [((i, j), ref.step) for i in range(0, n0 - 1, ref.step[0]) for j in range(0, n1 - 1, ref.step[1])]
+    while work:
+        lo, ext = work.pop()
+        if max(ext) > 1 and rng.random() < 0.6:
+            work += ref._children(lo, ext)
+        else:
+            leaves.append((lo, ext))
+    ref.leaves = sorted(leaves)
+    wide = [c for c in leaves if max(c[1]) > 1]
+    assert len(wide) > 50
+    np.testing.assert_array_equal(ref._straddle_many(wide), [ref._straddles(*c) for c in wide])
+    assert ref._straddle_many(wide).any() and not ref._straddle_many(wide).all()
+    assert ref.segments() == _reference_segments(ref) and len(ref.segments()) > 10

@@ -70,6 +70,11 @@ def _build(source: str) -> ctypes.CDLL:
 
 
 
+# a features-only fold observes of the checkpoints before its window only the last of each step (kernel_source);
+# False: every one (the tests compare both, bit for bit)
+SKIP_BEFORE_WINDOW = True
+
+
 class _Kernel:
     def __init__(self, system, icfg, vcfg, static, dyn_shapes, width, eval_only=False):
         ts = V.checkpoint_times(icfg.checkpoints(), vcfg)  # every horizon exactly
@@ -77,12 +82,15 @@ class _Kernel:
         t_late = V.late_start(vcfg, float(icfg.t0), float(ts[-1]))
         self.fixed = stops.active(system, icfg)
         self.model = NativeModel(system, static, dyn_shapes, vcfg, t_late,
-                                 (float(icfg.rtol), float(icfg.atol)) if self.fixed else None,
+                                 (float(icfg.rtol), float(icfg.atol), stops.window_start(self.ts, vcfg))
+                                 if self.fixed else None,
                                  icfg.known_attractors if stops.attractor_stop_active(system, icfg) else None)
-        self.k_w = stops.window_index(self.ts, vcfg)
         self.width = width
+        # a fold of the late-window features alone (named outcomes) reads no checkpoint before the window
+        # but the last one (kernel_source)
+        window_from = 0 if vcfg.verdicts or not SKIP_BEFORE_WINDOW else stops.window_index(self.ts, vcfg)
         self.source = kernel_source(self.model, width, escape_radius(system, icfg),
-                                    fp_every=stops.fixed_point_every(len(self.ts)))
+                                    fp_every=stops.fixed_point_every(len(self.ts)), window_from=window_from)
         if eval_only:
             self.source = _eval_only_source(self.source)
         self.lib = _build(self.source)
@@ -132,15 +140,52 @@ def update(kern: _Kernel, c: np.ndarray, t: float, obs: np.ndarray) -> np.ndarra
 
 
 
+def bucket(n: int) -> int:
+    """The batch size the host-side JAX functions are compiled for: ``n`` rounded up to a power of two, at
+    least :data:`MIN_BUCKET`. They are jitted per shape; a refinement's rounds of 258, 530, 1093, ...
+    trajectories each compiled them anew (measured: ~1.8 s of every ~2 s round of the pendulum's start-plane
+    refinement, against ~0.2 s in the kernel); below MIN_BUCKET one compile serves every size, and the padded
+    rows cost microseconds. Rows are independent, so padding changes no row."""
+    return max(MIN_BUCKET, 1 << (int(n) - 1).bit_length())
+
+
+MIN_BUCKET = 4096
+
+
+def _padded(tree, n: int, m: int):
+    """Every leaf's rows padded from ``n`` to ``m`` with copies of the last row."""
+    if m == n:
+        return tree
+    return jax.tree.map(lambda v: np.concatenate([np.asarray(v), np.repeat(np.asarray(v)[-1:], m - n, axis=0)]),
+                        tree)
+
+
+def host_inputs(model, dyn, n: int):
+    """``model.host_inputs`` for ``n`` trajectories, compiled for :func:`bucket` (``n``) of them."""
+    m = bucket(n)
+    ain, y0 = model.host_inputs(_padded(dyn, n, m), m)
+    return np.ascontiguousarray(ain[:n]), np.ascontiguousarray(y0[:n])
+
+
+def finalize(kern, c, ok: np.ndarray) -> dict[str, np.ndarray]:
+    """The summaries of ``n`` trajectories' fold states. A features-only fold's (means, spreads: plain
+    arithmetic per row) is compiled for :func:`bucket` (``n``) rows; the attitude classifier's is compiled for
+    exactly ``n``: XLA's code for its decay fits differs with the batch size in the last bits (measured:
+    decay_exponent of sweeps/default.toml moved by up to 8e-11 relative on 4096 rows against 1075)."""
+    n = int(np.shape(ok)[0])
+    m = n if "peak" in c else bucket(n)
+    out = kern._finalize(_padded(c, n, m), jnp.asarray(_padded(np.asarray(ok), n, m)))
+    return {k: np.asarray(v)[:n] for k, v in out.items()}
+
+
 def warm(system, icfg, vcfg, params, *, static=None) -> float:
     """Build everything a :func:`solve` of these shapes needs (C kernel, host-side JAX functions);
     returns the seconds taken (the benchmark's compile time)."""
     t = time.perf_counter()
     n = int(next(iter(params.values())).shape[0])
     kern, dyn = kernel_for(system, icfg, vcfg, params, static=static)
-    kern.model.host_inputs(dyn, n)
-    c = kern.model.c_tree_from(np.zeros((n, kern.model.n_c)))
-    jax.block_until_ready(kern._finalize(c, jnp.zeros((n,), bool)))
+    host_inputs(kern.model, dyn, n)
+    finalize(kern, kern.model.c_tree_from(np.zeros((n, kern.model.n_c))), np.zeros((n,), bool))
     return time.perf_counter() - t
 
 
@@ -171,8 +216,11 @@ def kernel_for(system, icfg, vcfg, params, *, static=None, width: int | None = N
         raise Unsupported(f"{system.name} has its own classify()")
     st, dyn = split_static(params, static)
     shapes = tuple(sorted((k, v.shape[1:]) for k, v in dyn.items()))
-    # the kernel does not depend on how many threads run it: one cache entry for any ``threads``
+    # the kernel does not depend on how many threads run it: one cache entry for any ``threads``; nor on the
+    # recurrence stop's clouds (data of the run: run_raw), only on their shape
     key_cfg = icfg.replace(settings={}) if icfg.settings else icfg
+    if isinstance(icfg.known_attractors, stops.KnownAttractors):
+        key_cfg = key_cfg.replace(known_attractors=stops.layout(icfg.known_attractors))
     width = int(width or ENGINE.setting(icfg, "width") or default_width(vcfg))
     return _kernel(system, key_cfg, vcfg, StaticParams(st), shapes, width, eval_only), dyn
 
@@ -191,18 +239,15 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
     n = int(next(iter(params.values())).shape[0])
     kern, dyn = kernel_for(system, icfg, vcfg, params, static=static, width=width)
     model = kern.model
-    ain, y0 = model.host_inputs(dyn, n)
-    raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress)
+    ain, y0 = host_inputs(model, dyn, n)
+    known = stops.attractor_data(icfg.known_attractors) if kern.model.known is not None else None
+    raw = run_raw(kern, ain, y0, threads=threads or ENGINE.setting(icfg, THREADS) or None, progress=progress,
+                  known=known)
     c = model.c_tree_from(raw["c"])
+    summ = finalize(kern, c, raw["status"] == STATUS_OK)
     fp = raw["fp"] == stops.HIT_FIXED_POINT  # attractor stops (codes 2 + k): features replaced later
-    if fp.any():
-        K = len(kern.ts)
-        ck = np.searchsorted(kern.ts, raw["t"], side="right")  # checkpoints observed up to the stop
-        n_in = np.where(fp, K - np.maximum(ck, kern.k_w), 0).astype(np.float64)
-        # the remaining checkpoints observe the frozen state (NumPy, batched: no compile per batch size)
-        ff = stops.fast_forward(c, n_in[:, None], raw["obs"][:, : max(model.n_obs, 1)], xp=np)
-        c = {k: np.where(fp.reshape((-1,) + (1,) * (np.ndim(v) - 1)), ff[k], v) for k, v in c.items()}
-    summ = {k: np.asarray(v) for k, v in kern._finalize(c, jnp.asarray(raw["status"] == STATUS_OK)).items()}
+    if fp.any():  # finished at the equilibrium: its features (stabjax.fold.stops.at_equilibrium)
+        summ = stops.at_equilibrium(summ, fp, raw["obs"][:, : max(model.n_obs, 1)])
     summ["n_steps"] = raw["nacc"]
     summ["n_rejected"] = raw["nrej"]
     summ["solver_status"] = raw["status"]
@@ -215,8 +260,11 @@ def solve(system, params: Mapping[str, np.ndarray], icfg, vcfg, *, static: Itera
 
 
 def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | None = None,
-            progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
-    """Run the compiled loop on prepared inputs; returns the raw per-trajectory outputs."""
+            progress: Callable[[int, int], None] | None = None, known: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Run the compiled loop on prepared inputs; returns the raw per-trajectory outputs. ``known``: the
+    recurrence stop's clouds (:func:`stabjax.fold.stops.attractor_data`), for a kernel built with them."""
+    if (kern.model.known is not None) != (known is not None):
+        raise ValueError("the recurrence stop's clouds go with a kernel built for them, and only then")
     model, icfg = kern.model, kern.icfg
     n = int(y0.shape[0])
     NA = max(model.n_args, 1)
@@ -244,7 +292,8 @@ def run_raw(kern: _Kernel, ain: np.ndarray, y0: np.ndarray, *, threads: int | No
               dt0=float(icfg.dt0) if icfg.dt0 is not None else -1.0,
               ain=ptr(ain), y0in=ptr(y0), c0=ptr(c0), ts=ptr(kern.ts), cout=ptr(cout), yout=ptr(yout),
               nacc_out=ptr(nacc), nrej_out=ptr(nrej), status_out=ptr(status), next=ptr(nxt), ndone=ptr(ndone),
-              stop=ptr(stop), tout=ptr(tout), fp_out=ptr(fp), oout=ptr(oout), drains=ptr(drains))
+              stop=ptr(stop), tout=ptr(tout), fp_out=ptr(fp), oout=ptr(oout), drains=ptr(drains),
+              known=ptr(known) if known is not None else None)
     n_threads = max(1, min(int(threads or default_threads()), -(-n // kern.width)))
     workers = [threading.Thread(target=kern.lib.stabjax_run, args=(ctypes.byref(job),), daemon=True)
                for _ in range(n_threads)]

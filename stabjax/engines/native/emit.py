@@ -85,6 +85,7 @@ class CEmit(Lanes):
     """
 
     drop_zero_terms = True  # see Lanes.drop_zero_terms
+    reciprocal = True  # x / d as x * (1 / d) for a variable d (see bind_elem); False: a true division
 
     def __init__(self, prefix="v"):
         super().__init__(1)
@@ -122,7 +123,7 @@ class CEmit(Lanes):
         if name in _INFIX and not boolean:
             return self.new(dt, f"{r[0]} {_INFIX[name]} {r[1]}")
         if name == "div":
-            if fl and isinstance(es[1], Sym):
+            if fl and isinstance(es[1], Sym) and self.reciprocal:
                 # one reciprocal per denominator (s/|s| divides three components by one norm): a
                 # division costs ~8x a multiplication on AVX-512; x * (1/d) is within 1 ulp of x / d
                 inv = self.recip.get(es[1].name)
@@ -344,12 +345,13 @@ class NativeModel:
     """
 
     def __init__(self, system, static: Mapping[str, np.ndarray], dyn_shapes: Mapping[str, tuple], vcfg, t_late,
-                 fixed_point: tuple[float, float] | None = None, known=None):
+                 fixed_point: tuple[float, float, float] | None = None, known=None):
         sds = jax.ShapeDtypeStruct
         f64 = jnp.float64
         self.system = system
-        self.fixed_point = fixed_point  # (rtol, atol): also emit f_fp, the stop test of stabjax.fold.stops
-        self.known = known  # stabjax.fold.stops.KnownAttractors: also emit f_at, the recurrence stop's test
+        # (rtol, atol, t_window): also emit f_fp, the stop test of stabjax.fold.equilibrium
+        self.fixed_point = fixed_point
+        self.known = known  # stabjax.fold.stops.AttractorLayout: also emit f_at, the recurrence stop's test
         self.static = {k: np.asarray(v, np.float64) for k, v in static.items()}
         self.dyn_keys = sorted(dyn_shapes)
         self.dyn_shapes = {k: tuple(dyn_shapes[k]) for k in self.dyn_keys}
@@ -443,31 +445,55 @@ class NativeModel:
                                            "double *restrict out")
         self.functions = rhs + "\n" + obs + "\n" + upd
         if self.fixed_point is not None:
-            # -- the fixed-point stop test (stabjax.fold.stops.at_fixed_point) -> out[0] = 1.0 / 0.0 --
-            from ...fold import stops
+            # -- the fixed-point stop test (stabjax.fold.equilibrium.fixed_point_stop) -> out[0] = 1.0 / 0.0,
+            #    out[1 .. n] = the equilibrium it reached
+            from ...fold import equilibrium
 
             em = CEmit()
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-            rt, at = self.fixed_point
-            closed = jax.make_jaxpr(lambda t, yy, a: stops.at_fixed_point(system.rhs, t, yy, a, rt, at))(
+            rt, at, tw = self.fixed_point
+            closed = jax.make_jaxpr(lambda t, yy, a: equilibrium.fixed_point_stop(system.rhs, t, yy, a, rt, at, tw))(
+                ex_t, ex_y, ex_args)
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_, np.float64])
+            self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+                                                "const double *restrict a, double *restrict out")
+            # -- its cheap first question (stabjax.fold.equilibrium.near_stable) -> out[0] = 1.0 / 0.0 --
+            em = CEmit()
+            y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
+            closed = jax.make_jaxpr(lambda t, yy, a: equilibrium.near_stable(system.rhs, t, yy, a, rt, at))(
                 ex_t, ex_y, ex_args)
             outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
             _store(em, [o.reshape(-1) for o in outs], "out", [np.bool_])
-            self.functions += "\n" + _function("f_fp", em.lines, "const double t, const double *restrict y, "
+            self.functions += "\n" + _function("f_fpre", em.lines, "const double t, const double *restrict y, "
                                                 "const double *restrict a, double *restrict out")
         if self.known is not None:
-            # -- the recurrence stop's test (stabjax.fold.stops.near_attractor) -> out[0] = k or -1.0 --
+            # -- the recurrence stop's test (stabjax.fold.stops.near_attractor_data) -> out[0] = k or -1.0; the
+            #    clouds are data (kd: stabjax.fold.stops.attractor_data), so one kernel serves every set of
+            #    this shape; a true division by the scale, as by the constants it replaces (bit for bit)
             from ...fold import stops
 
+            sds, f64 = jax.ShapeDtypeStruct, jnp.float64
             em = CEmit()
+            em.reciprocal = False
             y, _ = _inputs(em, [((self.n_state,), np.float64)], "y")
-            kn = self.known
-            closed = jax.make_jaxpr(lambda t, yy, a: stops.near_attractor(
-                jnp.ravel(system.observe(t, yy, a)), kn))(ex_t, ex_y, ex_args)
-            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em))
+            K, P, n = self.known.shape
+            data = []
+            k = 0
+            for shape in ((K, P, n), (n,), (K,)):
+                o = obj(shape)
+                for i in np.ndindex(shape):
+                    o[i] = Sym(f"kd[{k}]", np.float64)
+                    k += 1
+                data.append(o)
+            closed = jax.make_jaxpr(lambda t, yy, a, sp, sc, e2: stops.near_attractor_data(
+                jnp.ravel(system.observe(t, yy, a)), sp, sc, e2))(
+                ex_t, ex_y, ex_args, sds((K, P, n), f64), sds((n,), f64), sds((K,), f64))
+            outs = em.eval_closed(closed, [obj0(Sym("t", np.float64)), y[0]] + args_objs(em) + data)
             _store(em, [o.reshape(-1) for o in outs], "out", [np.float64])
             self.functions += "\n" + _function("f_at", em.lines, "const double t, const double *restrict y, "
-                                                "const double *restrict a, double *restrict out")
+                                                "const double *restrict a, const double *restrict kd, "
+                                                "double *restrict out")
 
     # -- host side ----------------------------------------------------------------------------
     @functools.cached_property

@@ -72,9 +72,14 @@ def _unrolled(n: int, line: Callable[[int], str]) -> str:
     return "\n            ".join(line(q) for q in range(n))
 
 
-def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_every: int = 8) -> str:
+def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_every: int = 8,
+                  window_from: int = 0) -> str:
     """C source of the integration loop for ``model`` with blocks of ``W`` lanes; ``escape``: the
-    escape radius (None: no escape test, and the source is that of a kernel without one)."""
+    escape radius (None: no escape test, and the source is that of a kernel without one).
+    ``window_from``: for a fold of the late-window features alone, the index of the first checkpoint in
+    the window; of the checkpoints before it only the last one of each step is observed and folded (the
+    others' updates change nothing the last one does not overwrite: the last value, the span), so results
+    are those of every checkpoint, bit for bit. 0: every checkpoint (the attitude classifier reads all)."""
     NS, NA, NC, NO = model.n_state, max(model.n_args, 1), model.n_c, max(model.n_obs, 1)
     stage_loops = []
     # The sixth stage and the next step's first are both at t + h: the t-only part of the
@@ -192,6 +197,7 @@ typedef struct {{
     int32_t *fp_out;
     double *oout;
     int64_t *drains;  /* [0] items drained from a full FIFO (overflow), [1] drained when a lane finished */
+    const double *known;  /* the recurrence stop's clouds (stabjax.fold.stops.attractor_data), or NULL */
 }} job_t;
 
 static inline double rms_scaled(const double *v, const double *scale) {{
@@ -334,6 +340,7 @@ int64_t stabjax_run(const job_t *jb) {{
            one per lane-step, 0.49 M two), and an item costs 7 * NS gathered loads in the item batches
            below; here the same arithmetic reads the lane's own slots. Same formulas, same vector
            code: the items' values do not depend on which path observed them. */
+        /*SKIP*/
         double any0 = 0.0;
         #pragma omp simd reduction(max:any0)
         for (int l = 0; l < W; l++) {{
@@ -488,6 +495,18 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     f_upd(c, t, o, out, 1);
 }}
 """
+    if window_from > 1:  # a features-only fold: skip to the last checkpoint before the window in each step
+        src = src.replace("/*SKIP*/", f"""/* features-only fold: a checkpoint before the feature window (index {int(window_from)}) sets the
+           last value alone, so of those a step crosses only the last is observed (the pendulum's 2000
+           log-spaced checkpoints before t = 100 queued, overflowed and were folded one by one) */
+        for (int l = 0; l < W; l++) {{
+            if (KEEP[l] != 0.0 && CK[l] + 1 < {int(window_from)} && ts[CK[l] + 1] <= TN[l]) {{
+                do CK[l]++; while (CK[l] + 1 < {int(window_from)} && ts[CK[l] + 1] <= TN[l]);
+                NEXTT[l] = ts[CK[l]];
+            }}
+        }}""")
+    else:
+        src = src.replace("/*SKIP*/", "")
     known = model.known
     if model.fixed_point is None and known is None:
         src = src.replace("/*FP_DECL*/", "").replace("/*FP_REFILL*/", "").replace("/*FP_TEST*/", "").replace("/*FP_CAND*/", "")
@@ -495,18 +514,29 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     else:  # the stop tests of stabjax.fold.stops, after a step that reached a checkpoint: FP[l] = its stop code
         from ...fold.stops import HIT_ATTRACTOR0, HIT_FIXED_POINT, TEST_EVERY
 
-        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN;\n"
+        # FPT: the test's verdict (row 0) and the equilibrium it reached (rows 1 .. NS)
+        src = src.replace("/*FP_DECL*/", "double FP[W] ALIGN, FPT[(1 + NS) * W] ALIGN, FPM[W] ALIGN, NT[W] ALIGN, "
+                                         "FPP[W] ALIGN;\n"
                                          "    double AKT[W] ALIGN, AK[W] ALIGN, AS[W] ALIGN, ATM[W] ALIGN, NXA[W] ALIGN;\n"
                                          "    for (int l = 0; l < W; l++) { NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0; }")
         src = src.replace("/*FP_REFILL*/", "NT[l] = 0.0; NXA[l] = 0.0; AK[l] = -1.0; AS[l] = 0.0;")
         every_fp = int(fp_every)  # checkpoints between fixed-point tests (stabjax.fold.stops.fixed_point_every)
-        fp_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);"
-                   if model.fixed_point is not None else "")
-        at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, AKT + l, W);"
+        # the cheap question first (near a stable equilibrium), the whole test only where a lane says yes
+        fp_call = ("""#pragma omp simd
+                for (int l = 0; l < W; l++) f_fpre(T[l], Y + l, A + l, FPP + l, W);
+                double anyp = 0.0;
+                #pragma omp simd reduction(max:anyp)
+                for (int l = 0; l < W; l++) { FPP[l] = FPM[l] != 0.0 && FPP[l] != 0.0 ? 1.0 : 0.0; anyp = FPP[l] > anyp ? FPP[l] : anyp; }
+                if (anyp != 0.0) {
+                    #pragma omp simd
+                    for (int l = 0; l < W; l++) f_fp(T[l], Y + l, A + l, FPT + l, W);
+                }""" if model.fixed_point is not None else "")
+        at_call = ("#pragma omp simd\n                for (int l = 0; l < W; l++) f_at(T[l], Y + l, A + l, jb->known, AKT + l, W);"
                    if known is not None else "")
         fp_mask = "R0[l] != 0.0 && (double)CK[l] >= NT[l] ? 1.0 : 0.0" if model.fixed_point is not None else "0.0"
         at_mask = "R0[l] != 0.0 && (double)CK[l] >= NXA[l] ? 1.0 : 0.0" if known is not None else "0.0"
-        fp_hit = f"FPM[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0" if model.fixed_point is not None else "0.0"
+        fp_hit = (f"FPM[l] != 0.0 && FPP[l] != 0.0 && FPT[l] != 0.0 ? {HIT_FIXED_POINT}.0 : 0.0"
+                  if model.fixed_point is not None else "0.0")
         # the recurrence stop: the same attractor at every test over a span of dwell (stabjax.fold.stops)
         at_hit = "" if known is None else f"""
                     const double k = AKT[l], m = ATM[l];
@@ -548,8 +578,8 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
         esc_guard = " && !escaped" if escape is not None else ""
         src = src.replace("/*FP_SCALAR*/", f"const int fixedp = FP[l] != 0.0{esc_guard};")
         src = src.replace("/*FP_OUT*/", f"""jb->fp_out[j] = fixedp ? (int32_t)FP[l] : 0;
-            if (fixedp) {{
-                f_obs(T[l], Y + l, A + l, OB0 + l, W);
+            if (fixedp) {{  /* the observables at the equilibrium itself (a fixed point), else at the state */
+                f_obs(T[l], (FP[l] == {HIT_FIXED_POINT}.0 ? FPT + W : Y) + l, A + l, OB0 + l, W);
                 for (int q = 0; q < NO; q++) jb->oout[j * NO + q] = OB0[q * W + l];
             }}""")
     return src
@@ -572,5 +602,5 @@ class Job(ctypes.Structure):
                 ("nacc_out", ctypes.c_void_p), ("nrej_out", ctypes.c_void_p), ("status_out", ctypes.c_void_p),
                 ("next", ctypes.c_void_p), ("ndone", ctypes.c_void_p), ("stop", ctypes.c_void_p),
                 ("tout", ctypes.c_void_p), ("fp_out", ctypes.c_void_p), ("oout", ctypes.c_void_p),
-                ("drains", ctypes.c_void_p)]
+                ("drains", ctypes.c_void_p), ("known", ctypes.c_void_p)]
 
