@@ -9,7 +9,6 @@ from typing import Optional
 
 import typer
 
-from ..plan.identity import spec_digest
 from ..run.outputs import check_store_path, input_files, is_own_output
 from .result_cmds import print_result
 from .common import ForceOpt, IMAGE_SUFFIXES, RESULT_SUFFIXES, check_output, result_spec, console, err_console
@@ -44,6 +43,7 @@ def sweep(
     2 bad input, 130/143/129 interrupted (finished chunks kept: the same command resumes)."""
     from .. import validate
     from ..errors import ValidationError
+    from ..plan.identity import spec_digest
     from ..plan.spec import load_spec, make_plan, spec_json
     from ..run.sweep import default_store, run_plan
 
