@@ -203,7 +203,12 @@ def provenance(plan) -> dict[str, Any]:
         "paper": plan.system.paper,
         "spec_json": json.dumps(jsonable(plan.spec)),
         "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
-        "integrate_json": json.dumps({**plan.icfg.__dict__, "settings": dict(plan.icfg.settings)}),
+        # the known attractors are the runner's state (found by the run itself, a refinement's earlier rounds):
+        # their count here, their identity in the fingerprint
+        "integrate_json": json.dumps({**{k: v for k, v in plan.icfg.__dict__.items() if k != "known_attractors"},
+                                      "settings": dict(plan.icfg.settings),
+                                      **({"known_attractors": len(plan.icfg.known_attractors.labels)}
+                                         if plan.icfg.known_attractors is not None else {})}),
         "verdict_json": json.dumps(plan.vcfg.__dict__),
         "system_ref": str(plan.spec.get("system", plan.system.name)),
         **identity_attrs(plan),  # fingerprint, model file and every local module it imports, with hashes

@@ -789,3 +789,28 @@ def test_vectorised_straddle_and_segments_equal_the_per_cell_loops(seed):
     np.testing.assert_array_equal(ref._straddle_many(wide), [ref._straddles(*c) for c in wide])
     assert ref._straddle_many(wide).any() and not ref._straddle_many(wide).all()
     assert ref.segments() == _reference_segments(ref) and len(ref.segments()) > 10
+
+
+def test_the_shipped_pendulum_refinement_runs_through_the_store_with_the_recurrence_stop(tmp_path, capsys):
+    """``stabjax sweep sweeps/refine_pendulum.toml`` (coarser here): the rounds after the first carry the known
+    attractors in their plan, and each round's chunk store records its provenance (a traceback once:
+    ``KnownAttractors is not JSON serializable``)."""
+    from pathlib import Path
+
+    import xarray as xr
+    from clirun import captured
+
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "sweeps" / "refine_pendulum.toml").read_text()
+    model = (root / "stabjax" / "examples" / "pendulum" / "model.py").as_posix()
+    text = text.replace('"../examples/pendulum/model.py:Pendulum"', f'"{model}:Pendulum"')
+    text = text.replace('rel_tol = "1/256"', 'rel_tol = "1/32"').replace("num = 17", "num = 9")
+    text = text.replace("t1 = 1000.0", "t1 = 200.0").replace("n_checkpoints = 4000", "n_checkpoints = 800")
+    spec = tmp_path / "refine_pendulum.toml"
+    spec.write_text(text)
+    code, out, err = captured(capsys, "sweep", spec, "--out", tmp_path / "r.nc", "--no-plot", "--no-progress")
+    assert code == 0, err
+    with xr.open_dataset(tmp_path / "r.nc") as ds:
+        assert int(ds.attrs["rounds"]) >= 2 and int(ds.attrs["n_unbracketed"]) == 0
+        assert json.loads(ds.attrs["integrate_json"])["attractor_stop"] is True
+    assert not (tmp_path / "r.nc.zarr").exists()  # every round's store finished and removed
