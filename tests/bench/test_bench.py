@@ -9,6 +9,7 @@ from benchmarks import bench
 from stabjax.engines import native
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the benchmark's harness; the engines' agreement is tests/engines/test_verdict_engines.py's
 def test_quick_benchmark_runs_and_agrees(tmp_path):
     out = tmp_path / "bench.json"
     r = bench.main(quick=True, out=out)

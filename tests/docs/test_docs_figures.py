@@ -1,3 +1,4 @@
+import pytest
 """Figures the documentation quotes from a quick command, recomputed: a change that moves a number must move the
 page with it (the README, where these figures lived first, once said [0.4031, 0.4039] for a bracket the command
 put at [0.375, 0.3758])."""
@@ -36,6 +37,7 @@ def test_refine_alpha_bracket_matches_the_refinement_page():
     assert shown(2 / 3 - 0.5 * (a + b), below) == below.rstrip("0")
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the docs' figures are checked by the other tests here
 def test_gyrostat_gravity_counts_match_the_saakyan_page():
     """`saakyan_gyrostat_gravity_44` (random starts up to 1.5 rad): the converged counts at h = 0.8 and h = 1 and
     the first gain at which all 12 converge that docs/models/saakyan.md quotes are what the sweep gives. Fails on

@@ -172,29 +172,43 @@ def test_engines_declare_their_settings_and_read_only_those():
     assert engines.with_threads(IntegrateConfig(), None) == IntegrateConfig()
 
 
-def test_settings_that_change_no_result_leave_the_identity_and_the_results_alone(tmp_path):
-    """threads (native) and lanes (fused) change neither the fingerprint nor a bit of the result, whether
-    given in [engine] or [integrate]; width is declared as changing results (a dense-checkpoint run gives
-    last-bit different summaries at another SIMD width) and so changes the fingerprint. Fails if the
-    identity counts an execution-only setting (a resume with another thread count would be refused) or
-    ignores one that changes results (chunks of different bits would be mixed)."""
-    from stabjax.run import sweep
+_SETTINGS_BASE = {"system": "monoaxial", "grid": {"alpha": [0.4, 0.55, 0.7], "sigma": [1.2, 1.4, 1.6]},
+                  "integrate": {"t1": 20.0, "n_checkpoints": 32}}
 
-    base = {"system": "monoaxial", "grid": {"alpha": [0.4, 0.55, 0.7], "sigma": [1.2, 1.4, 1.6]},
-            "integrate": {"t1": 20.0, "n_checkpoints": 32}}
 
-    def plan(integ=None, engine=None, choice=None):
-        spec = {**base, "integrate": {**base["integrate"], **(integ or {}), **({"engine": choice} if choice else {})}}
-        if engine:
-            spec["engine"] = engine
-        return make_plan(spec)
+def _settings_plan(integ=None, engine=None, choice=None):
+    base = _SETTINGS_BASE
+    spec = {**base, "integrate": {**base["integrate"], **(integ or {}), **({"engine": choice} if choice else {})}}
+    if engine:
+        spec["engine"] = engine
+    return make_plan(spec)
 
+
+def test_settings_that_change_no_result_leave_the_identity_alone():
+    """threads (native) and lanes (fused) leave the fingerprint alone, whether given in [engine] or
+    [integrate]; width is declared as changing results (a dense-checkpoint run gives last-bit different
+    summaries at another SIMD width) and so changes the fingerprint. Fails if the identity counts an
+    execution-only setting (a resume with another thread count would be refused) or ignores one that changes
+    results (chunks of different bits would be mixed). That they change no bit: the test below and
+    tests/engines/test_native.py's threads/width test."""
+    plan = _settings_plan
     ref = plan(choice="native")
     same = [plan({"threads": 1}, choice="native"), plan(None, {"threads": 2}, "native"),
-            plan(None, {"lanes": 8}, "native"), plan(None, {"threads": 2, "lanes": 64}, "native")]
-    for p in same:
+            plan(None, {"lanes": 8}, "native"), plan(None, {"threads": 2, "lanes": 64}, "native"),
+            plan(None, {"lanes": 4}, "fused")]
+    for p in same[:-1]:
         assert p.fingerprint() == ref.fingerprint(), p.icfg.settings
+    assert same[-1].fingerprint() == plan(None, {"lanes": 64}, "fused").fingerprint()
     assert plan(None, {"width": 8}, "native").fingerprint() != ref.fingerprint()
+
+
+@pytest.mark.slow  # the full suite's (CI's 10 minutes): two fused compiles; native threads: test_native.py
+def test_settings_that_change_no_result_leave_the_results_alone(tmp_path):
+    """threads (native) and lanes (fused) change not a bit of the result."""
+    from stabjax.run import sweep
+
+    plan = _settings_plan
+    ref = plan(choice="native")
     if engines.get("native").supports(ref.system, ref.icfg) is None:
         r1 = sweep.run_plan(plan(None, {"threads": 1}, "native"), tmp_path / "t1.nc")
         r2 = sweep.run_plan(plan(None, {"threads": 2}, "native"), tmp_path / "t2.nc")

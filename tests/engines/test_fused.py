@@ -119,6 +119,7 @@ def test_engine_dispatch_and_fallback(monkeypatch):
         fast.solve(SYS, batch_params(SYS, None, 1), IntegrateConfig(solver="dopri5"), SYS.verdict)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: a memory guard of the diffrax engine, ~30 s of compiles
 def test_diffrax_path_subchunks_large_batches(monkeypatch):
     """A fused-sized chunk on the diffrax engine is split (its checkpoints would not fit in memory)."""
     p = batch_params(SYS, None, 7)

@@ -100,6 +100,7 @@ def test_the_checks_catch_what_the_old_figures_said():
     plt.close("all")
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the same figure code as test_saakyan_figures
 def test_at2019_figures(saved, tmp_path):
     from stabjax.reproduce import at2019
 
@@ -117,6 +118,7 @@ def test_saakyan_figures(saved, tmp_path):
     assert load_shipped("saakyan_region_generic")  # the quick run drew the shipped spec's figures
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the same figure code as test_saakyan_figures
 def test_twobody_figures(saved, tmp_path):
     from stabjax.reproduce import twobody
 

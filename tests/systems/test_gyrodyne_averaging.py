@@ -37,6 +37,7 @@ def averaging_error(mu, eps1, x0=0.05, T0=1500.0):
     return np.max(np.abs(obs[:, 3] - x1)) / x0, x1
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the model against SciPy and the closed form in test_gyrodyne.py
 @pytest.mark.parametrize("eps1", [0.0005])
 def test_averaging_error_shrinks_with_mu(eps1):
     errs = []

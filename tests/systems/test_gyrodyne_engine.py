@@ -1,6 +1,8 @@
 """Gyrodyne through the lead's engine: classify on a tiny batch, a sweep end to end, quick reproduce."""
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 
 import stabjax  # noqa: F401
@@ -27,6 +29,7 @@ def test_classify_inside_and_outside_tongue_d9():
     assert abs(res["growth1"][1] - th.derived["growth_pred"][1]) < 1.5e-4
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the tongue classification below; reproduce --quick in the other papers' tests
 def test_sweep_end_to_end_and_reproduce_quick(tmp_path):
     from stabjax.run.sweep import run_spec
 

@@ -10,6 +10,8 @@ Kvaerno5 needs more steps than Tsit5 there (measured: t1 = 1000, 177,729 accepte
 """
 from __future__ import annotations
 
+import pytest
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -41,6 +43,7 @@ def test_kvaerno5_registered():
     IntegrateConfig(solver="kvaerno5").validate()
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: Kvaerno5 against SciPy in tests/engines/test_solvers.py
 def test_kvaerno5_matches_scipy_radau():
     """Short horizon on the failing cell (the cost is the Kvaerno5 compile, ~30 s on 2 cores)."""
     t1 = 20.0

@@ -153,6 +153,7 @@ def test_energy_decreases_without_perturbation():
     assert E[-1] < 1e-3 * E[0]
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: batch independence: test_native's threads/width test and test_fused's refill test
 def test_vmapped_batch_equals_one_by_one():
     alphas = np.array([1 / 3, 0.5, 7 / 9, 1.0])
     icfg = IntegrateConfig(t1=300.0, rtol=1e-10, atol=1e-12, n_checkpoints=64)
