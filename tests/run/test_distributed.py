@@ -19,21 +19,10 @@ from stabjax.run import store as S
 from stabjax.errors import StabjaxError, ValidationError
 from stabjax.plan.spec import make_plan
 from stabjax.run.sweep import open_result, run_plan
+from test_store import TINY  # the store tests' 4 x 4 map, resumed here across workers
 
 ROOT = Path(__file__).resolve().parents[2]
 
-TINY = """
-system = "monoaxial"
-name = "tiny"
-[params]
-mu = 1.5
-[grid]
-alpha = {start = 0.3, stop = 1.0, num = 4}
-sigma = [1.2, 1.3, 1.4, 1.5]
-[integrate]
-t1 = 100.0
-n_checkpoints = 32
-"""
 
 
 @pytest.fixture(scope="module")
