@@ -94,6 +94,7 @@ def test_constant_folding_single_device_and_no_refill_change_nothing(fused):
     np.testing.assert_allclose(other["state_t1"], fused["state_t1"], atol=1e-8, rtol=0)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the fused engine's failures in test_reliability.py, the same test on the native engine
 def test_failures_are_reported_not_raised():
     p = batch_params(SYS, None, 3)
     p["b"][1] = np.nan  # right-hand side NaN from t = 0: the solver can never accept a step
@@ -155,7 +156,9 @@ def test_engine_config_validation():
         engines.resolve(SYS, IntegrateConfig(settings={"lanes": -1}))
 
 
-@pytest.mark.parametrize("name", list_systems(available_only=True))
+# the gyrodyne (its own classify(): run by the diffrax engine) in the full suite (CI's 10 minutes)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "gyrodyne" else n
+                                  for n in list_systems(available_only=True)])
 def test_lanewise_evaluation_equals_vmap(name):
     """The lane-wise evaluator (slices/dots/pow as per-element ops) computes what vmap computes."""
     S = get_system(name)

@@ -178,7 +178,9 @@ def test_generated_c_is_exact_where_it_should_be():
     assert em.pow_(x, np.float64(1.0), ["x", "1.0"], [np.float64, np.float64]) is x
 
 
-@pytest.mark.parametrize("name", list_systems(available_only=True))
+# the gyrodyne (its own classify(): run by the diffrax engine) in the full suite (CI's 10 minutes)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "gyrodyne" else n
+                                  for n in list_systems(available_only=True)])
 def test_translation_of_every_model_equals_jax(name):
     """rhs and observables compiled from the jaxprs equal JAX's, with constants folded and without."""
     S = get_system(name)

@@ -48,6 +48,7 @@ def test_native_equals_diffrax_at_every_horizon(ref):
     _check(native.solve(SYS, params(), ICFG, VCFG, threads=1), ref)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: test_fused.py's verdicts and summaries against the diffrax engine
 def test_fused_equals_diffrax_at_every_horizon(ref):
     _check(fast.solve(SYS, params(), ICFG, VCFG, lanes=4), ref)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import stabjax  # noqa: F401
 from stabjax.plan.spec import load_spec, make_plan
@@ -60,6 +61,7 @@ def test_no_mu_sweep_small_batch_is_classified_diverged():
     assert ds["theory_unstable_no_mu"].sel(use_mu=0.0).values.min() == 1
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the Saakyan loops run on the fused engine in test_reproduce_quick
 def test_generic_classifier_on_the_fused_engine():
     """No system-specific classify(): the fused engine takes all five loops, and the generic rules
     (size = |w1|/lam, diverge_size = SPIN_DIVERGE; noise floor floor_tol) give the shipped no-mu
