@@ -45,3 +45,55 @@ def rounded_like(x, quoted: str) -> float:
     figure is checked as the reference printed to the digits the document shows."""
     mant = quoted.lower().split("e")[0].lstrip("-0.").replace(".", "")
     return float(f"{x:.{max(len(mant), 1) - 1}e}")
+
+
+# Saakyan's B-1 closed loop from the paper's component formulas (docs/models/saakyan.md), plain NumPy
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def mu_111(w1, beta, I, lam, K, w0):
+    A, B, C = I
+    b1, b2, b3 = beta
+    p1, q1, r1 = w1
+    p0, q0, r0 = w0
+    return np.array([
+        -K * p1 - (K - lam * (B + C)) * (b3 * q1 - b2 * r1) - (B * q0 * r1 - C * r0 * q1),
+        -K * q1 - (K - lam * (A + C)) * (b1 * r1 - b3 * p1) - (C * r0 * p1 - A * p0 * r1),
+        -K * r1 - (K - lam * (A + B)) * (b2 * p1 - b1 * q1) - (A * p0 * q1 - B * q0 * p1),
+    ])
+
+
+def ref_b1(P):
+    """B-1 closed loop, torque components M_1..M_3 of docs/models/saakyan.md (omega0 harmonic program)."""
+    A, B, C = P["I"]
+    beta, lam, K = _unit(P["H"]), P["lam"], P["K"]
+    alpha = lam * K
+    b1, b2, b3 = beta
+
+    def w0f(t):
+        ph = np.asarray(P["w0f"]) * t + np.asarray(P["w0phi"])
+        return np.asarray(P["w0c"]) + np.asarray(P["w0a"]) * np.sin(ph), np.asarray(P["w0a"]) * np.asarray(P["w0f"]) * np.cos(ph)
+
+    def f(t, x):
+        p, q, r = x[:3]
+        S = x[3:]
+        a1, a2, a3 = S / np.linalg.norm(S)
+        (p0, q0, r0), (dp0, dq0, dr0) = w0f(t)
+        w1 = x[:3] - np.array([p0, q0, r0]) - lam * beta
+        mu = P["use_mu"] * mu_111(w1, beta, (A, B, C), lam, K, (p0, q0, r0))
+        M1 = mu[0] + A * dp0 + (q0 * C * r - r0 * B * q) + lam * (b2 * C * r - b3 * B * q) + alpha * (a1 - b1)
+        M2 = mu[1] + B * dq0 + (r0 * A * p - p0 * C * r) + lam * (b3 * A * p - b1 * C * r) + alpha * (a2 - b2)
+        M3 = mu[2] + C * dr0 + (p0 * B * q - q0 * A * p) + lam * (b1 * B * q - b2 * A * p) + alpha * (a3 - b3)
+        dp = (M1 - (C - B) * q * r) / A
+        dq = (M2 - (A - C) * r * p) / B
+        dr = (M3 - (B - A) * p * q) / C
+        Sd = np.cross(S, x[:3] - np.array([p0, q0, r0]))
+        return np.concatenate([[dp, dq, dr], Sd])
+
+    w00 = w0f(0.0)[0]
+    x0 = np.concatenate([w00 + lam * beta + np.asarray(P["dw0"]), _unit(P["S0"])])
+    return f, x0

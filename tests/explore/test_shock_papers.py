@@ -19,7 +19,7 @@ def test_saakyan_region_118_refuted_and_122_consistent_on_the_largest_axis():
     """I = (4,3,2), H0 = e_x, lam = 1. K = 4.5: (1.10) holds, l = sqrt(2.5) (the spurious circle), yet a shock of
     norm < l flips the body: its witness, re-integrated by SciPy's DOP853 from the paper's component formulas, ends
     resting away from the target. K = 8.5: (1.21) holds, radius 2, and no fatal shock is found below it."""
-    from systems.test_saakyan_systems import ref_b1
+    from references import ref_b1
 
     spec = load_shipped("saakyan_shock_max_axis")
     spec["grid"] = {"K": [4.5, 8.5]}
