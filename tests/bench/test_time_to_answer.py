@@ -4,10 +4,12 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 SWEEPS = Path(__file__).resolve().parents[2] / "stabjax" / "sweeps"
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: outcomes unchanged by the stops: tests/fold/test_early_stop.py and test_attractor_stop.py
 def test_stops_on_against_off_change_no_outcome():
     from benchmarks.peer_bench import run_stops
 

@@ -10,6 +10,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the refinement's brackets in tests/explore/test_refine.py
 def test_refine_alpha_bracket_matches_the_refinement_page():
     """`stabjax sweep sweeps/refine_alpha.toml`: the run count, bracket (to the digits it prints) and distance
     below the theorem's alpha = 2/3 that docs/guide/refinement.md quotes are what the refinement gives. Fails on

@@ -275,7 +275,8 @@ def _run(name, system, icfg, params=None):
 ESCAPE_CFG = IntegrateConfig(t1=20.0, rtol=RTOL, atol=ATOL, n_checkpoints=16, escape_radius=1e3)
 
 
-@pytest.mark.parametrize("name", _engines())
+# the fused engine (the GPU engine) in the full suite: its stops are the native engine's rules (CI's 10 minutes)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "fused" else n for n in _engines()])
 def test_escape_stops_at_the_first_accepted_state_outside_the_radius(name):
     """dy/dt = y, y0 = 1, radius 1e3: y leaves the ball at t* = ln 1000. The engines stop at the end
     of the first accepted step beyond it: the stop time lies after t* by less than one step, and
@@ -312,7 +313,7 @@ def test_system_escape_radius_and_its_override(name):
     assert np.all(far["n_steps"] > 1.5 * near["n_steps"]) and np.all(far["n_steps"] < 2.5 * near["n_steps"] + 5)
 
 
-@pytest.mark.parametrize("name", _engines())
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "fused" else n for n in _engines()])  # fused: the full suite's
 def test_blow_up_stops_at_once_on_every_engine(name):
     """dy/dt = y^2, y0 = 1 is infinite at t = 1. Every engine stops there (status 1: the step size
     collapses to ~10 ulp of t, or the derivative overflows) after a number of steps of the order of

@@ -249,6 +249,7 @@ def test_classifier_update_equals_jax():
         np.testing.assert_allclose(c_flat, ref, rtol=1e-13, atol=0, equal_nan=True)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the engine recorded: tests/app/test_cli.py; progress: test_progress_and_interruption
 def test_sweep_runs_native_with_progress_and_records_engine(tmp_path):
     from stabjax.run.sweep import run_spec
 

@@ -53,6 +53,7 @@ def test_fused_equals_diffrax_at_every_horizon(ref):
     _check(fast.solve(SYS, params(), ICFG, VCFG, lanes=4), ref)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: features across engines: tests/fold/test_verdict.py's window-std test, the examples against SciPy
 def test_observable_features_in_every_engine():
     """feat_* per observable over the feature window, the same in every engine."""
     cfg = VCFG.replace(features=True)

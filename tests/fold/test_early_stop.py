@@ -110,7 +110,7 @@ def test_autonomy_is_read_from_the_jaxpr():
     assert not stops.is_autonomous(duff.system) and duff.icfg.early_stop is False
 
 
-@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize("engine", [pytest.param(n, marks=pytest.mark.slow) if n == "fused" else n for n in ENGINES])  # fused: the full suite's
 def test_a_saddle_never_stops(engine):
     plan = make_plan(_spec(Saddle, engine=engine, early_stop=True))
     assert stops.active(plan.integrated, plan.icfg)

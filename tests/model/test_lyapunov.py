@@ -76,7 +76,7 @@ def test_tangent_is_integrated_only_on_request():
     assert make_plan(base).lyapunov
 
 
-@pytest.mark.parametrize("engine", ["native", "fused", "diffrax"])
+@pytest.mark.parametrize("engine", ["native", pytest.param("fused", marks=pytest.mark.slow), "diffrax"])  # fused: the full suite's
 def test_linear_equilibrium_exponent_every_engine(engine):
     """lambda_1 = max Re eig A = -0.3. In the slow block log|v| oscillates within ln kappa(V) of the
     exponential (V: A's eigenvectors), the fast direction dies as exp(-0.7 t_w): so over a window of

@@ -2,6 +2,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from stabjax.plan.spec import make_plan
 
@@ -54,6 +55,7 @@ def test_fingerprint_changes_with_spec():
     assert plan(grid={"alpha": [0.4]}).fingerprint() != plan(grid={"alpha": [0.5]}).fingerprint()
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: a 24,000-time-unit run; the horizon's warnings in tests/present/test_report.py
 def test_horizon_check_counts_changes():
     """alpha = 1/3 is 'flipped' at t1 = 3000 (the 2nd excursion is in the late window); alpha = 7/9 converged.
     At 8x the horizon (t1 = 24000, late window [12000, 24000]) alpha = 1/3 is flipped again: its 4th excursion,

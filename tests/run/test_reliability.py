@@ -28,7 +28,7 @@ def test_store_equal_to_out_or_its_map_is_refused_before_the_run(tmp_path, capsy
         assert not (tmp_path / "r.nc").exists() and not (tmp_path / "r.png").exists()
 
 
-@pytest.mark.parametrize("engine", ["native", "fused"])
+@pytest.mark.parametrize("engine", ["native", pytest.param("fused", marks=pytest.mark.slow)])  # fused: the full suite's
 def test_a_step_that_underflows_at_t0_fails_the_trajectory_instead_of_hanging(tmp_path, engine):
     # a derivative of 1e308 at t = 0: every step is rejected until h underflows to 0; the step counter
     # only counted steps with h > 0 and the collapse test (h < 10 ulp of |t|) is never true at t = 0,

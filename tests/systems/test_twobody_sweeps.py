@@ -53,8 +53,9 @@ def test_near_unstable_and_b_rate_end_to_end():
     assert abs(ds["derived_b_star_physical"].values[-1, 0, 0] - 6 * 2.3458 / 3) < 1e-3
 
 
-@pytest.mark.parametrize("name", ["twobody_uniaxial", pytest.param("twobody_triaxial_rotating", marks=pytest.mark.slow)])
-def test_generic_classifier_on_the_fused_engine(name):  # the second in the full suite (CI's 10 minutes)
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the loops against SciPy in test_twobody_reference.py, reproduce --quick
+@pytest.mark.parametrize("name", ["twobody_uniaxial", "twobody_triaxial_rotating"])
+def test_generic_classifier_on_the_fused_engine(name):
     """No system-specific classify(): the fused engine takes these loops (no primitive without a
     lane-wise rule) and the default start converges there."""
     from stabjax.engines import fused as fast
