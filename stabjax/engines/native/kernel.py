@@ -224,6 +224,25 @@ static double initial_step(const job_t *jb, double *Y, double *F, double *YT, do
     return 100 * h0 < h1 ? 100 * h0 : h1;
 }}
 
+/* each lane's FIFO of observed checkpoints (time, observables): per thread, too large for the stack */
+static __thread double FT[W * QCAP], FO[W * QCAP * NO];
+
+/* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
+   calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block).
+   A function, not a macro: three sites drain, and each inlined copy of the classifier update costs GCC
+   about as much as the pass itself (a large model's kernel compiled ~20 % faster, results bit for bit) */
+static __attribute__((noinline)) void drain_one(const int L, const double *T, double *TC, double *OBS, double *C,
+                                                 double *CN, int *QH, int *QN) {{
+    const int p_ = QH[L];
+    for (int l_ = 0; l_ < W; l_++) TC[l_] = T[l_];  /* other lanes: computed, discarded */
+    TC[L] = FT[L * QCAP + p_];
+    for (int q = 0; q < NO; q++) OBS[q * W + L] = FO[(L * QCAP + p_) * NO + q];
+    #pragma omp simd
+    for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);
+    for (int q = 0; q < NC; q++) C[q * W + L] = CN[q * W + L];
+    QH[L] = (p_ + 1) % QCAP; QN[L]--;
+}}
+
 int64_t stabjax_run(const job_t *jb) {{
     /* per-lane flags and counters are doubles too (see CEmit): every simd loop is pure V8DF */
     double Y[NS * W] ALIGN, KS[7][NS * W] ALIGN, YT[NS * W] ALIGN, YN[NS * W] ALIGN, A[NA * W] ALIGN, C[NC * W] ALIGN,
@@ -231,13 +250,12 @@ int64_t stabjax_run(const job_t *jb) {{
         NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN, TV[NTV * W] ALIGN;
     /*FP_DECL*/
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
-    /* checkpoint items of one step, and each lane's FIFO of observed checkpoints (time, observables) */
+    /* checkpoint items of one step */
     double IT_[NI] ALIGN, PYT[NS * NI] ALIGN, PA[NA * NI] ALIGN, POBS[NO * NI] ALIGN;
     /* round 0: each lane's first checkpoint in a step (time of its next checkpoint, whether it has
        one in this step, its time, state and observables) */
     double NEXTT[W] ALIGN, R0[W] ALIGN, TC0[W] ALIGN, PY0[NS * W] ALIGN, OB0[NO * W] ALIGN;
     int IL[NI] ALIGN;
-    static __thread double FT[W * QCAP], FO[W * QCAP * NO];
     int QH[W], QN[W];
     const int64_t n = jb->n, K = jb->K;
     const double *ts = jb->ts;
@@ -262,18 +280,7 @@ int64_t stabjax_run(const job_t *jb) {{
         }} else {{ IDX[l] = -1; ACT[l] = 0.0; NEXTT[l] = INFINITY; }} \\
     }} while (0)
 
-/* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
-   calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block) */
-#define DRAIN_ONE(L) do {{ \\
-        const int p_ = QH[L]; \\
-        for (int l_ = 0; l_ < W; l_++) TC[l_] = T[l_];  /* other lanes: computed, discarded */ \\
-        TC[L] = FT[(L) * QCAP + p_]; \\
-        for (int q = 0; q < NO; q++) OBS[q * W + (L)] = FO[((L) * QCAP + p_) * NO + q]; \\
-        _Pragma("omp simd") \\
-        for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W); \\
-        for (int q = 0; q < NC; q++) C[q * W + (L)] = CN[q * W + (L)]; \\
-        QH[L] = (p_ + 1) % QCAP; QN[L]--; \\
-    }} while (0)
+#define DRAIN_ONE(L) drain_one((L), T, TC, OBS, C, CN, QH, QN)
 
 /* append an observed checkpoint (time TT, observables OO[q * STRIDE]) to lane L's FIFO */
 #define PUSH(L, TT, OO, STRIDE) do {{ \\
