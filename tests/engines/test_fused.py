@@ -87,6 +87,7 @@ def test_verdicts_and_summaries_match_diffrax_engine(fused):
     assert np.all(fused["n_steps"] <= 1.6 * ref["n_steps"] + 50)
 
 
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: folding on the native engine (test_native.py's threads/width/static-folding test) and the folded fused engine against diffrax (test_final_states_match_diffrax)
 def test_constant_folding_single_device_and_no_refill_change_nothing(fused):
     # every parameter lane-varying, one device, one lane per trajectory
     other = fast.solve(SYS, batch(), ICFG, SYS.verdict, lanes=8, n_devices=1, static=[], with_state=True)
