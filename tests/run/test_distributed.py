@@ -24,7 +24,6 @@ from test_store import TINY  # the store tests' 4 x 4 map, resumed here across w
 ROOT = Path(__file__).resolve().parents[2]
 
 
-
 @pytest.fixture(scope="module")
 def plan():
     return make_plan(tomllib.loads(TINY))

@@ -230,7 +230,8 @@ static __thread double FT[W * QCAP], FO[W * QCAP * NO];
 /* one item of lane L through the same vector code as a classifier pass (the scalar build of f_upd
    calls scalar libm, whose last bit may differ: results would depend on which lanes shared a block).
    A function, not a macro: three sites drain, and each inlined copy of the classifier update costs GCC
-   about as much as the pass itself (a large model's kernel compiled ~20 % faster, results bit for bit) */
+   about as much as the pass itself (paper A's kernel: 14.3 / 11.2 s -> 8.3 / 8.9 s of code generation and
+   compile, results bit for bit; docs/performance.md) */
 static __attribute__((noinline)) void drain_one(const int L, const double *T, double *TC, double *OBS, double *C,
                                                  double *CN, int *QH, int *QN) {{
     const int p_ = QH[L];
