@@ -78,8 +78,7 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
     max_b = max(1, limit // per)
     if batch_size is None:
         return int(min(plan.size, default_batch(plan), max_b))
-    if batch_size < 1:
-        raise ValidationError("batch_size", f"must be >= 1, got {batch_size}")
+    _positive_batch(batch_size)
     if batch_size > max_b:
         raise ValidationError(
             "batch_size",
@@ -87,6 +86,20 @@ def choose_batch_size(plan: Plan, batch_size: int | None, memory_limit: int | No
             f"(limit {limit / 2**30:.2f} GiB); use at most {max_b}",
         )
     return int(min(batch_size, plan.size))
+
+
+def _refuse_before_compiling(plan: Plan, batch_size: int | None) -> None:
+    """What can be refused without the engine: every trajectory's parameters (``check_plan``) and a batch size
+    below one. Resolving the engine compiles its kernel (seconds to tens of seconds for a new model), which a
+    spec with ``mu = 0.5`` in its grid should not wait for."""
+    if batch_size is not None:
+        _positive_batch(batch_size)
+    check_plan(plan)
+
+
+def _positive_batch(batch_size: int) -> None:
+    if batch_size < 1:
+        raise ValidationError("batch_size", f"must be >= 1, got {batch_size}")
 
 
 class _Memory:
@@ -183,6 +196,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     from . import store as S
 
     setup_jax()
+    _refuse_before_compiling(plan, batch_size)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
 
     store_path = Path(store) if store is not None else (default_store(out) if out is not None else None)
@@ -191,8 +205,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     if batch_size is None and plan.icfg.attractor_stop and plan.size >= 2 * PILOT_MIN:
         # the recurrence stop learns the attractors from the first chunk: an eighth of the run (_run_chunks)
         batch_size = min(choose_batch_size(plan, None, memory_limit), max(PILOT_MIN, -(-plan.size // 8)))
-    batch = choose_batch_size(plan, batch_size, memory_limit)  # first: refuse impossible sizes before touching them
-    check_plan(plan)
+    batch = choose_batch_size(plan, batch_size, memory_limit)  # refuse impossible sizes before touching them
     state = derive.prepare(plan)  # templates integrated and checked before the store exists: a refusal leaves nothing
     n = plan.size
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
@@ -261,6 +274,7 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
 
     setup_jax()
     values = np.ascontiguousarray(np.asarray(values, float).reshape(-1, len(plan.grid)))
+    _refuse_before_compiling(dataclasses.replace(plan, points=values), batch_size)
     plan = dataclasses.replace(engines.resolve_plan(plan, static=static_params(plan)), points=values)
     if batch_size is None and store is not None and not restart:
         batch_size = S.stored_batch(Path(store))  # a resume keeps the chunking it started with
@@ -269,7 +283,6 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
         batch_size = min(max(64, 1 << (b - 1).bit_length()), default_batch(plan)) if _engine(plan).compiles_per_shape \
             else b
     batch = choose_batch_size(plan, batch_size, memory_limit)
-    check_plan(plan)
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}  # the points: in the plan's identity
     sink = S.ChunkStore(store, plan, batch, overrides=overrides, restart=restart) if store is not None \
         else _Memory(plan, batch)

@@ -299,7 +299,14 @@ def test_cli_bad_spec_exit_2(tmp_path, capsys, body, field):
     assert spec.read_text() == body and sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
 
 
-def test_cli_bad_options_exit_2(tmp_path, capsys):
+def test_cli_bad_options_exit_2(tmp_path, capsys, monkeypatch):
+    import stabjax.engines as E
+
+    def compiled(*args, **kwargs):  # a refusal does not wait for an engine's kernel to compile
+        raise AssertionError("the engine was resolved before the options were refused")
+
+    monkeypatch.setattr(E, "resolve_plan", compiled)
+    monkeypatch.setattr(E, "resolve", compiled)
     spec = tmp_path / "tiny.toml"
     spec.write_text(TINY)
     for args, field in [

@@ -132,7 +132,16 @@ def test_resume_after_interrupt(tmp_path):
         ('system = "monoaxial"\n[grid]\nalpha = [0.5, -1]\n', "grid.alpha"),
     ],
 )
-def test_bad_specs_name_the_field(tmp_path, capsys, body, field):
+def test_bad_specs_name_the_field(tmp_path, capsys, monkeypatch, body, field):
+    """Each refused naming its field, before the engine is resolved: resolving it compiles a kernel (seconds for
+    a new model), which a refusal must not wait for."""
+    import stabjax.engines as E
+
+    def compiled(*args, **kwargs):
+        raise AssertionError("the engine was resolved before the spec was refused")
+
+    monkeypatch.setattr(E, "resolve_plan", compiled)
+    monkeypatch.setattr(E, "resolve", compiled)
     spec = tmp_path / "bad.toml"
     spec.write_text(body)
     out = tmp_path / "bad.nc"
