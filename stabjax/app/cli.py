@@ -23,9 +23,12 @@ from rich.markup import escape
 from . import model_cmds, paper_cmds, result_cmds, sweep_cmds
 from .common import console, err_console
 
+HELP = ("stabjax: batch stability explorer. Sweeps an ODE model (the four built-in papers' or your own) over "
+        "parameters and starts, gives every trajectory an outcome, and maps basins against theorems' bounds.")
+
 # rich_markup_mode=None: the help is plain text, so "[refine]" in a docstring is shown, not eaten as a tag
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
-                  help="stabjax: batch stability explorer for rigid-body attitude control.")
+                  help=HELP)
 for _name, _fn in (("systems", model_cmds.systems), ("simulate", model_cmds.simulate), ("theory", model_cmds.theory),
                    ("sweep", sweep_cmds.sweep), ("export", sweep_cmds.export), ("plot", result_cmds.plot_cmd),
                    ("report", result_cmds.report_cmd), ("view", result_cmds.view_cmd),
@@ -45,7 +48,7 @@ def _version_callback(value: bool):
 @app.callback()
 def _root(version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
                                        help="print the version and exit")):
-    """stabjax: batch stability explorer for rigid-body attitude control."""
+    """stabjax: batch stability explorer."""
 
 
 def _click_exception() -> type[Exception]:

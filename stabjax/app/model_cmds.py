@@ -35,8 +35,8 @@ def systems(
     """List the systems (built in, registered, installed by packages), one line each; describe one with NAME.
 
     The list stays one line per system so it fits a screen and greps well; the parameters,
-    state, observables and outcomes of one system are shown with ``stabjax systems NAME``
-    (``--json`` gives everything for all of them)."""
+    state, observables and outcomes of one system are shown with 'stabjax systems NAME'
+    (--json gives everything for all of them)."""
     import numpy as np
 
     from ..errors import ValidationError

@@ -51,7 +51,7 @@ def bench(
 ):
     """Benchmark against named baselines in one process (figures in docs/guide/benchmarks.md and docs/performance.md).
 
-    The benchmarks are research code kept beside the tests in a source checkout (``benchmarks/``), not
+    The benchmarks are research code kept beside the tests in a source checkout (benchmarks/), not
     in the installed package: run this from the top of a clone."""
     from .. import validate
     from ..errors import ValidationError
@@ -104,7 +104,7 @@ def examples_cmd(
     force: bool = typer.Option(False, "--force", help="replace example files that already exist in DEST"),
 ):
     """Copy the shipped examples (user models outside attitude control: spec + model + figure) out of the
-    installed package, so a wheel's user can run them: ``stabjax sweep DEST/duffing/spec.toml``."""
+    installed package, so a wheel's user can run them: stabjax sweep DEST/duffing/spec.toml."""
     from ..errors import ValidationError
     from ..reproduce import copy_examples
 

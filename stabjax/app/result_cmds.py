@@ -144,7 +144,7 @@ def horizon_check_cmd(
 ):
     """Re-run a random subset at a longer horizon and report how many verdicts change.
 
-    The sweep's dataset already holds the verdicts at t1 and the decades below it (dim ``horizon``,
+    The sweep's dataset already holds the verdicts at t1 and the decades below it (dimension 'horizon',
     from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
     from .. import validate
     from ..fold import verdict as V

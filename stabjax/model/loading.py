@@ -214,6 +214,8 @@ def _load_file(path: Path, cls_name: str, ref: str):
     and of every local module it imported on the class (``_stabjax_sources``: the identity)."""
     if not path.exists():
         raise ValidationError("system", f"model file not found: {path} (from {ref!r})")
+    if path.is_dir():
+        raise ValidationError("system", f"{path} is a folder: a model is given as 'file.py:Class' (from {ref!r})")
     if path.suffix != ".py":
         raise ValidationError("system", f"{path}: a model file must be a Python file (.py)")
     path = path.resolve()
@@ -221,6 +223,8 @@ def _load_file(path: Path, cls_name: str, ref: str):
         source = path.read_bytes()
     except OSError as exc:
         raise ValidationError("system", f"{path}: cannot read the model file ({exc})") from None
+    if b"\0" in source:
+        raise ValidationError("system", f"{path}: not a Python source file (it holds NUL bytes)")
     digest = hashlib.sha256(str(path).encode()).hexdigest()[:12]
     mod_name = f"stabjax_user_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
@@ -260,6 +264,7 @@ def _load_file(path: Path, cls_name: str, ref: str):
         found = sorted(k for k, v in vars(module).items() if inspect.isclass(v) and v.__module__ == mod_name)
         raise ValidationError("system", f"{path}: no class {cls_name!r} (classes defined there: "
                                         f"{', '.join(found) or 'none'})")
+    _require_class(cls, f"{path}: {cls_name}")
     if inspect.isclass(cls):
         cls._stabjax_source = str(path)
         sources = {str(path): hashlib.sha256(source).hexdigest()}
@@ -316,6 +321,7 @@ def _load_module(mod: str, cls_name: str, ref: str):
     cls = getattr(module, cls_name, None)
     if cls is None:
         raise ValidationError("system", f"module {mod!r} has no attribute {cls_name!r}")
+    _require_class(cls, f"{mod}:{cls_name}")
     if inspect.isclass(cls) and "_stabjax_sources" not in vars(cls):
         src = local_sources(cls, set(sys.modules) - before)
         if src:
@@ -323,11 +329,23 @@ def _load_module(mod: str, cls_name: str, ref: str):
     return cls
 
 
+def _require_class(obj, where: str) -> None:
+    """A model reference names a class; ``X = 5`` in the file is refused with the name the user wrote."""
+    if not inspect.isclass(obj):
+        shown = repr(obj)
+        kind = type(obj).__name__
+        raise ValidationError("system", f"{where} is {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
+                                        f"({shown if len(shown) <= 40 else shown[:37] + '...'}), "
+                                        "not a class: a model is a stabjax.System subclass")
+
+
 def _last_line(exc: BaseException) -> str:
     """``Type: message (line N of file)``, pointing at the innermost frame outside stabjax and importlib."""
     if isinstance(exc, SystemExit):
         return f"it called sys.exit({exc.code!r}); loading a model must not end the program"
     if isinstance(exc, SyntaxError):
+        if exc.lineno is None:
+            return f"SyntaxError: {exc.msg}"
         return f"SyntaxError: {exc.msg} (line {exc.lineno} of {Path(exc.filename or '?').name})"
     tb = [f for f in traceback.extract_tb(exc.__traceback__)
           if "importlib" not in f.filename and f"{Path(__file__).parent}" not in f.filename]
@@ -356,10 +374,12 @@ def resolve(ref: Any, base_dir: str | Path | None = None):
     if m is None:
         return get_system(ref)  # unknown name: the registry's error lists the known ones
     mod, cls_name = m.group("mod"), m.group("cls")
-    if mod.endswith(".py") or "/" in mod or "\\" in mod:
-        path = Path(mod)
-        if not path.is_absolute() and base_dir is not None:
-            path = Path(base_dir) / path
+    path = Path(mod)
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    # an existing file ('notes.txt:X') or a relative path ('.:X') is a file reference, refused by _load_file as not a
+    # .py file, rather than a module name that importlib misreads ('No module named notes', a relative import)
+    if mod.endswith(".py") or "/" in mod or "\\" in mod or mod.startswith(".") or path.is_file():
         # one object per unchanged model (its file and the local modules it imports): the engines'
         # compiled kernels are cached per system object
         key = (str(path.resolve()), cls_name)

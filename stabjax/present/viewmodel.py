@@ -235,7 +235,7 @@ class Result:
             found = {a["name"]: a for a in kit.attractors(self.ds)}
             a = found.get(self.names_colors()[0][code])
             return [("assigned by", "attractor discovery: grouped by its late-window features with "
-                     + (f"{a['count']:,} trajectories on one {a['type'].replace('_', ' ')}" if a else
+                     + (f"{a['count']:,} {'trajectory' if a['count'] == 1 else 'trajectories'} on one {a['type'].replace('_', ' ')}" if a else
                         "no group (too far from every attractor found)"))]
         decl = sch.decl
         system = self.plan.system

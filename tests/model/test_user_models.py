@@ -227,3 +227,22 @@ def test_model_reference_forms():
     with pytest.raises(ValidationError, match="must be a system name"):
         resolve(42)
     assert resolve("stabjax.systems.monoaxial:Monoaxial").state_size == 6
+    with pytest.raises(ValidationError, match=r"monoaxial:__name__ is a str \('stabjax.systems.monoaxial'\), not a class"):
+        resolve("stabjax.systems.monoaxial:__name__")
+
+
+def test_model_references_that_are_not_model_files_say_what_they_are(tmp_path):
+    """A text file, a folder, a binary file and a name bound to a number: each refused saying what it is, not
+    with importlib's reading of it ('No module named notes', a relative import, 'line None')."""
+    from stabjax.model.loading import resolve
+
+    (tmp_path / "notes.txt").write_text("x = 1\n")
+    (tmp_path / "five.py").write_text("X = 5\n")
+    (tmp_path / "blob.py").write_bytes(b"a\0b")
+    for ref, needle in [("notes.txt:X", "notes.txt: a model file must be a Python file (.py)"),
+                        (".:X", "is a folder: a model is given as 'file.py:Class'"),
+                        ("five.py:X", "five.py: X is an int (5), not a class"),
+                        ("blob.py:X", "blob.py: not a Python source file (it holds NUL bytes)")]:
+        with pytest.raises(ValidationError) as exc:
+            resolve(ref, base_dir=tmp_path)
+        assert exc.value.field == "system" and needle in exc.value.message, (ref, exc.value.message)
