@@ -152,7 +152,9 @@ def simulate(
         if out is not None:
             console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False)
     if not final["solver_ok"]:
-        err_console.print(f"[red]solver failed (diffrax status {ds.attrs['solver_status']})[/red]")
+        from ..fold.status import describe
+
+        err_console.print(f"did not reach t1 = {final['t']:g}: {describe(ds.attrs['solver_status'])}", markup=False)
         raise typer.Exit(1)
 
 

@@ -63,3 +63,16 @@ def outcomes(status, code, *, escape: int | None, failed: int):
     none declared, so failed) where it escaped, ``failed`` for every other status."""
     out = np.where(succeeded(status), code, failed)
     return np.where(escaped(status), failed if escape is None else escape, out)
+
+
+def describe(code: int) -> str:
+    """Why a trajectory stopped short of t1, in a user's words (``stabjax simulate``'s message)."""
+    code = int(code)
+    if code == MAX_STEPS:
+        return ("the step budget ran out, the step size collapsed, or the state or its derivative became "
+                "non-finite (NaN/inf); a larger [integrate] max_steps helps only in the first case")
+    if code == ESCAPED:
+        return "the state left the escape radius"
+    name = DIFFRAX_RESULTS[code] if 0 <= code < len(DIFFRAX_RESULTS) else "unknown"
+    return f"the solver failed ({name.replace('_', ' ')}, code {code})"
+

@@ -432,8 +432,12 @@ def test_solver_failure_exits_1(capsys, monkeypatch):
 
     monkeypatch.setattr(engine, "simulate", functools.partial(engine.simulate, max_steps=3))
     code, out, err = cli(capsys, "simulate", "monoaxial", "--t1", "100")
-    assert code == 1 and "solver failed" in err
+    assert code == 1 and "did not reach t1 = 100: the step budget ran out" in err
     assert_clean(out, err)
+    from stabjax.fold.status import describe
+
+    assert describe(100) == "the state left the escape radius"
+    assert describe(9) == "the solver failed (nonfinite, code 9)" and "unknown, code 77" in describe(77)
 
 
 def test_interrupt_exits_130(tmp_path, capsys, monkeypatch):
