@@ -58,3 +58,21 @@ def test_nan_observables_are_failed_on_every_engine(engine, discover):
     rest = {g for g, n in zip(got, neg) if not n}
     assert rest == ({"fixed_point_1"} if discover else {"high"}), rest
     assert run_status(ds) == 1  # the sweep's exit status for failed trajectories
+
+
+def test_the_view_says_why_a_nan_observable_is_failed(tmp_path):
+    """Before, the explanation walked the rules: "rule low holds ... assigned by rule low" beside the
+    outcome "failed"."""
+    import inspect
+
+    from stabjax.present.viewmodel import Result
+
+    src = "import jax.numpy as jnp\nfrom stabjax import Outcomes, Param, ParamSet, System\n\n" + inspect.getsource(NanObs)
+    (tmp_path / "nanobs.py").write_text(src)
+    out = tmp_path / "r.nc"
+    run_plan(make_plan({"system": f"{tmp_path / 'nanobs.py'}:NanObs", "name": "nanobs",
+                        "grid": {"x0": [-0.5, 0.5]}, "integrate": {"t1": 20.0, "n_checkpoints": 50}}), out)
+    r = Result(out)
+    failed = dict(r.explain(0))
+    assert failed["outcome"] == "failed" and "NaN or infinite" in failed["features"] and "assigned by" not in failed
+    assert dict(r.explain(1))["assigned by"].startswith("rule high")
