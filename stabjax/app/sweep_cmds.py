@@ -200,9 +200,28 @@ def _start_executor(executor, scheduler: str | None, timeout: float) -> None:
                                      "check the address, or raise --connect-timeout") from None
 
 
+def _failed_why(ds, failed, out: Optional[Path] = None) -> str:
+    """Why the ``failed`` trajectories failed, in words, and where to look: a failure the solver reported
+    and one it did not (it reached t1, but an observable the outcome reads was NaN or infinite) need
+    different fixes."""
+    import numpy as np
+
+    solver = "the solver did not reach t1" + (f" (see solver_status in {out})" if out is not None else "")
+    status = np.asarray(ds["solver_status"].values).ravel() if "solver_status" in ds else None
+    if status is None or status.shape != failed.shape or not (failed & (status == 0)).any():
+        return solver
+    nonfinite = int((failed & (status == 0)).sum())
+    obs = ("an observable the outcome reads was NaN or infinite in the late window although the solver reached t1"
+           + (f" (see feat_final in {out})" if out is not None else ""))
+    if nonfinite == int(failed.sum()):
+        return obs
+    return f"{int(failed.sum()) - nonfinite} where {solver}, {nonfinite} where {obs}"
+
+
 def run_status(ds, out: Optional[Path] = None) -> int:
     """The exit status a finished sweep deserves: 0 when every trajectory is classified, 1 (said in one
-    line) when some failed (the solver did not reach t1), or when named outcomes classified none."""
+    line) when some failed (the solver did not reach t1, or an observable the outcome reads was not
+    finite), or when named outcomes classified none."""
     import numpy as np
 
     from ..fold import verdict as V
@@ -218,8 +237,8 @@ def run_status(ds, out: Optional[Path] = None) -> int:
         failed = int((codes == names.index("failed")).sum()) if "failed" in names else 0
         unclassified = int((codes == names.index("unclassified")).sum()) if "unclassified" in names else 0
         if failed:
-            err_console.print(f"{failed} of {n} trajectories failed: the solver did not reach t1{where}; "
-                              "exit status 1", style="red", markup=False)
+            err_console.print(f"{failed} of {n} trajectories failed: {_failed_why(ds, codes == names.index('failed'), out)}"
+                              "; exit status 1", style="red", markup=False)
             return 1
         if n and unclassified == n:
             why = ("no attractor was found: no min_samples trajectories lie within eps of one another"

@@ -96,7 +96,7 @@ class Labeller:
     def _discovered(self, results):
         """Discovery on the first round (the unshocked starts and the scan), pooled over the grid points; later
         trajectories join the group of their nearest grouped one within ``eps`` (discovery's own border rule),
-        or are unclassified."""
+        or are unclassified; non-finite features are failed, as in a sweep (:func:`stabjax.fold.status.outcomes`)."""
         from sklearn.neighbors import NearestNeighbors
 
         from ..fold import status as S
@@ -125,9 +125,9 @@ class Labeller:
                 d, j = NearestNeighbors(n_neighbors=1).fit(x).kneighbors(y[ok])
                 lab[ok] = np.where(d[:, 0] <= cfg.eps, lab_ref[j[:, 0]], -1)
         code = np.where(lab >= 0, lab, self.names.index(O.UNCLASSIFIED))
-        if plan.escape_radius is not None:
-            code = np.where(status == S.ESCAPED, self.names.index(plan.scheme.decl.escape), code)
-        code = np.where((status != 0) & (status != S.ESCAPED), self.names.index(O.FAILED_NAME), code)
+        escape = self.names.index(plan.scheme.decl.escape) if plan.escape_radius is not None else None
+        code = S.outcomes(status, code, escape=escape, failed=self.names.index(O.FAILED_NAME),
+                          finite=O.finite_features(results, obs))
         return code.astype(np.int16)
 
 

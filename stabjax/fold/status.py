@@ -58,10 +58,16 @@ def verdicts(status, verdict):
     return np.where(esc, _DIVERGED, verdict).astype(verdict.dtype)
 
 
-def outcomes(status, code, *, escape: int | None, failed: int):
+def outcomes(status, code, *, escape: int | None, failed: int, finite=None):
     """Outcome codes: ``code`` where the solver succeeded, ``escape`` (the declared escape outcome; None:
-    none declared, so failed) where it escaped, ``failed`` for every other status."""
-    out = np.where(succeeded(status), code, failed)
+    none declared, so failed) where it escaped, ``failed`` for every other status.
+
+    ``finite``: (N,) False where a feature the outcome reads is NaN or infinite although the solver reached
+    t1 (:func:`stabjax.model.outcomes.finite_features`); failed too, as the verdicts treat a non-finite
+    checkpoint: a rule or a grouping of NaN features is no classification. An escaped trajectory keeps
+    its escape outcome (it stopped before its window)."""
+    ok = succeeded(status) if finite is None else succeeded(status) & finite
+    out = np.where(ok, code, failed)
     return np.where(escaped(status), failed if escape is None else escape, out)
 
 

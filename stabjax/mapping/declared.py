@@ -12,7 +12,8 @@ assigns them. Codes are, in this order (first match wins):
    templates' feature vectors at that point, so the assignment is never a close call between two);
 3. the **escape** outcome (``escaped``, or as ``escape`` names it) when the plan has an escape radius
    and the trajectory left it;
-4. ``unclassified``: no rule holds and no template is near; 5. ``failed``: the solver did not reach t1.
+4. ``unclassified``: no rule holds and no template is near; 5. ``failed``: the solver did not reach t1,
+   or an observable that a rule or a template feature reads is not finite in the window.
 """
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..fold import status as S
-from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, Outcomes, _names, feature_getter, feature_matrix, parse
+from ..model.outcomes import (FAILED_NAME, UNCLASSIFIED, Outcomes, _names, feature_getter, feature_matrix,
+                              finite_features, parse)
 from .mapper import Mapper, OutcomeScheme, grid_layout, outcome_names
 
 COINCIDE_RTOL = 1e-6  # feature vectors this close (relative to their size) are one attractor
@@ -114,7 +116,9 @@ def assign(sch: OutcomeScheme, system, results: Mapping[str, np.ndarray], params
         code = np.where((code < 0) & ok, len(decl.rules) + j, code)
     unclassified, failed = names.index(UNCLASSIFIED), names.index(FAILED_NAME)
     code = np.where(code < 0, unclassified, code)
-    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed)
+    finite = finite_features(results, tuple(system.observables), decl.observables_read(system))
+    code = S.outcomes(status, code, escape=names.index(decl.escape) if decl.escape in names else None, failed=failed,
+                      finite=finite)
     return code.astype(np.int8)
 
 

@@ -23,7 +23,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    themselves (a small basin missed by the subsample is found there), until none is left or no
    group forms; a trajectory left over within ``eps`` of a grouped one joins its group (the
    subsample is sparser than the whole set, whose DBSCAN would have made it a border point); the
-   rest is ``unclassified`` (e.g. trajectories still in a transient). Linear in N
+   rest is ``unclassified`` (e.g. trajectories still in a transient); a trajectory with a NaN or
+   infinite feature is ``failed``, as a solver failure is, never grouped nor unclassified. Linear in N
    after the subsample: 10^5 trajectories take about a second (``docs/performance.md``).
    Trajectories **at rest** -- stopped at a stable equilibrium by the fixed-point stop, or with every
    observable's window std within :func:`rest_threshold` (the stop's 1000 solver tolerances, or
@@ -74,7 +75,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..fold.stops import DISTANCE_TOL, STOP_FIXED_POINT, is_autonomous
-from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig  # [outcomes.discovery]: the declaration's
+from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig, finite_features  # [outcomes.discovery]: the declaration's
 from .mapper import Mapped, Mapper, OutcomeScheme, outcome_names
 
 STATS = ("mean", "std", "min", "max")
@@ -437,11 +438,8 @@ class Discovery(Mapper):
                                   f"{2 * cfg.min_samples} trajectories): more than the {MAX_CODES} outcome codes hold; "
                                   "raise eps or min_samples")
         code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
-        ok = status == 0
-        if self.escape:
-            code = np.where(status == S.ESCAPED, names.index(decl.escape), code)
-            ok = ok | (status == S.ESCAPED)
-        code = np.where(ok, code, names.index(FAILED_NAME)).astype(np.int8)
+        code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
+                          failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
         data, coords = _attractor_vars(plan, disc, results, cfg)
         if events is not None:
             ax = plan.grid[0]

@@ -18,7 +18,8 @@ them is the mapping's (:mod:`stabjax.mapping.mapper`: one mapper per plan). Code
 3. ``escaped`` (renamed by ``escape = "unbounded"``) when the system or spec sets
    ``escape_radius``: the integration stops once max_i |y_i| exceeds it;
 4. ``unclassified``: no rule holds and no template is near;
-5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN).
+5. ``failed``: the solver did not reach t1 (max steps, step-size collapse, NaN), or an observable
+   that the outcome reads is NaN or infinite in the window (:func:`finite_features`).
 
 Nothing is absorbed silently: 4 and 5 are always present (:mod:`stabjax.mapping.declared`). A system
 that declares no outcomes gets its attractors discovered (:mod:`stabjax.mapping.discover`:
@@ -465,6 +466,17 @@ class Outcomes:
         if self.max_distance is not None and not self.max_distance > 0:
             raise ValidationError(f"{where}.max_distance", f"must be > 0, got {self.max_distance}")
 
+    def observables_read(self, system) -> tuple[str, ...]:
+        """The observables (and ``lyapunov``) that the rules and the template features name: a non-finite
+        value in any of them makes a trajectory failed (:func:`finite_features`), whichever statistic of it
+        a rule happens to read."""
+        obs, scalars = _names(system)
+        texts = [(t, True) for t in self.rules.values()] + [(t, False) for t in (self.features if self.templates else ())]
+        read: set[str] = set()
+        for t, boolean in texts:
+            read |= {o for _, o in parse(t, obs, scalars, "outcomes", boolean).used}
+        return tuple(o for o in (*obs, LYAPUNOV) if o in read)
+
     def default_distance_note(self, where: str = "outcomes") -> str:
         """One line for the user when the template distance is unbounded ("" otherwise): with a single
         template and no ``max_distance``, every trajectory that no rule claims is assigned to it."""
@@ -487,6 +499,32 @@ def feature_getter(results: Mapping[str, np.ndarray], observables: tuple[str, ..
         return np.asarray(results[f"feat_{stat}"])[:, index[obs]]
 
     return feat
+
+
+def finite_features(results: Mapping[str, np.ndarray], observables: tuple[str, ...],
+                    read: tuple[str, ...] | None = None) -> np.ndarray:
+    """(N,) True where every late-window feature (max, min, mean, std, final) of the observables ``read``
+    (default: all) is finite, and ``lyapunov`` too when read.
+
+    A NaN or infinite observable in the window is a numerical failure that the solver need not see (an
+    observable such as sqrt(x) of a state that went negative): a comparison with NaN is False, so a
+    catch-all rule (``not (...)``) would claim the trajectory and discovery would leave it unclassified.
+    All five statistics are checked, not only the one a rule names: the fixed-point stop writes std = 0
+    at an equilibrium whose observables are NaN (:func:`stabjax.fold.stops.at_equilibrium`), and the native
+    engine's max and min can drop a NaN followed by a number (one select, :mod:`stabjax.engines.native.emit`)
+    where the sum (the mean) keeps it on every engine.
+    """
+    index = {o: i for i, o in enumerate(observables)}
+    cols = [index[o] for o in (observables if read is None else read) if o in index]
+    n = len(np.asarray(results["solver_status"]))
+    ok = np.ones(n, bool)
+    for stat in FEATURES:
+        key = f"feat_{stat}"
+        if cols and key in results:
+            ok &= np.all(np.isfinite(np.asarray(results[key], float)[:, cols]), axis=1)
+    if read is not None and LYAPUNOV in read and LYAPUNOV not in index and LYAPUNOV in results:
+        ok &= np.isfinite(np.asarray(results[LYAPUNOV], float))
+    return ok
 
 
 def feature_matrix(decl: Outcomes, system, feat, params) -> np.ndarray:

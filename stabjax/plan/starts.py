@@ -6,8 +6,10 @@ same rows at every grid point, as sampled starts are. Formats: ``.csv`` (a heade
 ``.npy`` (a 1-D structured array: field names), ``.nc`` (a netCDF file: 1-D variables along one dimension).
 Anything else is refused with the column named (a header naming a column twice, a variable along
 another dimension): a column read wrongly would run other starts than the file's without a word.
-A column ``label`` (or the one ``[sample] label = "NAME"`` names) holds the other tool's outcome of
-each start; it is not a parameter. The file's sha256 enters the sweep's identity (a resumed sweep
+Parameter columns hold finite real numbers: complex and bool columns are refused (float() would keep a
+complex number's real part, a bool as 0/1). A CSV is read as utf-8-sig, so Excel's byte-order mark is not
+part of the first column's name. A column ``label`` (or the one ``[sample] label = "NAME"`` names) holds the
+other tool's outcome of each start; it is not a parameter, and a blank label is refused with its row. The file's sha256 enters the sweep's identity (a resumed sweep
 whose file changed is refused like a changed spec).
 
 Comparison (:func:`compare`): outcome codes and file labels are different alphabets, so each of our
@@ -32,7 +34,15 @@ FORMATS = (".csv", ".npy", ".nc")
 
 
 def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
-    """Columns of a starts file: name -> 1-D array (numbers as float64, anything else as str)."""
+    """Columns of a starts file: name -> 1-D array (integers and reals as float64; complex, bool and
+    compound columns as stored, so that :func:`load` can refuse them as parameters instead of float()
+    cutting a complex number to its real part or taking a bool as 0/1; anything else as str)."""
+    return _read(path, field)[0]
+
+
+def _read(path: str | Path, field: str = "sample.from") -> tuple[dict[str, np.ndarray], list[str]]:
+    """:func:`read`, and where each start sits in the file, for messages: "line N" of a CSV (blank lines
+    and quoted line breaks counted, as an editor shows them), "start I" (from 0) of the others."""
     path = Path(path)
     if path.suffix not in FORMATS:
         raise ValidationError(field, f"{path.name}: unknown format; use one of {', '.join(FORMATS)}")
@@ -42,8 +52,13 @@ def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
         if path.suffix == ".csv":
             import csv
 
-            with open(path, newline="") as f:
-                rows = list(csv.reader(f))
+            # utf-8-sig: a BOM (Excel's "CSV UTF-8") is dropped, not read into the first column's name
+            with open(path, newline="", encoding="utf-8-sig") as f:
+                reader = csv.reader(f)
+                rows, lines = [], []
+                for r in reader:
+                    rows.append(r)
+                    lines.append(reader.line_num)
             if len(rows) < 2:
                 raise ValidationError(field, f"{path.name}: needs a header row and at least one start")
             head = [h.strip() for h in rows[0]]
@@ -51,7 +66,9 @@ def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
             if twice:  # a dict of columns would keep the last one and drop the other without a word
                 raise ValidationError(field, f"{path.name}: column {twice[0]!r} appears {head.count(twice[0])} times "
                                              "in the header; each column once")
-            body = [r for r in rows[1:] if any(c.strip() for c in r)]
+            keep = [i for i in range(1, len(rows)) if any(c.strip() for c in rows[i])]
+            body = [rows[i] for i in keep]
+            where = [f"line {lines[i]}" for i in keep]
             if any(len(r) != len(head) for r in body):
                 raise ValidationError(field, f"{path.name}: every row needs {len(head)} values")
             cols = {h: [r[i].strip() for r in body] for i, h in enumerate(head)}
@@ -86,13 +103,19 @@ def read(path: str | Path, field: str = "sample.from") -> dict[str, np.ndarray]:
         raise ValidationError(field, f"{path.name}: cannot read ({exc})") from None
     out = {}
     for name, values in cols.items():
+        kind = np.asarray(values).dtype.kind
+        if kind in "bcV":  # bool, complex, compound (a netCDF complex variable read without auto_complex)
+            out[name] = np.asarray(values)
+            continue
         try:
             out[name] = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
             out[name] = np.asarray(values, dtype=str)
     if len({len(v) for v in out.values()}) > 1:
         raise ValidationError(field, f"{path.name}: columns of different lengths")
-    return out
+    if path.suffix != ".csv":
+        where = [f"start {i}" for i in range(len(next(iter(out.values()), ())))]
+    return out, where
 
 
 def sha256(path: str | Path) -> str:
@@ -116,10 +139,12 @@ def load(sample_spec: Mapping[str, Any], system, base_dir: str | Path | None, gr
     label_col = sample_spec.get("label", "label")
     if not isinstance(label_col, str):
         raise ValidationError("sample.label", f"must be a column name, got {label_col!r}")
-    cols = read(path)
+    cols, where = _read(path)
     labels = cols.pop(label_col, None)
     if "label" in sample_spec and labels is None:
         raise ValidationError("sample.label", f"no column {label_col!r} in {path.name}")
+    if labels is not None:
+        labels = _labels(labels, label_col, where, path)
     if not cols:
         raise ValidationError("sample.from", f"{path.name}: no parameter column")
     for name, v in cols.items():
@@ -130,12 +155,32 @@ def load(sample_spec: Mapping[str, Any], system, base_dir: str | Path | None, gr
             raise ValidationError("sample.from", f"{path.name}: column {name!r}: only scalar parameters")
         if name in grid_names:
             raise ValidationError("sample.from", f"{path.name}: column {name!r} is also a grid axis")
+        if v.dtype.kind in "bcV":
+            raise ValidationError("sample.from", f"{path.name}: column {name!r} must hold real numbers")
         if v.dtype.kind != "f" or not np.all(np.isfinite(v)):
             raise ValidationError("sample.from", f"{path.name}: column {name!r} must hold finite numbers")
     n = len(next(iter(cols.values())))
     if "n" in sample_spec and sample_spec["n"] != n:
         raise ValidationError("sample.n", f"{path.name} holds {n} starts, not {sample_spec['n']}")
-    return cols, (None if labels is None else np.asarray(labels).astype(str)), path
+    return cols, labels, path
+
+
+def _labels(values: np.ndarray, column: str, where: list[str], path: Path) -> np.ndarray:
+    """The label column as str, refusing a blank (or NaN) label: a label is another tool's outcome of its
+    start, and a blank read as one more class would be mapped to an outcome and counted in the
+    agreement as if that tool had answered."""
+    values = np.asarray(values)
+    text = np.array([str(x) for x in values.tolist()]) if values.dtype.kind == "V" else values.astype(str)
+    blank = np.char.strip(text) == ""
+    if values.dtype.kind == "f":
+        blank |= np.isnan(values)
+    if blank.any():
+        i = int(np.flatnonzero(blank)[0])
+        more = f" (and {int(blank.sum()) - 1} more)" if blank.sum() > 1 else ""
+        raise ValidationError("sample.from", f"{path.name}: column {column!r} is blank at {where[i]}{more}: every "
+                                             "start needs its label (the other tool's outcome); fill it in, or drop "
+                                             "those starts")
+    return text
 
 
 def compare(outcome_names: list[str], codes: np.ndarray, labels: np.ndarray) -> dict[str, Any]:

@@ -211,6 +211,10 @@ class Result:
             rows.append(("assigned by", "the escape (before any rule or template)"))
         elif st != 0:
             rows.append(("solver", f"failed with status {st} (did not reach t1): outcome 'failed'"))
+        elif not self.plan.scheme.from_verdicts and names[code] == "failed":
+            # the rules would read NaN here, and one of them (a catch-all) might even say it holds
+            rows.append(("features", "an observable the outcome reads is NaN or infinite in the late window "
+                                     "(the solver reached t1): outcome 'failed', no rule or template consulted"))
         else:
             rows += self._rule_rows(idx, code, one)
         for k in ("error_t1", "error_max_late", "t_settle", "n_flips", "t_first_flip", "decay_exponent", "peak_ratio"):

@@ -47,3 +47,28 @@ def test_verdicts_are_the_outcomes_of_systems_without_a_declaration():
     res = _results(3)
     res["verdict"] = np.array([[0, 3], [1, 1], [4, 2]], np.int8)  # several horizons: the last is t1
     np.testing.assert_array_equal(m.assign(None, res, np.arange(3), None), [3, 1, 2])
+
+
+def test_a_non_finite_feature_an_outcome_reads_is_failed_not_a_rule_match():
+    # x's final is NaN where the solver reported success (an observable such as sqrt of a negative state):
+    # the catch-all rule must not take it, nor may "unclassified"; a NaN in an observable no rule or
+    # feature reads changes nothing. Row 2: a fixed-point stop writes std = 0 at the equilibrium, so a rule
+    # reading std(x) alone still sees a NaN observable through x's other features.
+    decl = Outcomes(rules={"high": "final(x) > 0.5", "low": "not (final(x) > 0.5)", "rest": "std(x) < 1"})
+    sch = mapper_for(_Sys, decl, escape=False).scheme
+    res = _results(5, final_x=[1.0, np.nan, 1.0, -np.inf, 0.0], final_v=[np.nan, 0, 0, 0, 0])
+    res["feat_mean"][2, 0] = np.nan
+    codes = assign(sch, _Sys, res, {})
+    assert [sch.names[c] for c in codes] == ["high", FAILED_NAME, FAILED_NAME, FAILED_NAME, "low"]
+    only_std = Outcomes(rules={"rest": "std(x) < 1"})
+    s2 = mapper_for(_Sys, only_std, escape=False).scheme
+    res = _results(2, final_x=[np.nan, 0.0], mean_x=[np.nan, 0.0])
+    assert [s2.names[c] for c in assign(s2, _Sys, res, {})] == [FAILED_NAME, "rest"]
+
+
+def test_a_non_finite_template_feature_is_failed_not_unclassified():
+    decl = Outcomes(templates={"a": {"x0": 0.0}, "b": {"x0": 1.0}}, features=("mean(x)",))
+    sch = mapper_for(_Sys, decl, escape=False).scheme
+    res = _results(3, mean_x=[10.0, np.nan, 40.0])
+    tf = np.broadcast_to(np.array([[[10.0], [20.0]]]), (3, 2, 1))
+    assert [sch.names[c] for c in assign(sch, _Sys, res, {}, tf)] == ["a", FAILED_NAME, UNCLASSIFIED]

@@ -168,3 +168,56 @@ def test_out_equal_to_the_starts_file_is_refused_even_with_force(tmp_path, capsy
     code, _, err = captured(capsys, "sweep", spec, "--out", starts, "--no-progress", *(["--force"] if force else []))
     assert code == 2 and "--out" in err and "is this command's input" in err, err
     assert starts.read_bytes() == before and not (tmp_path / "starts.nc.zarr").exists()
+
+
+def test_complex_and_bool_columns_are_refused_not_cut_to_a_real_part(tmp_path):
+    """Before: a complex theta0 ran with its real part (a raw NumPy ComplexWarning the only sign), a bool
+    one as 0/1."""
+    import xarray as xr
+
+    p = tmp_path / "s.npy"
+    for dtype, values in ((complex, [0.5 + 2j, -0.5, 1.0]), (bool, [True, False, True])):
+        arr = np.zeros(3, dtype=[("theta0", dtype), ("omega0", float)])
+        arr["theta0"] = values
+        np.save(p, arr)
+        with pytest.raises(ValidationError, match="s.npy: column 'theta0' must hold real numbers") as e:
+            _plan(tmp_path, p)
+        assert e.value.field == "sample.from"
+    nc = tmp_path / "s.nc"
+    xr.Dataset({"theta0": ("start", [0.1, 0.2]), "omega0": ("start", np.array([True, False]))}).to_netcdf(nc)
+    with pytest.raises(ValidationError, match="s.nc: column 'omega0' must hold real numbers"):
+        _plan(tmp_path, nc)
+    # netCDF4's complex variable (a compound of r and i, as xarray reads it without auto_complex)
+    xr.Dataset({"theta0": ("start", np.array([0.1 + 1j, 0.2])), "omega0": ("start", [0.0, 1.0])}
+               ).to_netcdf(nc, mode="w", auto_complex=True)
+    with pytest.raises(ValidationError, match="s.nc: column 'theta0' must hold real numbers"):
+        _plan(tmp_path, nc)
+    arr = np.zeros(2, dtype=[("theta0", np.int32), ("omega0", float), ("label", bool)])  # integers are real
+    arr["theta0"], arr["label"] = [1, 2], [True, False]
+    np.save(p, arr)
+    plan = _plan(tmp_path, p)
+    np.testing.assert_array_equal(plan.sample["theta0"], [1.0, 2.0])
+    assert list(plan.start_labels) == ["True", "False"]  # a bool label is a class like any other
+
+
+@pytest.mark.parametrize("fmt", [".csv", ".npy", ".nc"])
+def test_a_blank_label_is_refused_naming_its_row(tmp_path, fmt):
+    """Before: the blank was one more label class, mapped to an outcome ({"plus": "", ...}) and counted in
+    the agreement."""
+    p = _write(tmp_path, fmt, [0.5, -0.5, 0.7], [0.0, 0.0, 0.0], ["a", "b", ""])
+    where = "line 4" if fmt == ".csv" else "start 2"
+    with pytest.raises(ValidationError, match=f"{p.name}: column 'label' is blank at {where}: every start needs its "
+                                              "label") as e:
+        _plan(tmp_path, p)
+    assert e.value.field == "sample.from"
+    p = _write(tmp_path, fmt, [0.5, -0.5, 0.7], [0.0, 0.0, 0.0], ["a", "b", "a"])
+    assert list(_plan(tmp_path, p).start_labels) == ["a", "b", "a"]
+
+
+def test_a_csv_with_a_byte_order_mark_is_read(tmp_path):
+    """Excel's "CSV UTF-8" starts with a BOM; before, the first column was named '\\ufefftheta0' and refused."""
+    p = tmp_path / "s.csv"
+    p.write_bytes("theta0,omega0,label\n0.1,0.2,a\n0.3,0.4,b\n".encode("utf-8-sig"))
+    plan = _plan(tmp_path, p)
+    np.testing.assert_array_equal(plan.sample["theta0"], [0.1, 0.3])
+    assert list(plan.start_labels) == ["a", "b"]

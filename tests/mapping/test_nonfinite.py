@@ -1,0 +1,78 @@
+"""A trajectory whose observables turn NaN in the classification window, while the solver reaches t1, is
+*failed* on every engine, with rules and with discovery (never a catch-all rule's, never unclassified).
+
+The model is x' = x - x^3 observed through r = sqrt(x): a start x0 < 0 goes to x = -1, where r is NaN;
+x0 > 0 goes to x = 1, r = 1. So the failed set is known in closed form: exactly the starts with x0 < 0.
+"""
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stabjax import Outcomes, Param, ParamSet, System
+from stabjax.app.sweep_cmds import run_status
+from stabjax.plan.spec import make_plan
+from stabjax.run.sweep import run_plan
+
+ENGINES = ("diffrax", "fused", "native")
+
+
+class NanObs(System):
+    title = "x' = x - x^3, observed through sqrt(x) (NaN for x < 0)"
+    name = "nanobs_test"
+    params = ParamSet((Param("x0", 0.5, "start", kind="initial"),))
+    state = (("x", ()),)
+    observables = ("r",)
+    observable_doc = ("sqrt(x)",)
+    default_t1 = 20.0
+    outcomes = Outcomes(rules={"high": "final(r) > 0.5", "low": "not (final(r) > 0.5)"})
+
+    def initial_state(self, p):
+        return p["x0"][None]
+
+    def rhs(self, t, y, p):
+        return y - y**3
+
+    def observe(self, t, y, p):
+        return jnp.sqrt(y)
+
+
+def _run(engine, discover):
+    spec = {"system": NanObs, "name": "nanobs", "sample": {"n": 50, "seed": 0,
+            "x0": {"dist": "uniform", "low": -2.0, "high": 2.0}},
+            "integrate": {"t1": 20.0, "n_checkpoints": 50, "engine": engine}}
+    if discover:
+        spec["outcomes"] = {"discover": True, "discovery": {"lyapunov": False}}
+    ds = run_plan(make_plan(spec))
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    return np.asarray(ds["x0_sample"]).ravel(), [names[c] for c in np.asarray(ds["outcome"]).ravel()], ds
+
+
+@pytest.mark.parametrize("discover", [False, True], ids=["rules", "discovery"])
+@pytest.mark.parametrize("engine", ENGINES)
+def test_nan_observables_are_failed_on_every_engine(engine, discover):
+    x0, got, ds = _run(engine, discover)
+    assert (np.asarray(ds["solver_status"]).ravel() == 0).all()  # the solver itself never failed
+    neg = x0 < 0
+    assert 10 < neg.sum() < 40
+    assert [g for g, n in zip(got, neg) if n] == ["failed"] * int(neg.sum())
+    rest = {g for g, n in zip(got, neg) if not n}
+    assert rest == ({"fixed_point_1"} if discover else {"high"}), rest
+    assert run_status(ds) == 1  # the sweep's exit status for failed trajectories
+
+
+def test_the_view_says_why_a_nan_observable_is_failed(tmp_path):
+    """Before, the explanation walked the rules: "rule low holds ... assigned by rule low" beside the
+    outcome "failed"."""
+    import inspect
+
+    from stabjax.present.viewmodel import Result
+
+    src = "import jax.numpy as jnp\nfrom stabjax import Outcomes, Param, ParamSet, System\n\n" + inspect.getsource(NanObs)
+    (tmp_path / "nanobs.py").write_text(src)
+    out = tmp_path / "r.nc"
+    run_plan(make_plan({"system": f"{tmp_path / 'nanobs.py'}:NanObs", "name": "nanobs",
+                        "grid": {"x0": [-0.5, 0.5]}, "integrate": {"t1": 20.0, "n_checkpoints": 50}}), out)
+    r = Result(out)
+    failed = dict(r.explain(0))
+    assert failed["outcome"] == "failed" and "NaN or infinite" in failed["features"] and "assigned by" not in failed
+    assert dict(r.explain(1))["assigned by"].startswith("rule high")
