@@ -569,10 +569,13 @@ def test_x_dot_x_runs_away_and_is_no_attractor():
 def test_unstable_focus_runs_away_and_is_no_attractor():
     """x' = -a x - y, y' = x - a y at a = -0.1 from [-2, 2]^2 to t1 = 100 was five 'chaotic' attractors; the
     radius grows only e^5 ~ 150 over the window, yet every start is escaped."""
+    from stabjax.mapping.discover import UnboundedWarning
+
     _, spiral, _ = _runaways()
     box = {"dist": "uniform", "low": -2.0, "high": 2.0}
-    ds = run_spec({"system": spiral, "sample": {"n": 30, "seed": 1, "x0": box, "y0": box},
-                   "integrate": {"t1": 100.0, "n_checkpoints": 200}})
+    with pytest.warns(UnboundedWarning, match="30 of 30"):
+        ds = run_spec({"system": spiral, "sample": {"n": 30, "seed": 1, "x0": box, "y0": box},
+                       "integrate": {"t1": 100.0, "n_checkpoints": 200}})
     _all_escaped(ds)
     r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
     fin = ds["feat_final"].values.reshape(-1, 2)
@@ -583,10 +586,14 @@ def test_runaways_beside_an_attractor_leave_it_whole():
     """Starts with x0 > 0 run away in y, those with x0 < 0 rest at (-1, 0): the runaways are escaped (their
     y(t1) the closed form's) and the rest point is still found and placed, its scale not swamped by the
     runaways' 1e8."""
+    from stabjax.mapping.discover import UnboundedWarning
+
     _, _, split = _runaways()
-    ds = run_spec({"system": split, "sample": {"n": 40, "seed": 2, "x0": {"dist": "uniform", "low": -0.9, "high": 0.9},
-                                                 "y0": {"dist": "uniform", "low": 0.5, "high": 1.0}},
-                   "integrate": {"t1": 20.0, "n_checkpoints": 80}})
+    with pytest.warns(UnboundedWarning, match="of 40 trajectories grow without bound"):
+        ds = run_spec({"system": split, "sample": {"n": 40, "seed": 2, "x0": {"dist": "uniform", "low": -0.9,
+                                                                               "high": 0.9},
+                                                     "y0": {"dist": "uniform", "low": 0.5, "high": 1.0}},
+                       "integrate": {"t1": 20.0, "n_checkpoints": 80}})
     names = ds["outcome"].attrs["flag_meanings"].split()
     assert names == ["fixed_point_1", "escaped", "unclassified", "failed"], names
     x0, y0 = ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel()
