@@ -7,6 +7,10 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
 
 1. **Features** (what the fold already computes, no extra cost): per observable, the mean, standard
    deviation, minimum and maximum over the late window ``[t0 + (1 - window)(t1 - t0), t1]``.
+   **Runaways** first (:func:`unbounded`): a trajectory whose window grows (its final values at least
+   ``GROWTH`` times the window's RMS, its exponent not negative) and ends far outside the box the other
+   windows stayed in has reached no attractor; it takes the escape outcome, as if an escape radius had
+   stopped it, and is left out of everything below (its 1e43 would otherwise set the scale).
 2. **Scaling**: every feature of observable k is divided by the range that observable covers over
    the whole sweep (max of its window maxima minus min of its window minima). Per *observable*, not
    per feature: a z-score per feature (pyBasin) would blow the solver noise in the window std of
@@ -96,6 +100,7 @@ class Attractors:
     representative: np.ndarray  # (A,) trajectory index
     scale: np.ndarray  # (n_obs,) the observables' ranges used for scaling
     stats: dict[str, Any] = field(default_factory=dict)
+    unbounded: np.ndarray | None = None  # (N,) ran away (:func:`unbounded`): no attractor, label -1
 
 
 def feature_table(results: Mapping[str, np.ndarray], observables: tuple[str, ...]) -> tuple[np.ndarray, list[str]]:
@@ -210,6 +215,7 @@ class _Features:
     lam: np.ndarray | None  # (N,) largest Lyapunov exponent, None when not integrated
     at_rest: np.ndarray  # (N,) stopped by the fixed-point stop, or every window std at the rest threshold
     autonomous: bool
+    unbounded: np.ndarray  # (N,) runs away over its window (:func:`unbounded`); never in ``valid``
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
@@ -218,6 +224,11 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     feats, fnames = feature_table(results, observables)
     final = np.asarray(results["feat_final"], float)[:, :n_obs]
     valid = np.asarray(valid, bool) & np.all(np.isfinite(feats), axis=1) & np.all(np.isfinite(final), axis=1)
+    lam = np.asarray(results["lyapunov"], float) if "lyapunov" in results else None
+    away = unbounded(feats, final, valid, lam, cfg)
+    # taken out before the ranges are measured: one runaway's 1e43 would make every bounded attractor a
+    # point of the scaled space, and all of them one group
+    valid = valid & ~away
     scale = observable_ranges(results, valid, n_obs, atol, rtol, cfg.eps)
     tol = tolerances(results, valid, n_obs, atol, rtol)
     std = feats[:, [k * len(STATS) + 1 for k in range(n_obs)]]
@@ -225,8 +236,48 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     if "stop_reason" in results:
         at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, np.asarray(results["lyapunov"], float) if "lyapunov" in results else None, at_rest,
-                     bool(autonomous))
+                     final, lam, at_rest, bool(autonomous), away)
+
+
+GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
+
+
+def unbounded(feats: np.ndarray, final: np.ndarray, valid: np.ndarray, lam: np.ndarray | None,
+              cfg: DiscoveryConfig) -> np.ndarray:
+    """Per trajectory: its observables run away over the feature window, so it has reached no attractor
+    and must not be grouped, typed or named as one (x' = x reached 1e43 and was called chaotic: its
+    exponent is 1). Attractors.jl's recurrence mapper labels such a start -1, "diverged to infinity", when
+    it stays ``consecutive_lost_steps`` outside the grid or its norm passes ``horizon_limit``; here there
+    is no grid and no absolute limit to borrow, so the test reads the window itself and the other
+    trajectories' windows. All three must hold:
+
+    1. **The window grows**: the RMS over the observables of |final| / (the window's RMS), each
+       observable against its own window RMS sqrt(mean^2 + std^2), is at least ``GROWTH``. A magnitude
+       growing as e^(r t) over a window of length T gives sqrt(2 r T / (1 - e^(-2 r T))), for a monotone
+       observable and for an oscillation whose amplitude grows alike (then per observable the phase at t1
+       matters, over the observables it cancels for a focus); ``GROWTH`` = 2 is a growth by e^2 ~ 7 over
+       the window. A bounded stationary motion gets there only at a peak of crest factor (max / RMS)
+       above 2: never a sinusoid (sqrt 2), now and then a spiky one -- hence 2. and 3. A drift (a running
+       pendulum's unwrapped angle, linear in t) stays near 1.3 and is not called unbounded.
+    2. **It is not contracting**: its exponent is not below ``-chaos_threshold`` (unknown passes). A
+       forced cycle whose response peaks at t1 in every start (all in phase with the forcing) has a
+       negative exponent; a runaway's tangent grows with it, or at least does not shrink.
+    3. **It ends far outside the box the other trajectories' windows stayed in**: some observable's
+       |final| exceeds ``GROWTH`` times the largest |value| reached by the windows that do not grow (1.,
+       2.; no such window: no box). A spiky bounded attractor's trajectory that ends at a peak ends
+       inside the range its fellows' windows covered (measured: Van der Pol at mu = 5 ends 7 % of its
+       starts with the ratio of 1. above 2, Lorenz-63 one in 300), the factor covering a peak their
+       checkpoints sampled below its top; a runaway leaves it (Attractors.jl's "lost outside the grid").
+    """
+    mean, std, lo, hi = (feats[:, s::len(STATS)] for s in range(len(STATS)))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ratio = np.where(final == 0, 0.0, np.abs(final) / np.hypot(mean, std))
+        grows = valid & (np.sqrt(np.mean(ratio * ratio, axis=1)) >= GROWTH)
+        if lam is not None:
+            grows &= ~(lam < -cfg.chaos_threshold)
+    rest = valid & ~grows
+    box = np.max(np.maximum(np.abs(lo), np.abs(hi))[rest], axis=0) if rest.any() else np.zeros(final.shape[1])
+    return grows & np.any(np.abs(final) > GROWTH * box, axis=1)
 
 
 def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> np.ndarray:
@@ -346,11 +397,11 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
         lams.append(lam)
         reps.append(rep)
         labels[g] = a
-    stats.update(n_grouped=int((labels >= 0).sum()))
+    stats.update(n_grouped=int((labels >= 0).sum()), n_unbounded=int(f.unbounded.sum()))
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
                       lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
-                      stats=stats)
+                      stats=stats, unbounded=f.unbounded)
 
 
 def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
@@ -430,7 +481,11 @@ class Discovery(Mapper):
                                                  plan.icfg.rtol, auto)
         else:
             disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto)
-        names, colors = outcome_names(decl, tuple(disc.names), self.escape)
+        away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
+        # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
+        # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
+        escape = self.escape or bool(away.any())
+        names, colors = outcome_names(decl, tuple(disc.names), escape)
         if len(names) > MAX_CODES:
             small = int(np.sum(disc.counts < 2 * cfg.min_samples))
             raise ValidationError("outcomes.discovery.eps", f"{len(disc.names)} attractors found with eps = {cfg.eps:g} "
@@ -438,6 +493,10 @@ class Discovery(Mapper):
                                   f"{2 * cfg.min_samples} trajectories): more than the {MAX_CODES} outcome codes hold; "
                                   "raise eps or min_samples")
         code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
+        if away.any():
+            code = np.where(away, names.index(decl.escape), code)
+            _warn_unbounded(int(away.sum()), status.size, decl.escape, self.escape)
+        # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
         data, coords = _attractor_vars(plan, disc, results, cfg)
@@ -449,6 +508,21 @@ class Discovery(Mapper):
                              f"index where it is present (birth) or absent again (death), the {ax.name} value there)",
                 "match_threshold": threshold})
         return Mapped(code, OutcomeScheme(names, colors, decl), data, coords)
+
+
+class UnboundedWarning(UserWarning):
+    """Discovery found trajectories that run away (:func:`unbounded`) and counted them as escaped."""
+
+
+def _warn_unbounded(n: int, total: int, name: str, radius: bool) -> None:
+    """Said, not only counted: without a radius such a run integrates the runaways to t1 (up to 1e300 and
+    a failure), and with one these grew within it, so the radius is what to set or lower."""
+    import warnings
+
+    what = "lower [integrate] escape_radius" if radius else "set [integrate] escape_radius"
+    warnings.warn(f"{n} of {total} trajectories grow without bound over the feature window: counted as '{name}', "
+                  f"not as an attractor; {what} (a bound above every attractor) to stop them early",
+                  UnboundedWarning, stacklevel=3)
 
 
 def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):

@@ -237,7 +237,11 @@ class Result:
             if "outcome" not in self.ds:
                 return []
             found = {a["name"]: a for a in kit.attractors(self.ds)}
-            a = found.get(self.names_colors()[0][code])
+            name = self.names_colors()[0][code]
+            if sch.decl is not None and name == sch.decl.escape:  # reached t1: discovery saw it run away
+                return [("assigned by", "attractor discovery: it grows without bound over its late window (no "
+                         "attractor; counted with the escapes, stabjax.mapping.discover.unbounded)")]
+            a = found.get(name)
             return [("assigned by", "attractor discovery: grouped by its late-window features with "
                      + (f"{a['count']:,} {'trajectory' if a['count'] == 1 else 'trajectories'} on one {a['type'].replace('_', ' ')}" if a else
                         "no group (too far from every attractor found)"))]

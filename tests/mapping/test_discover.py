@@ -471,3 +471,136 @@ def test_a_discovery_that_groups_nothing_says_so_in_its_own_words(capsys):
     assert run_status(ds) == 1
     err = capsys.readouterr().err
     assert "no attractor was found: no min_samples trajectories lie within eps" in err and "rule" not in err, err
+
+
+# ---- runaways are no attractor: the escape outcome, whether or not a radius is set ---------------------
+
+
+def _runaways():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Grow(System):
+        """x' = x: every start but 0 runs off to +-infinity, |x(t)| = |x0| e^t."""
+
+        name = "grow_test"
+        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
+        state = (("x", ()),)
+        observables = ("x",)
+        observable_doc = ("x",)
+
+        def initial_state(self, p):
+            return jnp.reshape(p["x0"], (1,))
+
+        def rhs(self, t, y, p):
+            return y
+
+        def observe(self, t, y, p):
+            return y
+
+    class Spiral(System):
+        """x' = -a x - y, y' = x - a y with a < 0: an unstable focus, |(x, y)|(t) = |(x0, y0)| e^(-a t)."""
+
+        name = "spiral_test"
+        params = ParamSet((Param("a", -0.1, "damping"), Param("x0", 1.0, "initial x", kind="initial"),
+                           Param("y0", 0.0, "initial y", kind="initial")))
+        state = (("x", ()), ("y", ()))
+        observables = ("x", "y")
+        observable_doc = ("x", "y")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["y0"]])
+
+        def rhs(self, t, y, p):
+            return jnp.stack([-p["a"] * y[0] - y[1], y[0] - p["a"] * y[1]])
+
+        def observe(self, t, y, p):
+            return y
+
+    class Split(System):
+        """x' = x - x^3, y' = x y: x settles at sign(x0), so y runs away for x0 > 0 and rests at 0 for
+        x0 < 0; y(t) = y0 exp(asinh(x0 e^t / c) - asinh(x0 / c)), c = sqrt(1 - x0^2), for |x0| < 1."""
+
+        name = "split_test"
+        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"), Param("y0", 1.0, "initial y", kind="initial")))
+        state = (("x", ()), ("y", ()))
+        observables = ("x", "y")
+        observable_doc = ("x", "y")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["y0"]])
+
+        def rhs(self, t, y, p):
+            return jnp.stack([y[0] - y[0] ** 3, y[0] * y[1]])
+
+        def observe(self, t, y, p):
+            return y
+
+    return Grow, Spiral, Split
+
+
+def _all_escaped(ds):
+    from stabjax.app.sweep_cmds import run_status
+
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert names == ["escaped", "unclassified", "failed"], names
+    assert ds.sizes["attractor"] == 0
+    assert (ds["outcome"].values == 0).all()
+    assert (ds["solver_status"].values == 0).all()  # reached t1: no radius stopped them, discovery named them
+    assert run_status(ds) == 0  # an escape is an answer, not a failure (docs/guide/stops.md)
+
+
+def test_x_dot_x_runs_away_and_is_no_attractor():
+    """The reliability pass's repro, small: x' = x from [-2, 2] was one 'chaotic' attractor (exponent 1,
+    x up to 1e43, +inf and -inf together). Every start is escaped, none an attractor, and the final values
+    are the runaway's own, |x0| e^t1."""
+    from stabjax.mapping.discover import UnboundedWarning
+
+    grow, _, _ = _runaways()
+    with pytest.warns(UnboundedWarning, match="20 of 20 trajectories grow without bound.*escape_radius"):
+        ds = run_spec({"system": grow, "sample": {"n": 20, "seed": 0, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0}},
+                       "integrate": {"t1": 20.0, "n_checkpoints": 40}})
+    _all_escaped(ds)
+    x0 = ds["x0_sample"].values.ravel()
+    np.testing.assert_allclose(ds["feat_final"].values.reshape(-1), x0 * np.exp(20.0), rtol=1e-5)
+
+
+def test_unstable_focus_runs_away_and_is_no_attractor():
+    """x' = -a x - y, y' = x - a y at a = -0.1 from [-2, 2]^2 to t1 = 100 was five 'chaotic' attractors; the
+    radius grows only e^5 ~ 150 over the window, yet every start is escaped."""
+    from stabjax.mapping.discover import UnboundedWarning
+
+    _, spiral, _ = _runaways()
+    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
+    with pytest.warns(UnboundedWarning, match="30 of 30"):
+        ds = run_spec({"system": spiral, "sample": {"n": 30, "seed": 1, "x0": box, "y0": box},
+                       "integrate": {"t1": 100.0, "n_checkpoints": 200}})
+    _all_escaped(ds)
+    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
+    fin = ds["feat_final"].values.reshape(-1, 2)
+    np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0 * np.exp(0.1 * 100.0), rtol=1e-5)
+
+
+def test_runaways_beside_an_attractor_leave_it_whole():
+    """Starts with x0 > 0 run away in y, those with x0 < 0 rest at (-1, 0): the runaways are escaped (their
+    y(t1) the closed form's) and the rest point is still found and placed, its scale not swamped by the
+    runaways' 1e8."""
+    from stabjax.mapping.discover import UnboundedWarning
+
+    _, _, split = _runaways()
+    with pytest.warns(UnboundedWarning, match="of 40 trajectories grow without bound"):
+        ds = run_spec({"system": split, "sample": {"n": 40, "seed": 2, "x0": {"dist": "uniform", "low": -0.9,
+                                                                               "high": 0.9},
+                                                     "y0": {"dist": "uniform", "low": 0.5, "high": 1.0}},
+                       "integrate": {"t1": 20.0, "n_checkpoints": 80}})
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert names == ["fixed_point_1", "escaped", "unclassified", "failed"], names
+    x0, y0 = ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel()
+    code = ds["outcome"].values.ravel()
+    np.testing.assert_array_equal(code, np.where(x0 > 0, 1, 0))
+    np.testing.assert_allclose(ds["attractor_state"].values[0], [-1.0, 0.0], atol=1e-6)
+    c = np.sqrt(1 - x0 ** 2)
+    y_t1 = y0 * np.exp(np.arcsinh(x0 * np.exp(20.0) / c) - np.arcsinh(x0 / c))
+    up = x0 > 0
+    np.testing.assert_allclose(ds["feat_final"].sel(observable="y").values.ravel()[up], y_t1[up], rtol=1e-5)
