@@ -277,7 +277,8 @@ class ChunkStore:
         try:
             old = self._previous(restart)
             if old is not None:
-                refusals, self.version_changes = I.compare(old.get("identity", {}), ident)
+                since = "the store was written" if old.get("finished") else "the interrupted run"
+                refusals, self.version_changes = I.compare(old.get("identity", {}), ident, since)
                 if refusals:
                     raise StoreError(
                         f"{self.path} holds a run of a different computation ({'; '.join(refusals)}); "
