@@ -183,7 +183,8 @@ def default_store(out: str | Path) -> Path:
 def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | None = None, progress: bool = False,
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
              on_chunk: Callable[[int, int], None] | None = None, store: str | Path | None = None,
-             overrides: Mapping[str, Any] | None = None, executor=None) -> xr.Dataset:
+             overrides: Mapping[str, Any] | None = None, executor=None,
+             on_open: Callable[[], None] | None = None) -> xr.Dataset:
     """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset.
 
     With ``out`` (or ``store``), finished chunks go to a zarr store (:mod:`stabjax.run.store`; default
@@ -192,6 +193,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     ``out`` is written the store is removed unless ``keep_partial``. ``overrides``: the command-line
     settings that are not in the spec (``t1``), recorded in the store's identity. ``executor``: a
     :class:`stabjax.run.distributed.DaskExecutor` to run the chunks on Dask workers (default: here).
+    ``on_open``: called once the run goes ahead (the store accepted: every refusal is before it), for what
+    the caller says only then, such as which file will be replaced.
     """
     from . import store as S
 
@@ -212,6 +215,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=state) \
         if store_path is not None else _Memory(plan, batch, state)
     try:
+        if on_open is not None:
+            on_open()
         run = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
                           overrides=overrides)
         attrs = {**D.run_attrs(**run),

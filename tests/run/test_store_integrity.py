@@ -113,6 +113,39 @@ def test_restart_and_cleanup_remove_only_what_the_store_wrote(spec, tmp_path, re
     assert sorted(p.name for p in store.iterdir()) == ["my_notes.txt", "plots"]
 
 
+def test_a_refused_sweep_does_not_say_it_replaces_the_result(spec, tmp_path, capsys):
+    """Before the fix "r.nc exists: it will be replaced" came first, then the refusal (exit 2, nothing replaced)."""
+    out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
+    assert sweep(spec, out, "--keep-store") == 0
+    capsys.readouterr()
+    before = out.read_bytes()
+    (store / "manifest.json").write_text('{"format": "stabjax-sto')
+    assert sweep(spec, out) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "manifest.json is unreadable" in err and "replaced" not in err, err
+    assert out.read_bytes() == before
+    assert sweep(spec, out, "--restart") == 0  # going ahead: said
+    assert "r.nc exists: it will be replaced (a previous result of this spec)" in " ".join(capsys.readouterr().err.split())
+
+
+def test_restart_and_cleanup_remove_only_what_the_store_wrote(spec, tmp_path, reference):
+    """A user's file put into a kept store survives --restart and the store's removal; only the
+    entries the manifest lists are deleted."""
+    out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
+    assert sweep(spec, out, "--keep-store") == 0
+    written = set(S.read_manifest(store)["entries"])
+    assert {"manifest.json", "zarr.json", "verdict", "outcome", "alpha"} <= written
+    assert {p.name for p in store.iterdir()} == written | {"manifest.json"}
+    (store / "my_notes.txt").write_text("keep me")
+    (store / "plots").mkdir()
+    (store / "plots" / "a.png").write_bytes(b"png")
+    assert sweep(spec, out, "--keep-store", "--restart", "--t1", 50, "--force") == 0
+    assert (store / "my_notes.txt").read_text() == "keep me" and (store / "plots" / "a.png").read_bytes() == b"png"
+    assert json.loads(xr.open_zarr(store).attrs["integrate_json"])["t1"] == 50.0
+    assert sweep(spec, out, "--t1", 50) == 0  # finished: the store's own entries go, the user's stay
+    assert sorted(p.name for p in store.iterdir()) == ["my_notes.txt", "plots"]
+
+
 # ---- item 5: a missing or damaged chunk is recomputed, or named by export ---------------------------
 
 
