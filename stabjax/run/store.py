@@ -264,8 +264,10 @@ class ChunkStore:
         self._tf_given = template_features
         self._restarted = False
         ident = identity(plan, {"batch_size": self.batch, **(overrides or {})})
-        if self.path.is_dir() and not restart and not (self.path / MANIFEST).exists():
+        existed = self.path.is_dir()
+        if existed and not restart and not (self.path / MANIFEST).exists():
             self._refuse_foreign()  # before the lock: nothing is created in a directory that is not ours
+        self._made_dir = not existed  # a folder the user made (an empty --store DIR) is theirs: never removed
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except FileExistsError:
@@ -284,6 +286,7 @@ class ChunkStore:
                         f"{self.path} holds a run of a different computation ({'; '.join(refusals)}); "
                         "pass --restart to discard it, or use another --out")
                 self.manifest = old
+                self._made_dir = bool(old.get("made_dir"))
                 self.manifest.setdefault("resumed_with_versions", [])
                 v = versions()
                 if v != old.get("versions") and v not in self.manifest["resumed_with_versions"]:
@@ -296,7 +299,7 @@ class ChunkStore:
                                  "chunking": {"shape": list(self.chunking.shape), "block": list(self.chunking.block)},
                                  "n_chunks": self.n_chunks, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                                  "versions": versions(), "entries": [MANIFEST], "arrays": None, "finished": False,
-                                 "chunks": {}}
+                                 "made_dir": self._made_dir, "chunks": {}}
                 self._save_manifest()
         except BaseException:
             self.lock.release()
@@ -319,6 +322,7 @@ class ChunkStore:
         except StoreError:
             old = self._damaged_manifest()
         if old is not None:
+            self._made_dir = bool(old.get("made_dir"))  # unknown (an earlier version, a damaged manifest): kept
             self._remove_entries(old)
             self._restarted = True  # a store of ours: what else a user put in it stays, and is no reason to refuse
         return None
@@ -383,6 +387,13 @@ class ChunkStore:
         """Delete what the store wrote (the netCDF file is written); the lock stays until close, and
         anything else a user put in the directory stays."""
         self._remove_entries(self.manifest)
+
+    def remove_dir(self):
+        """After :meth:`discard` and :meth:`close`: the store's directory, if a store made it and it is empty
+        (a folder the user made for ``--store``, or one they put files in, stays)."""
+        if self._made_dir:
+            with contextlib.suppress(OSError):
+                self.path.rmdir()
 
     def _save_manifest(self):
         try:

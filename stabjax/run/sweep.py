@@ -16,7 +16,6 @@ Dask path as a sweep. The progress bar (:mod:`stabjax.run.progress`) and the hor
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
 import platform
@@ -234,8 +233,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             if not keep_partial:
                 sink.discard()
                 sink.close()
-                with contextlib.suppress(OSError):
-                    store_path.rmdir()
+                sink.remove_dir()
             raise
         lazy = n > LAZY_ABOVE
         ds = S.open_store(store_path, dask=lazy)  # the netCDF file is a copy of the store (chunk by chunk: lazy)
@@ -254,8 +252,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     finally:
         sink.close()
     if not keep_partial:
-        with contextlib.suppress(OSError):
-            store_path.rmdir()  # only if empty: a user's file put in the store stays, and so does the folder
+        sink.remove_dir()  # only one it made, and only if empty: a user's file put in the store stays
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
@@ -304,8 +301,7 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     finally:
         sink.close()
     if store is not None and not keep_store:
-        with contextlib.suppress(OSError):
-            Path(store).rmdir()
+        sink.remove_dir()
     return results, info
 
 
