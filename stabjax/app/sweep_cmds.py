@@ -66,9 +66,12 @@ def sweep(
                       what="the map of a previous result of this spec")
     store = store or default_store(out)
     check_store_path(store, inputs, outputs=(out, out.with_suffix(".png") if plot else None))
-    if replacing:
-        err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
-                          markup=False)
+
+    def say_replacing():
+        if replacing:
+            err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
+                              markup=False)
+
     note = plan.scheme.decl.default_distance_note() if plan.scheme.decl is not None else ""
     if note:
         err_console.print(f"note: {note}", markup=False)
@@ -87,6 +90,8 @@ def sweep(
         if executor is not None:
             _start_executor(executor, scheduler, connect_timeout)
         stack.enter_context(_warnings_in_one_line())
+        if "shock" in s or "refine" in s:  # their runs open a store per round: said before the first
+            say_replacing()
         if "shock" in s:  # minimal fatal shocks at every grid point (stabjax.explore.shock)
             raise typer.Exit(_shock(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
                                     store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
@@ -94,7 +99,7 @@ def sweep(
             raise typer.Exit(_refine(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
                                      store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
-                      keep_partial=keep_store, executor=executor, overrides={"t1": t1})
+                      keep_partial=keep_store, executor=executor, overrides={"t1": t1}, on_open=say_replacing)
     except KeyboardInterrupt as exc:
         status = getattr(exc, "status", 130)
         by = f" by {exc.name}" if hasattr(exc, "name") else ""

@@ -182,10 +182,10 @@ def spec_digest(spec: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def compare(old: Mapping[str, Any], new: Mapping[str, Any]) -> tuple[list[str], list[str]]:
+def compare(old: Mapping[str, Any], new: Mapping[str, Any], since: str = "") -> tuple[list[str], list[str]]:
     """(refusals, warnings) between a recorded identity and the current one: refusals name every
-    change of the computation, warnings the library versions that differ."""
-    refusals = describe_changes(old, new) if _refusing(old) != _refusing(new) else []
+    change of the computation, warnings the library versions that differ (``since``: :func:`describe_changes`)."""
+    refusals = describe_changes(old, new, since) if _refusing(old) != _refusing(new) else []
     warnings = []
     ov, nv = old.get("versions") or {}, new.get("versions") or {}
     for k in sorted(set(ov) | set(nv)):
@@ -211,9 +211,14 @@ def _short(v, none="none"):
     return s if len(s) <= 60 else s[:57] + "..."
 
 
-def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
-    """Human-readable list of what differs between two identities (most specific first)."""
+STARTS_SUM = "sample.__sha256__"  # the starts file's content, recorded in the spec by make_plan
+
+
+def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], since: str = "") -> list[str]:
+    """Human-readable list of what differs between two identities (most specific first); ``since``: the
+    run the old identity is of ("the interrupted run"), for the changes a user made in a file."""
     changes = []
+    later = f" since {since}" if since else ""
 
     def diff(section, label):
         a, b = _flat(old.get(section, {})), _flat(new.get(section, {}))
@@ -221,6 +226,14 @@ def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str
             if a.get(k, "<unset>") != b.get(k, "<unset>"):
                 changes.append(f"{label}{k}: {_short(a.get(k, '<unset>'))} -> {_short(b.get(k, '<unset>'))}")
 
+    spec_old, spec_new = _flat(old.get("spec", {})), _flat(new.get("spec", {}))
+    starts = spec_old.get(STARTS_SUM) != spec_new.get(STARTS_SUM) and \
+        spec_old.get("sample.from") == spec_new.get("sample.from") is not None
+    if starts:  # the file's sha256 and the parameters drawn from it are what a user did: edit the file
+        changes.append(f"the starts file {spec_new['sample.from']} changed{later}")
+        old, new = ({**d, "spec": {**d["spec"], "sample": {k: v for k, v in d["spec"]["sample"].items()
+                                                            if k != "__sha256__"}}, "parameters": None}
+                    for d in (old, new))
     diff("spec", "spec ")
     for k in sorted(set(old.get("overrides", {})) | set(new.get("overrides", {}))):
         a, b = old.get("overrides", {}).get(k), new.get("overrides", {}).get(k)

@@ -10,7 +10,9 @@ Layout of a store directory (default ``<out>.zarr`` next to the netCDF output)::
                       sha256 of every array's block, and the sha256 of every other array: the
                       "static" ones written when the store is created (coordinates, samples, the
                       parameters' variables) and the "derived" ones written when it finishes
-                      (basin statistics, a classification over the whole sweep) (replaced atomically)
+                      (basin statistics, a classification over the whole sweep), and the sha256 of
+                      every zarr.json ("metadata": recorded once the writer has written them, when the
+                      store is created and when it finishes) (replaced atomically)
     .lock             the writer holding the store: {"pid", "host", "started"} (O_CREAT|O_EXCL)
 
 Chunks (:class:`Chunking`) are blocks of the dataset's grid -- ``(1, ..., 1, m, full trailing
@@ -28,7 +30,10 @@ same values) by the next run. Durability is against process death (kill -9, OOM)
 fsync'ed, so a power cut may lose recent chunks -- and a file of any array lost or damaged afterwards
 (a deleted file, a truncated one, a flipped byte) is caught by its checksum: recomputed on resume (a
 chunk integrated again, a static array written again from the plan, a derived one computed again
-when the sweep finishes), named in an error by ``export``, never read as the fill value.
+when the sweep finishes), named in an error by ``export``, never read as the fill value. The metadata
+too: a chunk's checksum is of the values zarr decodes, blind to an outcome name or attribute changed in a
+zarr.json, so each zarr.json has its own; one deleted or changed is named by ``export``, and a resume trusts
+nothing read through it: the arrays are created again and every chunk computed again.
 
 A store directory is only ever created, reused when it holds a store of the same computation, or
 refused: a directory holding anything else is refused untouched, and ``--restart`` (or removing the
@@ -37,7 +42,7 @@ store after the netCDF file is written) deletes only the entries the manifest li
 The manifest's identity (:mod:`stabjax.plan.identity`) is compared on every resume; any difference is
 refused with a message naming what changed (library versions: recorded and reported only).
 
-Size (~890 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
+Size (~1000 lines, over the house's 550): the chunk grid, the zarr layout, the manifest and the
 integrity checks are one file format and change together: :class:`ChunkStore` guards one invariant
 (a chunk is listed in the manifest only once all its blocks are on disk, an array is read only
 against its checksum), with the reads that must honour the same layout (:func:`verify`,
@@ -64,12 +69,14 @@ import numpy as np
 from ..plan import identity as I
 from .lock import Lock, StoreError, StoreIOError, _pid_alive
 
-FORMAT = "stabjax-store/3"  # /3: every array checksummed (the chunks' blocks, "static" and "derived" arrays)
+FORMAT = "stabjax-store/4"  # /3: every array checksummed (the chunks' blocks, "static" and "derived" arrays);
+# /4: every zarr.json too (the group's and each array's: attributes, outcome names, dtypes, codecs)
 # earlier layouts: their entries besides the manifest (for --restart); None: the manifest lists them itself
-OLD_FORMATS = {"stabjax-store/1": ["data"], "stabjax-store/2": None}
+OLD_FORMATS = {"stabjax-store/1": ["data"], "stabjax-store/2": None, "stabjax-store/3": None}
 MANIFEST = "manifest.json"
 LOCK = ".lock"
 ROOT = "zarr.json"
+REWRITING = "being rewritten"  # the group's zarr.json while finish() replaces it (its checksum is not known yet)
 PLACEHOLDER_BYTES = 64 << 20  # per-trajectory arrays up to this size are laid out without Dask (ChunkStore._layout)
 
 
@@ -225,6 +232,18 @@ def checksum(block: np.ndarray) -> str:
     return h.hexdigest()[:16]
 
 
+def meta_files(names) -> list[str]:
+    """The metadata files of a group holding the arrays ``names``: they carry what the values mean (the
+    dataset's attributes, outcome names, and -- in each array's and the group's consolidated copy -- dtypes,
+    shapes, fill values and codecs), so a flipped bit in them is as wrong as one in a chunk."""
+    return [ROOT, *(f"{k}/{ROOT}" for k in sorted(names))]
+
+
+def file_sum(path: Path) -> str:
+    """sha256 of a file's bytes, 16 hex digits (the metadata files: small, and written whole by one writer)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
 @contextlib.contextmanager
 def _quiet_zarr():
     """zarr warns that manifest.json and .lock are not zarr nodes, and that consolidated metadata is
@@ -264,8 +283,10 @@ class ChunkStore:
         self._tf_given = template_features
         self._restarted = False
         ident = identity(plan, {"batch_size": self.batch, **(overrides or {})})
-        if self.path.is_dir() and not restart and not (self.path / MANIFEST).exists():
+        existed = self.path.is_dir()
+        if existed and not restart and not (self.path / MANIFEST).exists():
             self._refuse_foreign()  # before the lock: nothing is created in a directory that is not ours
+        self._made_dir = not existed  # a folder the user made (an empty --store DIR) is theirs: never removed
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except FileExistsError:
@@ -277,12 +298,14 @@ class ChunkStore:
         try:
             old = self._previous(restart)
             if old is not None:
-                refusals, self.version_changes = I.compare(old.get("identity", {}), ident)
+                since = "the store was written" if old.get("finished") else "the interrupted run"
+                refusals, self.version_changes = I.compare(old.get("identity", {}), ident, since)
                 if refusals:
                     raise StoreError(
                         f"{self.path} holds a run of a different computation ({'; '.join(refusals)}); "
                         "pass --restart to discard it, or use another --out")
                 self.manifest = old
+                self._made_dir = bool(old.get("made_dir"))
                 self.manifest.setdefault("resumed_with_versions", [])
                 v = versions()
                 if v != old.get("versions") and v not in self.manifest["resumed_with_versions"]:
@@ -295,7 +318,7 @@ class ChunkStore:
                                  "chunking": {"shape": list(self.chunking.shape), "block": list(self.chunking.block)},
                                  "n_chunks": self.n_chunks, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                                  "versions": versions(), "entries": [MANIFEST], "arrays": None, "finished": False,
-                                 "chunks": {}}
+                                 "made_dir": self._made_dir, "chunks": {}}
                 self._save_manifest()
         except BaseException:
             self.lock.release()
@@ -318,6 +341,7 @@ class ChunkStore:
         except StoreError:
             old = self._damaged_manifest()
         if old is not None:
+            self._made_dir = bool(old.get("made_dir"))  # unknown (an earlier version, a damaged manifest): kept
             self._remove_entries(old)
             self._restarted = True  # a store of ours: what else a user put in it stays, and is no reason to refuse
         return None
@@ -383,6 +407,13 @@ class ChunkStore:
         anything else a user put in the directory stays."""
         self._remove_entries(self.manifest)
 
+    def remove_dir(self):
+        """After :meth:`discard` and :meth:`close`: the store's directory, if a store made it and it is empty
+        (a folder the user made for ``--store``, or one they put files in, stays)."""
+        if self._made_dir:
+            with contextlib.suppress(OSError):
+                self.path.rmdir()
+
     def _save_manifest(self):
         try:
             _atomic_json(self.path / MANIFEST, self.manifest)
@@ -432,17 +463,20 @@ class ChunkStore:
         is missing or differs is dropped from the manifest (computed again); a damaged static array
         (coordinates, samples, the parameters' variables) is written again from the plan; a damaged
         derived one (basin statistics, a classification over the whole sweep) is computed again when
-        the sweep finishes. Each is said in a :class:`StoreWarning`; a store whose arrays cannot be
-        opened starts over."""
+        the sweep finishes. Each is said in a :class:`StoreWarning`; a store whose metadata (a zarr.json)
+        is missing or changed starts over: its arrays are written again and every chunk computed again."""
         if self.manifest.get("arrays") is None:
             return
+        damaged = verify_metadata(self.path, self.manifest)
         try:
-            bad = verify(self.path, self.manifest)
-            broken = verify_arrays(self.path, self.manifest)
-        except StoreError as exc:  # an array's metadata is gone: every chunk is recomputed
-            bad = {int(i): str(exc) for i in self.manifest["chunks"]}
-            broken = {}
-            self.manifest["arrays"] = None
+            if not damaged:
+                bad = verify(self.path, self.manifest)
+                broken = verify_arrays(self.path, self.manifest)
+        except StoreError as exc:  # metadata that zarr cannot open although its checksums hold
+            damaged = {"": str(exc)}
+        if damaged:
+            self._start_over(metadata_problem(damaged))
+            return
         if not bad and not broken:
             return
         for i, why in sorted(bad.items()):
@@ -474,6 +508,17 @@ class ChunkStore:
             parts.append(f"{', '.join(derived)} {'is' if len(derived) == 1 else 'are'} computed again at the end")
         warnings.warn(f"{self.path}: {'; '.join(parts)} ({'; '.join(said[:5])}{' ...' if len(said) > 5 else ''})",
                       StoreWarning, stacklevel=3)
+
+    def _start_over(self, why: str):
+        """The store's metadata cannot be trusted, so neither can anything read through it: the manifest
+        lists no arrays and no chunk (the first chunk written creates the arrays again, removing what the
+        store wrote before), said in one warning."""
+        n = len(self.manifest["chunks"])
+        self.manifest.update(arrays=None, chunks={}, static=None, derived=None, metadata=None, finished=False)
+        self._save_manifest()
+        self.repaired.append(why)
+        again = f" and its {n} finished chunk(s) are computed again" if n else ""
+        warnings.warn(f"{self.path}: {why}: the store's arrays are written again{again}", StoreWarning, stacklevel=4)
 
     # -- data
     def _data(self):
@@ -574,7 +619,11 @@ class ChunkStore:
         self.manifest["variables"] = [str(k) for k in ds.data_vars]  # the dataset's order (zarr lists names sorted)
         self.manifest["static"] = self._sums(self._static_names(ds))
         self.manifest["derived"] = {}
+        self.manifest["metadata"] = self._meta_sums(ds.variables)  # as xarray and zarr left them: complete now
         self._save_manifest()
+
+    def _meta_sums(self, names) -> dict[str, str]:
+        return {f: file_sum(self.path / f) for f in meta_files(str(k) for k in names)}
 
     def _sums(self, names) -> dict[str, str]:
         """The checksums of whole arrays of the group, as they read back."""
@@ -652,6 +701,11 @@ class ChunkStore:
                 raise StoreError(f"{self.path} has no arrays")
             g = self._data()
             arrays = self.manifest["arrays"]
+            # the group's zarr.json is rewritten below (attributes; new arrays in its consolidated metadata): a
+            # kill before its new checksum is recorded leaves a store whose metadata is known to be unverified
+            self.manifest["metadata"][ROOT] = REWRITING
+            self.manifest["finished"] = False
+            self._save_manifest()
             if "outcome" in arrays or "solver_status" in arrays:
                 # stored outcomes (a per-trajectory mapper), or the whole-set mapper over every stored record
                 records = {"outcome": np.asarray(g["outcome"][...]).reshape(-1)} if "outcome" in arrays \
@@ -670,6 +724,7 @@ class ChunkStore:
             # checksummed as written, so that export and a resume read nothing else
             made = set(self.manifest.get("static") or {}) | set(self.manifest["arrays"])
             self.manifest["derived"] = self._sums(sorted(set(self._data().array_keys()) - made))
+            self.manifest["metadata"] = self._meta_sums(made | set(self.manifest["derived"]))
             self.manifest["finished"] = True
             self._save_manifest()
         except OSError as exc:
@@ -716,25 +771,72 @@ def _set_root_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
     _atomic_json(root, meta)
 
 
-def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
-    """Chunk index -> what is wrong, for every finished chunk whose block of some array is missing
-    (no chunk file), unreadable, or differs from the checksum recorded when it was written."""
+def verify_metadata(path: str | Path, manifest: Mapping[str, Any]) -> dict[str, str]:
+    """Metadata file -> what is wrong, for every zarr.json of the store (the group's, each array's) that is
+    missing, has no checksum in the manifest, or differs from the checksum recorded when the store's writer
+    finished writing it. Checked before anything is read through them: a chunk's checksum is computed from
+    the values zarr decodes, so it cannot see an outcome name or an attribute changed in the metadata."""
+    if manifest.get("arrays") is None:
+        return {}
+    sums = manifest.get("metadata")
+    sums = sums if isinstance(sums, dict) else {}
+    held = set(manifest["arrays"]) | set(manifest.get("static") or {}) | set(manifest.get("derived") or {})
+    bad: dict[str, str] = {}
+    for f in sorted(set(meta_files(held)) | set(sums)):
+        if f not in sums:
+            bad[f] = f"{f} has no checksum in the manifest"
+        elif sums[f] == REWRITING:
+            bad[f] = f"{f} was being rewritten when the sweep stopped"
+        elif not (Path(path) / f).is_file():
+            bad[f] = f"{f} is missing"
+        else:
+            try:
+                same = file_sum(Path(path) / f) == sums[f]
+            except OSError as exc:
+                bad[f] = f"{f} cannot be read ({exc.strerror or exc})"
+                continue
+            if not same:
+                bad[f] = f"{f} differs from its checksum (changed after it was written)"
+    return bad
+
+
+def _unreadable(name: str) -> str:
+    return f"{name} is unreadable, cut short or overwritten"
+
+
+def _open_arrays(path: str | Path, manifest: Mapping[str, Any], names) -> dict[str, Any]:
+    """The zarr arrays ``names``, through metadata checked against its checksums first; a
+    :class:`StoreError` naming the damaged file(s) otherwise (nothing is read through them)."""
     import zarr
 
+    bad = verify_metadata(path, manifest)
+    if bad:
+        raise StoreError(metadata_problem(bad))
+    try:
+        with _quiet_zarr():
+            g = zarr.open_group(Path(path), mode="r", zarr_format=3)
+            return {k: g[k] for k in names}
+    except Exception as exc:  # noqa: BLE001 - metadata matching its checksums that zarr refuses: a bug of ours
+        raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
+
+
+def metadata_problem(bad: Mapping[str, str]) -> str:
+    """One line for damaged metadata files: the first few named, the rest counted."""
+    said = [bad[f] for f in sorted(bad)]
+    return "; ".join(said[:3]) + (f" and {len(said) - 3} more metadata file(s)" if len(said) > 3 else "")
+
+
+def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
+    """Chunk index -> what is wrong, for every finished chunk whose block of some array is missing
+    (no chunk file), unreadable, or differs from the checksum recorded when it was written. Raises
+    :class:`StoreError` when the metadata the arrays are read through is damaged."""
     arrays = manifest.get("arrays") or {}
     if not manifest["chunks"]:
         return {}
     if not arrays:  # chunks listed before any array was created: a manifest edited by hand
         return {int(i): "the store has no arrays" for i in manifest["chunks"]}
     ch = Chunking(manifest["chunking"]["shape"], manifest["batch_size"])
-    try:
-        for k in arrays:  # each array's own metadata too (readers without consolidated metadata use it)
-            json.loads((Path(path) / k / ROOT).read_text())
-        with _quiet_zarr():
-            g = zarr.open_group(Path(path), mode="r", zarr_format=3)
-            arr = {k: g[k] for k in arrays}
-    except Exception as exc:  # noqa: BLE001 - any damage to the metadata: the arrays are gone
-        raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
+    arr = _open_arrays(path, manifest, arrays)
     bad: dict[int, str] = {}
     for key, entry in manifest["chunks"].items():
         i = int(key)
@@ -748,8 +850,8 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
                 break
             try:
                 b = a[ch.region(i) + (slice(None),) * trailing]
-            except Exception as exc:  # noqa: BLE001 - a truncated or overwritten chunk file
-                bad[i] = f"{k}/{ck} is unreadable ({type(exc).__name__})"
+            except Exception:  # noqa: BLE001 - a truncated or overwritten chunk file
+                bad[i] = _unreadable(f"{k}/{ck}")
                 break
             if checksum(b) != (entry.get("sha256") or {}).get(k):
                 bad[i] = f"{k}/{ck} differs from its checksum"
@@ -761,31 +863,21 @@ def verify_arrays(path: str | Path, manifest: Mapping[str, Any]) -> dict[str, st
     """Array name -> what is wrong, for every whole-array checksum of the manifest (``static``: written
     when the store was created; ``derived``: when it finished) whose array has a chunk file missing, is
     unreadable, or differs from its checksum. Raises :class:`StoreError` when the arrays cannot be opened."""
-    import zarr
-
     sums = {**(manifest.get("static") or {}), **(manifest.get("derived") or {})}
     if not sums:
         return {}
-    try:
-        with _quiet_zarr():
-            g = zarr.open_group(Path(path), mode="r", zarr_format=3)
-        arr = {}
-        for k in sums:
-            json.loads((Path(path) / k / ROOT).read_text())
-            arr[k] = g[k]
-    except Exception as exc:  # noqa: BLE001 - any damage to the metadata: the arrays are gone
-        raise StoreError(f"the store's arrays cannot be opened ({type(exc).__name__}: {exc})") from None
+    arr = _open_arrays(path, manifest, sums)
     bad: dict[str, str] = {}
     for k, a in arr.items():
         try:
             values = a[...]
-        except Exception as exc:  # noqa: BLE001 - a truncated or overwritten chunk file: which one
-            bad[k] = f"{k} is unreadable ({type(exc).__name__})"
+        except Exception:  # noqa: BLE001 - a truncated or overwritten chunk file: which one
+            bad[k] = _unreadable(k)
             for idx in np.ndindex(*a.cdata_shape):
                 try:
                     a.blocks[idx]
-                except Exception as exc:  # noqa: BLE001
-                    bad[k] = f"{k}/{a.metadata.encode_chunk_key(idx)} is unreadable ({type(exc).__name__})"
+                except Exception:  # noqa: BLE001
+                    bad[k] = _unreadable(f"{k}/{a.metadata.encode_chunk_key(idx)}")
                     break
             continue
         if checksum(values) != sums[k]:
@@ -894,6 +986,10 @@ def finished_store(store: str | Path):
     if done != m["n_chunks"] or not m.get("finished"):
         raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
                          "again to finish it")
+    damaged = verify_metadata(store, m)
+    if damaged:
+        raise StoreError(f"{store}: {metadata_problem(damaged)}; nothing was exported. Run the sweep command again: "
+                         "it writes the store's arrays again and recomputes its chunks")
     bad = verify(store, m)
     broken = verify_arrays(store, m)
     if bad or broken:
@@ -908,4 +1004,4 @@ def finished_store(store: str | Path):
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
            "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "plan_from_manifest",
-           "stored_batch", "verify", "verify_arrays", "checksum"]
+           "stored_batch", "verify", "verify_arrays", "verify_metadata", "checksum"]

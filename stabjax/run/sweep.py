@@ -16,7 +16,6 @@ Dask path as a sweep. The progress bar (:mod:`stabjax.run.progress`) and the hor
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
 import platform
@@ -183,7 +182,8 @@ def default_store(out: str | Path) -> Path:
 def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | None = None, progress: bool = False,
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
              on_chunk: Callable[[int, int], None] | None = None, store: str | Path | None = None,
-             overrides: Mapping[str, Any] | None = None, executor=None) -> xr.Dataset:
+             overrides: Mapping[str, Any] | None = None, executor=None,
+             on_open: Callable[[], None] | None = None) -> xr.Dataset:
     """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset.
 
     With ``out`` (or ``store``), finished chunks go to a zarr store (:mod:`stabjax.run.store`; default
@@ -192,6 +192,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     ``out`` is written the store is removed unless ``keep_partial``. ``overrides``: the command-line
     settings that are not in the spec (``t1``), recorded in the store's identity. ``executor``: a
     :class:`stabjax.run.distributed.DaskExecutor` to run the chunks on Dask workers (default: here).
+    ``on_open``: called once the run goes ahead (the store accepted: every refusal is before it), for what
+    the caller says only then, such as which file will be replaced.
     """
     from . import store as S
 
@@ -212,6 +214,8 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=state) \
         if store_path is not None else _Memory(plan, batch, state)
     try:
+        if on_open is not None:
+            on_open()
         run = _run_chunks(plan, sink, batch, progress=progress, on_chunk=on_chunk, executor=executor,
                           overrides=overrides)
         attrs = {**D.run_attrs(**run),
@@ -229,8 +233,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
             if not keep_partial:
                 sink.discard()
                 sink.close()
-                with contextlib.suppress(OSError):
-                    store_path.rmdir()
+                sink.remove_dir()
             raise
         lazy = n > LAZY_ABOVE
         ds = S.open_store(store_path, dask=lazy)  # the netCDF file is a copy of the store (chunk by chunk: lazy)
@@ -249,8 +252,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     finally:
         sink.close()
     if not keep_partial:
-        with contextlib.suppress(OSError):
-            store_path.rmdir()  # only if empty: a user's file put in the store stays, and so does the folder
+        sink.remove_dir()  # only one it made, and only if empty: a user's file put in the store stays
     if lazy:  # not loaded into memory: read back lazily, chunk by chunk
         return xr.open_dataset(out, engine="netcdf4", chunks={})
     return ds
@@ -299,8 +301,7 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     finally:
         sink.close()
     if store is not None and not keep_store:
-        with contextlib.suppress(OSError):
-            Path(store).rmdir()
+        sink.remove_dir()
     return results, info
 
 

@@ -115,6 +115,22 @@ def test_changed_t1_batch_spec_model_refused(spec, tmp_path, capsys):
     assert ds.attrs["chunks_resumed"] == 0 and json.loads(ds.attrs["integrate_json"])["t1"] == 50.0
 
 
+def test_an_edited_starts_file_is_named_not_hashes(tmp_path, capsys):
+    """Before the fix: "(spec sample.__sha256__: 60a5b674... -> 26504872...; parameters: c90d... -> 8a3b...)"."""
+    (tmp_path / "starts.csv").write_text("theta0,omega0\n0.1,0.0\n1.0,0.5\n2.0,-1.0\n-1.0,2.0\n")
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'system = "{ROOT / "examples" / "pendulum" / "model.py"}:Pendulum"\nname = "st"\n'
+                    '[sample]\nfrom = "starts.csv"\n[integrate]\nt1 = 20.0\nn_checkpoints = 40\n')
+    out = tmp_path / "r.nc"
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, out, batch_size=2, on_chunk=interrupt_after(1))
+    (tmp_path / "starts.csv").write_text("theta0,omega0\n0.1,0.0\n1.0,0.5\n2.0,-1.5\n-1.0,2.0\n")
+    assert cli("sweep", spec, "--out", out, "--no-progress", "--no-plot") == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "(the starts file starts.csv changed since the interrupted run); pass --restart" in err, err
+    assert "sha256" not in err and "parameters" not in err
+
+
 def test_corrupt_manifest_is_a_clear_error(spec, tmp_path):
     out = tmp_path / "r.nc"
     store = tmp_path / "r.nc.zarr"

@@ -156,6 +156,91 @@ def test_a_damaged_array_of_an_interrupted_store_is_recomputed_on_resume(made, t
     check(made, tmp_path, capsys, key, name, kind, how)
 
 
+# the metadata files (the group's zarr.json holds a copy of every array's in its consolidated metadata, which
+# xarray reads): (store, file, damage)
+META = [("rules", "zarr.json", "flip"), ("rules", "zarr.json", "swap"), ("rules", "outcome/zarr.json", "delete"),
+        ("interrupted", "zarr.json", "flip"), ("rules", "zarr.json", "delete"), ("rules", "zarr.json", "truncate"),
+        ("rules", "outcome/zarr.json", "swap"), ("rules", "feat_mean/zarr.json", "truncate"),
+        ("rules", "sample/zarr.json", "delete"), ("rules", "basin_fraction/zarr.json", "delete"),
+        ("discovery", "zarr.json", "swap"), ("interrupted", "outcome/zarr.json", "delete")]
+FAST_META = set(META[:4])
+
+
+def damage_metadata(store: Path, name: str, how: str) -> None:
+    """Damage a zarr.json: deleted, cut in half, or its outcome names changed in place -- one bit of the first
+    name flipped ("fixed_point" -> "fixed_poinu"), or the first two names swapped (the basins exchanged)."""
+    f = store / name
+    data = f.read_bytes()
+    if how == "delete":
+        f.unlink()
+    elif how == "truncate":
+        f.write_bytes(data[:len(data) // 2])
+    else:
+        key = b'"flag_meanings": "'
+        at = data.index(key) + len(key)
+        end = data.index(b'"', at)
+        names = data[at:end].split(b" ")
+        if how == "flip":
+            names[0] = names[0][:-1] + bytes([names[0][-1] ^ 1])
+        else:
+            names[0], names[1] = names[1], names[0]
+        f.write_bytes(data[:at] + b" ".join(names) + data[end:])
+
+
+@pytest.mark.parametrize("key,name,how", [pytest.param(*c, id="-".join(c), marks=() if c in FAST_META
+                                                       else pytest.mark.slow) for c in META])
+def test_damaged_metadata_is_refused_by_export_and_written_again_by_the_sweep(made, tmp_path, capsys, key, name, how):
+    """Before the fix: one flipped bit in an outcome name of the group's zarr.json was exported with exit 0
+    as the outcome "fixed_poinu", two names swapped exchanged the basins, and the resumed sweep kept either;
+    a deleted array's zarr.json was said four times as a FileNotFoundError."""
+    spec, clean, ref = made[key]
+    store = tmp_path / "r.nc.zarr"
+    shutil.copytree(clean, store)
+    damage_metadata(store, name, how)
+    if key != "interrupted":
+        code, _, err = captured(capsys, "export", store, "--out", tmp_path / "x.nc")
+        err = " ".join(err.split())
+        assert code == 2 and f"{name} {'is missing' if how == 'delete' else 'differs from its checksum'}" in err, err
+        assert "nothing was exported" in err and not (tmp_path / "x.nc").exists()
+    code = status("sweep", spec, "--out", tmp_path / "r.nc", "--batch-size", BATCH, "--no-progress", "--no-plot",
+                  "--keep-store")
+    err = capsys.readouterr().err
+    assert code == 0, err
+    said = [ln for ln in err.splitlines() if ln.strip()]
+    warned = [ln for ln in said if ln.startswith("warning: ")]
+    assert len(warned) == 1 and f"{store}: {name} " in warned[0] and "written again" in warned[0], err
+    assert "Error" not in err and "Errno" not in err, err
+    ds = open_result(tmp_path / "r.nc")
+    assert_same(ds, ref)
+    assert ds["outcome"].attrs["flag_meanings"] == ref["outcome"].attrs["flag_meanings"]
+    np.testing.assert_array_equal(ds["outcome_name"].values, ref["outcome_name"].values)
+    assert captured(capsys, "export", store, "--out", tmp_path / "y.nc")[0] == 0
+    y = open_result(tmp_path / "y.nc")
+    assert_same(y, ref)
+    assert y["outcome"].attrs["flag_meanings"] == ref["outcome"].attrs["flag_meanings"]
+
+
+def test_a_sweep_stopped_while_it_rewrites_the_groups_metadata_writes_the_store_again(made, tmp_path, monkeypatch):
+    """The group's zarr.json is rewritten when the sweep finishes (its attributes): stopped before its new
+    checksum is recorded, the manifest says so, and the next run trusts nothing read through it."""
+    spec, clean, ref = made["interrupted"]
+    store = tmp_path / "r.nc.zarr"
+    shutil.copytree(clean, store)
+
+    def stopped(path, attrs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(S, "_set_root_attrs", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, tmp_path / "r.nc", batch_size=BATCH)
+    monkeypatch.undo()
+    m = S.read_manifest(store)
+    assert m["metadata"]["zarr.json"] == S.REWRITING and not m["finished"]
+    with pytest.warns(S.StoreWarning, match="zarr.json was being rewritten"):
+        ds = run_spec(spec, tmp_path / "r.nc", batch_size=BATCH)
+    assert_same(ds, ref)
+
+
 def test_every_array_of_a_store_has_a_checksum(made):
     """Each zarr array of the finished stores is exactly one of: a per-chunk record (a checksum per chunk),
     a static array or a derived one (a checksum of the whole array), so none can be read unchecked."""
@@ -168,16 +253,19 @@ def test_every_array_of_a_store_has_a_checksum(made):
         assert held == chunked | static | derived
         assert held == set(ref.variables)  # every variable of the result comes from a checked array
         assert all(len(m["chunks"][c]["sha256"]) == len(chunked) for c in m["chunks"])
+        metadata = {str(p.relative_to(store)) for p in store.rglob("zarr.json")}
+        assert set(m["metadata"]) == metadata == {"zarr.json", *(f"{k}/zarr.json" for k in held)}
 
 
 def test_a_truncated_chunk_is_named_not_a_zstd_traceback_nor_a_full_disk(made, tmp_path, capsys):
+    """Before: "is unreadable (RuntimeError)"; the name of an exception is no help to a user."""
     _, clean, _ = made["rules"]
     store = tmp_path / "r.nc.zarr"
     shutil.copytree(clean, store)
     where = damage(store, "basin_count", "truncate")
     code, out, err = captured(capsys, "export", store, "--out", tmp_path / "x.nc")
-    assert code == 2 and f"{where} is unreadable" in err, err
-    assert "Traceback" not in out + err and "disk" not in err and "Zstd" not in err
+    assert code == 2 and f"{where} is unreadable, cut short or overwritten" in " ".join(err.split()), err
+    assert "Traceback" not in out + err and "disk" not in err and "Zstd" not in err and "Error" not in err
 
 
 def test_export_of_an_unreadable_manifest_says_what_export_can_do(made, tmp_path, capsys):
@@ -191,14 +279,17 @@ def test_export_of_an_unreadable_manifest_says_what_export_can_do(made, tmp_path
     assert not (tmp_path / "x.nc").exists()
 
 
-def test_a_store_of_the_previous_format_is_refused_and_restart_removes_only_its_entries(made, tmp_path):
-    """Stores written before every array was checksummed (stabjax-store/2) cannot be trusted: refused with
-    --restart as the way on, which removes the entries that manifest lists and nothing else."""
+@pytest.mark.parametrize("old", ["stabjax-store/2", "stabjax-store/3"])
+def test_a_store_of_the_previous_format_is_refused_and_restart_removes_only_its_entries(made, tmp_path, old):
+    """Stores written before every array was checksummed (stabjax-store/2), or before their metadata was
+    (/3), cannot be trusted: refused with --restart as the way on, which removes the entries that manifest
+    lists and nothing else."""
     spec, clean, ref = made["rules"]
     store = tmp_path / "r.nc.zarr"
     shutil.copytree(clean, store)
     m = json.loads((store / "manifest.json").read_text())
-    m["format"] = "stabjax-store/2"
+    m["format"] = old
+    m.pop("metadata")
     (store / "manifest.json").write_text(json.dumps(m))
     (store / "mine.txt").write_text("keep")
     with pytest.raises(S.StoreError, match="earlier stabjax version"):

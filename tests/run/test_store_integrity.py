@@ -17,7 +17,7 @@ from stabjax.run import store as S
 from stabjax.plan.spec import make_plan
 from stabjax.run.sweep import open_result, run_plan, run_spec
 
-from test_store import TINY, cli  # the same tiny sweep and in-process CLI as the store tests
+from test_store import TINY, cli, interrupt_after  # the same tiny sweep and in-process CLI as the store tests
 
 
 @pytest.fixture(scope="module")
@@ -88,11 +88,38 @@ def test_store_directory_holding_user_files_is_refused_untouched(spec, tmp_path,
 
 
 def test_empty_directory_is_used_and_left_empty(spec, tmp_path, reference):
+    """The folder the user made for --store (as the refusal of a used one advises) is theirs: the store
+    removes what it wrote and leaves the folder. Before the fix the folder was removed too. A store's own
+    folder (the default <out>.zarr) goes, also when the run that made it was interrupted and resumed."""
     d = tmp_path / "empty"
     d.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, tmp_path / "r.nc", store=d, batch_size=4, on_chunk=interrupt_after(1))
     assert sweep(spec, tmp_path / "r.nc", "--store", d) == 0
     assert_same(open_result(tmp_path / "r.nc"), reference)
-    assert not d.exists()  # the store removed what it wrote, then the folder it found empty
+    assert d.is_dir() and not any(d.iterdir())
+    assert sweep(spec, tmp_path / "r.nc", "--store", d, "--restart") == 0  # --restart: the folder stays the user's
+    assert d.is_dir() and not any(d.iterdir())
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, tmp_path / "s.nc", batch_size=4, on_chunk=interrupt_after(1))
+    assert (tmp_path / "s.nc.zarr").is_dir()
+    assert sweep(spec, tmp_path / "s.nc") == 0
+    assert not (tmp_path / "s.nc.zarr").exists()
+
+
+def test_a_refused_sweep_does_not_say_it_replaces_the_result(spec, tmp_path, capsys):
+    """Before the fix "r.nc exists: it will be replaced" came first, then the refusal (exit 2, nothing replaced)."""
+    out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
+    assert sweep(spec, out, "--keep-store") == 0
+    capsys.readouterr()
+    before = out.read_bytes()
+    (store / "manifest.json").write_text('{"format": "stabjax-sto')
+    assert sweep(spec, out) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "manifest.json is unreadable" in err and "replaced" not in err, err
+    assert out.read_bytes() == before
+    assert sweep(spec, out, "--restart") == 0  # going ahead: said
+    assert "r.nc exists: it will be replaced (a previous result of this spec)" in " ".join(capsys.readouterr().err.split())
 
 
 def test_restart_and_cleanup_remove_only_what_the_store_wrote(spec, tmp_path, reference):
