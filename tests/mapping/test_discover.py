@@ -226,29 +226,14 @@ def test_continuation_through_births_and_deaths():
 
 
 def test_all_escaping_sweep_discovers_nothing_and_says_so():
-    """Every start runs away (dy/dt = y, escape radius 10): no attractor, all counted as escaped."""
-    import jax.numpy as jnp
+    """Every start runs away (dx/dt = x, escape radius 10): no attractor, all counted as escaped."""
+    grow, _, _ = _runaways()
 
-    from stabjax import Param, ParamSet, System
-
-    class Runaway(System):
+    class Runaway(grow):
         name = "runaway_test"
-        params = ParamSet((Param("y0", 1.0, "initial y", kind="initial"),))
-        state = (("y", ()),)
-        observables = ("y",)
-        observable_doc = ("y",)
         escape_radius = 10.0
 
-        def initial_state(self, p):
-            return jnp.reshape(p["y0"], (1,))
-
-        def rhs(self, t, y, p):
-            return y
-
-        def observe(self, t, y, p):
-            return y
-
-    ds = run_spec({"system": Runaway, "sample": {"n": 20, "seed": 0, "y0": {"dist": "uniform", "low": 1.0, "high": 2.0}},
+    ds = run_spec({"system": Runaway, "sample": {"n": 20, "seed": 0, "x0": {"dist": "uniform", "low": 1.0, "high": 2.0}},
                    "integrate": {"t1": 50.0}})
     assert ds["outcome"].attrs["flag_meanings"].split() == ["escaped", "unclassified", "failed"]
     assert ds.sizes["attractor"] == 0
