@@ -79,6 +79,21 @@ def _error(message: str) -> None:
     err_console.print("[bold red]error:[/bold red] " + escape(message), highlight=False)
 
 
+# the Python API's names of what a command line gives as an option: the user reads the option they typed
+_OPTION_NAMES = {"batch_size": "--batch-size", "ts": "--ts", "simulate.t1": "--t1", "simulate.t0": "--t0",
+                 "simulate.rtol": "--rtol", "simulate.atol": "--atol", "simulate.solver": "--solver"}
+
+
+def _as_option(exc, args: list[str]) -> str:
+    """The error's text, its field named as the command-line option the user gave, where they gave one."""
+    from ..errors import ValidationError
+
+    option = _OPTION_NAMES.get(getattr(exc, "field", None)) if isinstance(exc, ValidationError) else None
+    if option is not None and any(a == option or a.startswith(option + "=") for a in args):
+        return f"{option}: {exc.message}"
+    return str(exc)
+
+
 def _answers_without_running(args: list[str]) -> bool:
     """Whether the command line only asks for the version or a help text (typer answers those before any
     command runs), or for nothing (the help): then neither JAX nor any numerical module is imported."""
@@ -120,7 +135,7 @@ def main(argv: list[str] | None = None):
         # typer then *returns* the status of a ``typer.Exit`` (and 130 for Ctrl-C) instead of raising it
         rv = app(args=argv, standalone_mode=False)
     except StabjaxError as exc:
-        _error(str(exc))
+        _error(_as_option(exc, args))
         sys.exit(getattr(exc, "exit_code", 2))  # 2: bad input / refused; 1: I/O failure (store.StoreIOError)
     except KeyboardInterrupt as exc:
         status, by = _interrupt_status(exc)

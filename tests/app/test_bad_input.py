@@ -311,8 +311,10 @@ def test_cli_bad_options_exit_2(tmp_path, capsys, monkeypatch):
     spec.write_text(TINY)
     for args, field in [
         (["sweep", spec, "--t1", "nan"], "--t1"),
-        (["sweep", spec, "--batch-size", "0"], "batch_size"),
-        (["simulate", "monoaxial", "--t1", "inf"], "simulate.t1"),
+        (["sweep", spec, "--batch-size", "0"], "--batch-size"),
+        (["simulate", "monoaxial", "--t1", "inf"], "--t1"),
+        (["simulate", "monoaxial", "--rtol", "0"], "--rtol"),
+        (["simulate", "monoaxial", "--t1", "10", "--ts", "20"], "--ts"),
         (["simulate", "monoaxial", "--set", "alpha=1/0"], "alpha"),
         (["simulate", "monoaxial", "--set", "alpha"], "--set"),
         (["theory", "nosuch"], "system"),

@@ -160,7 +160,7 @@ def test_sweep_too_large_for_memory_is_refused(tmp_path, capsys):
     assert "error: grid:" in capsys.readouterr().err
     spec.write_text(SMALL)
     assert run_cli("sweep", str(spec), "--out", str(tmp_path / "h.nc"), "--batch-size", "100000000") == 2
-    assert "error: batch_size:" in capsys.readouterr().err
+    assert "error: --batch-size:" in capsys.readouterr().err
 
 
 def test_simulate_writes_trajectory(tmp_path, capsys):
