@@ -472,15 +472,14 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     unless ``keep_store``. The store's identity is the plan's with the round's points (``[refine]
     max_points`` left out: raising it resumes the same run).
     """
-    import shutil
-
     from ..mapping.classify import classify
+    from ..run.store import discard_rounds
     from ..run.sweep import default_store, run_points, write
 
     cfg = refine_config(plan)
     base = Path(store) if store is not None else (default_store(out) if out is not None else None)
-    if restart and base is not None and base.exists():
-        shutil.rmtree(base)
+    # the default <out>.zarr is the sweep's own; a --store folder only if this run makes it
+    own_base = base is not None and (store is None or not base.exists())
     spec = dict(plan.spec)
     spec["refine"] = {k: v for k, v in spec.get("refine", {}).items() if k != "max_points"}
     rplan = dataclasses.replace(plan, spec=spec)
@@ -491,8 +490,8 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
 
     def evaluate(r: int, values: np.ndarray) -> dict[str, np.ndarray]:
         res, info = run_points(plans[-1], values, store=None if base is None else base / f"round_{r:04d}",
-                               batch_size=batch_size, progress=progress, keep_store=True, executor=executor,
-                               overrides=overrides)
+                               batch_size=batch_size, progress=progress, restart=restart, keep_store=True,
+                               executor=executor, overrides=overrides)
         if cfg.label == "outcome" and "outcome" not in res:
             # the templates integrated at this round's points (the mapper's state of the points' plan)
             res["outcome"] = classify(dataclasses.replace(plan, points=values), res).codes
@@ -507,8 +506,8 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     ds = assemble(ref, wall=time.perf_counter() - t0, engines=engines, rounds_resumed=resumed[0])
     if out is not None:
         write(ds, out)
-        if not keep_store:
-            shutil.rmtree(base, ignore_errors=True)
+        if not keep_store and base is not None:
+            discard_rounds(base, own_base)
     return ds
 
 

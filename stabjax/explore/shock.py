@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -443,13 +442,14 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     command proposes the same rounds (everything is seeded) and recomputes no finished chunk; ``restart``
     discards them; the store is removed after ``out`` is written unless ``keep_store``.
     """
+    from ..run.store import discard_rounds
     from ..run.sweep import default_store, run_points, write
     from .shock_result import assemble
 
     cfg = shock_config(plan)
     base_dir = Path(store) if store is not None else (default_store(out) if out is not None else None)
-    if restart and base_dir is not None and base_dir.exists():
-        shutil.rmtree(base_dir)
+    # the default <out>.zarr is the search's own; a --store folder only if this run makes it
+    own_base = base_dir is not None and (store is None or not base_dir.exists())
     rplan = round_plan(plan, cfg)
     base, gv = base_points(plan)
     if cfg.settle:
@@ -464,8 +464,8 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
         values = np.concatenate([gv[g], np.stack([p[e.param] if e.index is None else p[e.param][(slice(None), *e.index)]
                                                   for e in cfg.entries], axis=1)], axis=1)
         res, info = run_points(rplan, values, store=None if base_dir is None else base_dir / f"round_{r:04d}",
-                               batch_size=batch_size, progress=progress, keep_store=True, executor=executor,
-                               overrides=overrides)
+                               batch_size=batch_size, progress=progress, restart=restart, keep_store=True,
+                               executor=executor, overrides=overrides)
         engines.update(info["engines"])
         resumed[0] += info["n_resumed"] == info["n_chunks"]
         params = dataclasses.replace(rplan, points=values).params_for(0, len(values))
@@ -477,14 +477,14 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
         search = Search(cfg, norm, plan.size, lambda: label.names).run(evaluate)
     except ValidationError:  # an attractor that discovery did not find: refused after round 0, nothing left behind
         if fresh:
-            shutil.rmtree(base_dir, ignore_errors=True)
+            discard_rounds(base_dir, own_base)
         raise
     ds = assemble(plan, rplan, cfg, norm, search, label.names, base, wall=time.perf_counter() - t0,
                   engines=engines, rounds_resumed=resumed[0], label=label)
     if out is not None:
         write(ds, out)
         if not keep_store and base_dir is not None:
-            shutil.rmtree(base_dir, ignore_errors=True)
+            discard_rounds(base_dir, own_base)
     return ds
 
 

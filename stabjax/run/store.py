@@ -232,6 +232,46 @@ def checksum(block: np.ndarray) -> str:
     return h.hexdigest()[:16]
 
 
+def remove_listed(path: Path, m: Mapping[str, Any], *, manifest: bool = True) -> None:
+    """Delete what a store wrote (the manifest ``m``'s entries), the manifest last. First the manifest is
+    rewritten to list no chunk and no arrays: a kill midway leaves a store that starts over and recreates
+    its arrays, never one whose manifest lists data that are gone."""
+    path = Path(path)
+    entries = [e for e in m.get("entries", []) if _safe_entry(e)]
+    if not m.get("damaged") and (path / MANIFEST).exists():
+        _atomic_json(path / MANIFEST, {**m, "arrays": None, "chunks": {}, "finished": False})
+    for e in entries:
+        if e == MANIFEST:
+            continue
+        p = path / e
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+    if manifest:
+        (path / MANIFEST).unlink(missing_ok=True)
+
+
+def discard_rounds(base: Path, remove_base: bool) -> None:
+    """After a refinement or a shock search has written its result: its per-round stores under ``base``
+    (``round_NNNN``), each removed by its own manifest's list, and ``base`` itself if ``remove_base`` and
+    empty. Never the whole tree: ``--store`` may name a folder of the user's, whose files stay."""
+    base = Path(base)
+    for d in sorted(base.glob("round_[0-9]*")):
+        if not d.is_dir() or d.is_symlink() or not (d / MANIFEST).is_file():
+            continue
+        try:
+            m = json.loads((d / MANIFEST).read_text())
+        except (OSError, ValueError):
+            continue  # not a manifest this code can read: the folder is left as it is
+        remove_listed(d, m)
+        with contextlib.suppress(OSError):
+            d.rmdir()
+    if remove_base:
+        with contextlib.suppress(OSError):
+            base.rmdir()
+
+
 def meta_files(names) -> list[str]:
     """The metadata files of a group holding the arrays ``names``: they carry what the values mean (the
     dataset's attributes, outcome names, and -- in each array's and the group's consolidated copy -- dtypes,
@@ -388,19 +428,7 @@ class ChunkStore:
         is rewritten to list no chunk and no arrays: a kill midway leaves a store that starts over and
         recreates its arrays, never one whose manifest lists data that are gone."""
         self._group = None
-        entries = [e for e in m.get("entries", []) if _safe_entry(e)]
-        if not m.get("damaged") and (self.path / MANIFEST).exists():
-            _atomic_json(self.path / MANIFEST, {**m, "arrays": None, "chunks": {}, "finished": False})
-        for e in entries:
-            if e == MANIFEST:
-                continue
-            p = self.path / e
-            if p.is_dir() and not p.is_symlink():
-                shutil.rmtree(p)
-            elif p.exists() or p.is_symlink():
-                p.unlink()
-        if manifest:
-            (self.path / MANIFEST).unlink(missing_ok=True)
+        remove_listed(self.path, m, manifest=manifest)
 
     def discard(self):
         """Delete what the store wrote (the netCDF file is written); the lock stays until close, and

@@ -193,6 +193,21 @@ def test_deterministic_and_resumed_from_the_store(tmp_path):
     np.testing.assert_array_equal(a.shock_delta.values, c.shock_delta.values)
 
 
+def test_a_store_folder_of_the_users_keeps_its_files(tmp_path):
+    """``--store DIR`` naming a folder that holds a user's file: the search's round stores are removed once the
+    result is written, with --restart too, and the user's file and folder stay (the whole tree was removed)."""
+    shock = {"components": ["x0"], "max_radius": 2.0, "directions": 2}
+    spec = {"system": "test_shock_t1", "name": "shock", "integrate": T1_INTEGRATE, "shock": shock}
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("my notes")
+    for restart in (False, True):
+        shock_spec(spec, tmp_path / f"a{restart}.nc", store=mine, restart=restart)
+        assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    shock_spec(spec, tmp_path / "b.nc")  # the default store is the search's own: removed
+    assert not (tmp_path / "b.nc.zarr").exists()
+
+
 def test_python_entry_point_and_cf_attributes():
     import stabjax
 
