@@ -308,19 +308,13 @@ def test_bad_grids(oscillator):
 
 
 def test_a_store_folder_of_the_users_keeps_its_files(oscillator, tmp_path):
-    """``--store DIR`` naming a folder that holds a user's file: the rounds' stores are removed once the result
-    is written, with --restart too, and the user's file and folder stay (the whole tree was removed)."""
+    """``--store DIR`` naming a folder that holds a user's file: only the rounds' stores are removed (the
+    whole tree was)."""
     from stabjax.explore.refine import refine_spec
+    from user_store import check_user_store_folder_kept
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"rel_tol": "1/16"}, params={"c": C1})
-    mine = tmp_path / "mine"
-    mine.mkdir()
-    (mine / "notes.txt").write_text("my notes")
-    for restart in (False, True):
-        refine_spec(s, tmp_path / f"a{restart}.nc", store=mine, restart=restart)
-        assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
-    refine_spec(s, tmp_path / "b.nc")  # the default store is the refinement's own: removed
-    assert not (tmp_path / "b.nc.zarr").exists()
+    check_user_store_folder_kept(lambda out, **kw: refine_spec(s, out, **kw), tmp_path)
 
 
 def test_cli_sweep_with_refine_and_bad_field(oscillator, tmp_path, capsys):

@@ -194,18 +194,13 @@ def test_deterministic_and_resumed_from_the_store(tmp_path):
 
 
 def test_a_store_folder_of_the_users_keeps_its_files(tmp_path):
-    """``--store DIR`` naming a folder that holds a user's file: the search's round stores are removed once the
-    result is written, with --restart too, and the user's file and folder stay (the whole tree was removed)."""
+    """``--store DIR`` naming a folder that holds a user's file: only the rounds' stores are removed (the
+    whole tree was)."""
+    from user_store import check_user_store_folder_kept
+
     shock = {"components": ["x0"], "max_radius": 2.0, "directions": 2}
     spec = {"system": "test_shock_t1", "name": "shock", "integrate": T1_INTEGRATE, "shock": shock}
-    mine = tmp_path / "mine"
-    mine.mkdir()
-    (mine / "notes.txt").write_text("my notes")
-    for restart in (False, True):
-        shock_spec(spec, tmp_path / f"a{restart}.nc", store=mine, restart=restart)
-        assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
-    shock_spec(spec, tmp_path / "b.nc")  # the default store is the search's own: removed
-    assert not (tmp_path / "b.nc.zarr").exists()
+    check_user_store_folder_kept(lambda out, **kw: shock_spec(spec, out, **kw), tmp_path)
 
 
 def test_python_entry_point_and_cf_attributes():
