@@ -69,8 +69,8 @@ def sweep(
 
     def say_replacing():
         if replacing:
-            err_console.print(f"{out} exists: it will be replaced" + ("" if force else " (a previous result of this spec)"),
-                              markup=False)
+            why = "" if force else " (a previous result of this spec)"
+            err_console.print(f"{out} exists: it will be replaced{why}", markup=False)
 
     note = plan.scheme.decl.default_distance_note() if plan.scheme.decl is not None else ""
     if note:
@@ -242,8 +242,8 @@ def run_status(ds, out: Optional[Path] = None) -> int:
         failed = int((codes == names.index("failed")).sum()) if "failed" in names else 0
         unclassified = int((codes == names.index("unclassified")).sum()) if "unclassified" in names else 0
         if failed:
-            err_console.print(f"{failed} of {n} trajectories failed: {_failed_why(ds, codes == names.index('failed'), out)}"
-                              "; exit status 1", style="red", markup=False)
+            why = _failed_why(ds, codes == names.index("failed"), out)
+            err_console.print(f"{failed} of {n} trajectories failed: {why}; exit status 1", style="red", markup=False)
             return 1
         if n and unclassified == n:
             why = ("no attractor was found: no min_samples trajectories lie within eps of one another"

@@ -79,7 +79,8 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..fold.stops import DISTANCE_TOL, STOP_FIXED_POINT, is_autonomous
-from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig, finite_features  # [outcomes.discovery]: the declaration's
+# DiscoveryConfig: [outcomes.discovery], the declaration's
+from ..model.outcomes import FAILED_NAME, UNCLASSIFIED, DiscoveryConfig, finite_features
 from .mapper import Mapped, Mapper, OutcomeScheme, outcome_names
 
 STATS = ("mean", "std", "min", "max")

@@ -363,7 +363,8 @@ class Outcomes:
         if self.discover and self.discovery.get("lyapunov", True):
             return True
         obs, scalars = _names(system)
-        texts = [(t, True) for t in self.rules.values()] + [(t, False) for t in (self.features if self.templates else ())]
+        texts = [(t, True) for t in self.rules.values()]
+        texts += [(t, False) for t in (self.features if self.templates else ())]
         for t, boolean in texts:
             try:
                 if ("final", LYAPUNOV) in parse(t, obs, scalars, "outcomes", boolean).used:
@@ -471,7 +472,8 @@ class Outcomes:
         value in any of them makes a trajectory failed (:func:`finite_features`), whichever statistic of it
         a rule happens to read."""
         obs, scalars = _names(system)
-        texts = [(t, True) for t in self.rules.values()] + [(t, False) for t in (self.features if self.templates else ())]
+        texts = [(t, True) for t in self.rules.values()]
+        texts += [(t, False) for t in (self.features if self.templates else ())]
         read: set[str] = set()
         for t, boolean in texts:
             read |= {o for _, o in parse(t, obs, scalars, "outcomes", boolean).used}

@@ -9,8 +9,8 @@ another dimension): a column read wrongly would run other starts than the file's
 Parameter columns hold finite real numbers: complex and bool columns are refused (float() would keep a
 complex number's real part, a bool as 0/1). A CSV is read as utf-8-sig, so Excel's byte-order mark is not
 part of the first column's name. A column ``label`` (or the one ``[sample] label = "NAME"`` names) holds the
-other tool's outcome of each start; it is not a parameter, and a blank label is refused with its row. The file's sha256 enters the sweep's identity (a resumed sweep
-whose file changed is refused like a changed spec).
+other tool's outcome of each start; it is not a parameter, and a blank label is refused with its row. The
+file's sha256 enters the sweep's identity (a resumed sweep whose file changed is refused like a changed spec).
 
 Comparison (:func:`compare`): outcome codes and file labels are different alphabets, so each of our
 outcomes is mapped to the file label most of its starts carry (pyBasin's majority mapping,

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from . import kit
-from .labels import attractor_label, axis_label, heading
+from .labels import attractor_label, axis_label, heading, trajectory_noun
 from .maps import cell_edges
 
 if TYPE_CHECKING:
@@ -238,7 +238,8 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
         w = max(len(a["name"]) for a in found) + 2
         for a in found:
             lam = f", largest Lyapunov exponent {a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else ""
-            lines.append(f"  {a['name']:<{w}}{a['count']:>9d} {'trajectory' if a['count'] == 1 else 'trajectories'}{lam}; {a['where'] or 'where: not recorded'}")
+            lines.append(f"  {a['name']:<{w}}{a['count']:>9d} {trajectory_noun(a['count'])}{lam}; "
+                         f"{a['where'] or 'where: not recorded'}")
     if "start_label_mcc" in ds:
         lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
                      f"Matthews correlation {float(ds['start_label_mcc']):.4f} "

@@ -21,6 +21,11 @@ GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "mu", "nu", "sigma", "lam
 GREEK_CAPITAL = {"gamma", "delta", "theta", "lambda", "xi", "pi", "sigma", "phi", "psi", "omega"}  # in math text
 
 
+def trajectory_noun(n: int) -> str:
+    """The noun after a count of ``n`` trajectories: "1 trajectory", "2 trajectories"."""
+    return "trajectory" if n == 1 else "trajectories"
+
+
 def symbol(name: str) -> str:
     """Axis label in math text: alpha -> $\\alpha$, omega0 -> $\\omega_0$, J_1 -> $J_1$, lam -> $\\lambda$,
     Omega_r -> $\\Omega_r$ (capital Greek), A[1] -> $A[1]$; a name of several letters that is no Greek letter

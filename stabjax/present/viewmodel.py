@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from . import kit
-from .labels import axis_label
+from .labels import axis_label, trajectory_noun
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -243,7 +243,7 @@ class Result:
                          "attractor; counted with the escapes, stabjax.mapping.discover.unbounded)")]
             a = found.get(name)
             return [("assigned by", "attractor discovery: grouped by its late-window features with "
-                     + (f"{a['count']:,} {'trajectory' if a['count'] == 1 else 'trajectories'} on one {a['type'].replace('_', ' ')}" if a else
+                     + (f"{a['count']:,} {trajectory_noun(a['count'])} on one {a['type'].replace('_', ' ')}" if a else
                         "no group (too far from every attractor found)"))]
         decl = sch.decl
         system = self.plan.system
