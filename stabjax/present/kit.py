@@ -310,7 +310,8 @@ def finished_file(store: str | Path) -> Path | None:
 
 def _open_store(path: Path, field: str, partial: bool):
     from ..run import dataset as D
-    from ..run.store import StoreError, open_store, pending_mask, plan_from_manifest, read_manifest
+    from ..run.store import (REWRITING, ROOT, StoreError, damage, holder, open_store, pending_mask, plan_from_manifest,
+                             read_manifest)
 
     try:
         m = read_manifest(path)
@@ -325,6 +326,15 @@ def _open_store(path: Path, field: str, partial: bool):
         done = len(m.get("chunks", {}))
         raise ValidationError(field, f"{path} is a sweep's store with {done} of {m.get('n_chunks', '?')} chunks "
                                      "finished: watch it with stabjax view, or show it when the sweep has finished")
+    if (m.get("metadata") or {}).get(ROOT) == REWRITING and not m.get("finished") and holder(path) is not None:
+        raise ValidationError(field, f"{path}: its sweep is writing the statistics of its finished run; try again "
+                                     "in a moment")
+    try:
+        problem = damage(path, m)  # checked as export checks it: a damaged chunk is never shown as a value
+    except StoreError as exc:
+        problem = (str(exc), "Run the sweep command again: it recomputes them")
+    if problem is not None:
+        raise ValidationError(field, f"{path}: {problem[0]}; nothing is shown from it. {problem[1]}")
     plan = plan_from_manifest(m)
     ds = open_store(path).load()  # the store is the sweep's dataset (unfinished chunks: fill values)
     if not m.get("finished"):  # a running sweep: the engines so far (a finished store has its run's attributes)

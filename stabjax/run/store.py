@@ -872,17 +872,16 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
         for k, a in arr.items():
             trailing = len(arrays[k]["trailing"])
             ck = a.metadata.encode_chunk_key(coords + (0,) * trailing)
-            f = Path(path) / k / ck
-            if not f.is_file():
-                bad[i] = f"{k}/{ck} is missing"
-                break
             try:
                 b = a[ch.region(i) + (slice(None),) * trailing]
             except Exception:  # noqa: BLE001 - a truncated or overwritten chunk file
                 bad[i] = _unreadable(f"{k}/{ck}")
                 break
             if checksum(b) != (entry.get("sha256") or {}).get(k):
-                bad[i] = f"{k}/{ck} differs from its checksum"
+                # zarr writes no chunk equal to the fill value (an outcome code 0 throughout): a chunk without
+                # its file is lost only when what it reads as differs from the checksum
+                gone = not (Path(path) / k / ck).is_file()
+                bad[i] = f"{k}/{ck} {'is missing' if gone else 'differs from its checksum'}"
                 break
     return bad
 
@@ -981,7 +980,8 @@ def plan_from_manifest(manifest: Mapping[str, Any]):
     return plan
 
 
-def _holder(path: Path) -> dict | None:
+def holder(path: Path) -> dict | None:
+    """The lock's record of the sweep writing the store ({"pid", "host"}), or None when no live one holds it."""
     lock = Path(path) / LOCK
     try:
         h = json.loads(lock.read_text() or "{}")
@@ -990,6 +990,27 @@ def _holder(path: Path) -> dict | None:
     if h.get("host") == socket.gethostname() and isinstance(h.get("pid"), int) and not _pid_alive(h["pid"]):
         return None
     return h
+
+
+def damage(store: str | Path, manifest: Mapping[str, Any]) -> tuple[str, str] | None:
+    """What is wrong with the finished part of a store, and how to go on, each in words; None when every
+    metadata file, every finished chunk and every whole array matches the checksum recorded when it was
+    written. What reads a store for a user (``export``, :func:`stabjax.open_result`, ``plot``, ``report``,
+    ``view``) asks this first: nothing damaged is filled in or read as something else."""
+    damaged = verify_metadata(store, manifest)
+    if damaged:
+        return metadata_problem(damaged), ("Run the sweep command again: it writes the store's arrays again and "
+                                           "recomputes its chunks")
+    bad = verify(store, manifest)
+    broken = verify_arrays(store, manifest)
+    if not (bad or broken):
+        return None
+    said = [f"chunk {i}: {why}" for i, why in sorted(bad.items())] + [broken[k] for k in sorted(broken)]
+    what = ([f"{len(bad)} chunk(s) are missing or damaged"] if bad else []) + \
+        ([f"{'array' if len(broken) == 1 else 'arrays'} {', '.join(sorted(broken))} "
+          f"{'is' if len(broken) == 1 else 'are'} missing or damaged"] if broken else [])
+    return (f"{' and '.join(what)} ({'; '.join(said[:5])}{' ...' if len(said) > 5 else ''})",
+            "Run the sweep command again: it recomputes them")
 
 
 def finished_store(store: str | Path):
@@ -1007,29 +1028,19 @@ def finished_store(store: str | Path):
                                   f"it: stabjax sweep SPEC --store {store} --restart")
     if m is None:
         raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST})")
-    h = _holder(store)
+    h = holder(store)
     if h is not None:
         raise StoreError(f"{store} is being written by pid {h.get('pid')} on {h.get('host')}; export it when that sweep ends")
     done = len(m["chunks"])
     if done != m["n_chunks"] or not m.get("finished"):
         raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
                          "again to finish it")
-    damaged = verify_metadata(store, m)
-    if damaged:
-        raise StoreError(f"{store}: {metadata_problem(damaged)}; nothing was exported. Run the sweep command again: "
-                         "it writes the store's arrays again and recomputes its chunks")
-    bad = verify(store, m)
-    broken = verify_arrays(store, m)
-    if bad or broken:
-        said = [f"chunk {i}: {why}" for i, why in sorted(bad.items())] + [broken[k] for k in sorted(broken)]
-        what = ([f"{len(bad)} chunk(s) are missing or damaged"] if bad else []) + \
-            ([f"{'array' if len(broken) == 1 else 'arrays'} {', '.join(sorted(broken))} "
-              f"{'is' if len(broken) == 1 else 'are'} missing or damaged"] if broken else [])
-        raise StoreError(f"{store}: {' and '.join(what)} ({'; '.join(said[:5])}{' ...' if len(said) > 5 else ''}); "
-                         "nothing was exported. Run the sweep command again: it recomputes them")
+    problem = damage(store, m)
+    if problem is not None:
+        raise StoreError(f"{store}: {problem[0]}; nothing was exported. {problem[1]}")
     return m, plan_from_manifest(m)
 
 
 __all__ = ["ChunkStore", "Chunking", "StoreError", "StoreIOError", "StoreWarning", "Lock", "finished_store",
-           "identity", "describe_changes", "read_manifest", "open_store", "pending_mask", "load_results", "plan_from_manifest",
-           "stored_batch", "verify", "verify_arrays", "verify_metadata", "checksum"]
+           "identity", "describe_changes", "read_manifest", "damage", "open_store", "pending_mask", "load_results",
+           "plan_from_manifest", "stored_batch", "verify", "verify_arrays", "verify_metadata", "checksum"]

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import zarr
 
+from stabjax.errors import ValidationError
+from stabjax.present.kit import open_result as show_result
 from stabjax.run import store as S
 from stabjax.run.sweep import open_result, run_spec
 
@@ -119,11 +121,26 @@ def assert_same(ds, ref):
         np.testing.assert_array_equal(ds[k].values, ref[k].values, err_msg=k)
 
 
+def check_shown_nowhere(capsys, store: Path, tmp_path, said: str) -> None:
+    """What shows a store (:func:`stabjax.open_result`, and through it ``plot``, ``report`` and ``view``) refuses
+    a damaged one as ``export`` does, finished or not, saying ``said``; ``plot`` (which shows finished stores
+    only) exits 2 and draws nothing. Before the fix they read a damaged chunk as its fill value or its flipped
+    value."""
+    with pytest.raises(ValidationError) as exc:
+        show_result(store)
+    assert said in str(exc.value) and "nothing is shown from it" in str(exc.value), exc.value
+    code, _, err = captured(capsys, "plot", store, "--out", tmp_path / "shown.png")
+    finished = len(S.read_manifest(store)["chunks"]) == 2
+    assert code == 2 and (said if finished else "1 of 2 chunks finished") in err, err
+    assert not (tmp_path / "shown.png").exists()
+
+
 def check(made, tmp_path, capsys, key, name, kind, how):
     spec, clean, ref = made[key]
     store = tmp_path / "r.nc.zarr"
     shutil.copytree(clean, store)
     where = damage(store, name, how)
+    check_shown_nowhere(capsys, store, tmp_path, name)
     if key != "interrupted":  # a finished store: export refuses, naming the array, and writes nothing
         code, _, err = captured(capsys, "export", store, "--out", tmp_path / "x.nc")
         assert code == 2, err
@@ -197,6 +214,7 @@ def test_damaged_metadata_is_refused_by_export_and_written_again_by_the_sweep(ma
     store = tmp_path / "r.nc.zarr"
     shutil.copytree(clean, store)
     damage_metadata(store, name, how)
+    check_shown_nowhere(capsys, store, tmp_path, f"{name} {'is missing' if how == 'delete' else 'differs from its checksum'}")
     if key != "interrupted":
         code, _, err = captured(capsys, "export", store, "--out", tmp_path / "x.nc")
         err = " ".join(err.split())

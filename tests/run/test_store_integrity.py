@@ -107,6 +107,30 @@ def test_empty_directory_is_used_and_left_empty(spec, tmp_path, reference):
     assert not (tmp_path / "s.nc.zarr").exists()
 
 
+def test_a_chunk_that_reads_as_the_fill_value_is_no_damage(tmp_path):
+    """zarr writes no file for a chunk equal to the array's fill value: here the last row of a verdict map, all
+    converged (outcome code 0), rewritten when the sweep finishes. Before the fix ``export`` refused the finished
+    store ("chunk 4: outcome/c/4/0 is missing"), and so did :func:`stabjax.open_result`; a resume recomputed
+    the chunk, warning of damage. Such a chunk is damaged only when what it reads as differs from its checksum."""
+    from see_results import VERDICT_MAP
+    from stabjax.present.kit import open_result as show_result
+
+    out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
+    ref = run_spec(VERDICT_MAP, out, batch_size=5, keep_partial=True)
+    m = S.read_manifest(store)
+    without = [i for i in range(m["n_chunks"]) if not (store / "outcome" / "c" / str(i) / "0").is_file()]
+    assert without and (ref["outcome"].values[without[0]] == 0).all()  # the case this test is about
+    assert S.damage(store, m) is None and S.verify(store, m) == {}
+    assert cli("export", store, "--out", tmp_path / "x.nc") == 0
+    assert_same(open_result(tmp_path / "x.nc"), ref)
+    shown = show_result(store)
+    assert not shown["pending"].any()
+    assert_same(shown.drop_vars("pending"), ref)
+    ds = run_spec(VERDICT_MAP, out, batch_size=5, keep_partial=True)  # a resume: nothing recomputed
+    assert ds.attrs["chunks_resumed"] == m["n_chunks"]
+    assert_same(ds, ref)
+
+
 def test_a_refused_sweep_does_not_say_it_replaces_the_result(spec, tmp_path, capsys):
     """Before the fix "r.nc exists: it will be replaced" came first, then the refusal (exit 2, nothing replaced)."""
     out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
