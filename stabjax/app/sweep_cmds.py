@@ -90,14 +90,14 @@ def sweep(
         if executor is not None:
             _start_executor(executor, scheduler, connect_timeout)
         stack.enter_context(_warnings_in_one_line())
-        if "shock" in s or "refine" in s:  # their runs open a store per round: said before the first
-            say_replacing()
         if "shock" in s:  # minimal fatal shocks at every grid point (stabjax.explore.shock)
             raise typer.Exit(_shock(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
-                                    store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
+                                    store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1},
+                                    on_open=say_replacing))
         if "refine" in s:  # adaptive boundary refinement from the [grid] as coarse grid (stabjax.explore.refine)
             raise typer.Exit(_refine(plan, out, plot, batch_size=batch_size, progress=progress, restart=restart,
-                                     store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1}))
+                                     store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1},
+                                     on_open=say_replacing))
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
                       keep_partial=keep_store, executor=executor, overrides={"t1": t1}, on_open=say_replacing)
     except KeyboardInterrupt as exc:

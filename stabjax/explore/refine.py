@@ -462,14 +462,16 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
 
 def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path | None = None,
                 batch_size: int | None = None, progress: bool = False, restart: bool = False,
-                keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None) -> xr.Dataset:
+                keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None,
+                on_open: Callable[[], None] | None = None) -> xr.Dataset:
     """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given.
 
     Each round's points go through the sweep's runner (:func:`stabjax.run.sweep.run_points`): the plan's engine,
     chunks of ``batch_size``, the executor's Dask workers, and a chunk store per round,
     ``<store>/round_NNNN`` (default store ``<out>.zarr``), so a killed refinement re-run with the same command
     recomputes no finished chunk; ``restart`` discards them; the store is removed after ``out`` is written
-    unless ``keep_store``. The store's identity is the plan's with the round's points (``[refine]
+    unless ``keep_store``. ``on_open``: called once, when the first round's store accepted the run (as for
+    :func:`stabjax.run.sweep.run_plan`). The store's identity is the plan's with the round's points (``[refine]
     max_points`` left out: raising it resumes the same run).
     """
     from ..mapping.classify import classify
@@ -486,12 +488,18 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     engines: set[str] = set()
     resumed = [0]
 
+    def opened():  # the caller's word (which file will be replaced) once, when the first round's store accepted
+        nonlocal on_open
+        if on_open is not None:
+            say, on_open = on_open, None
+            say()
+
     plans = [rplan]  # with the recurrence stop: rounds after the first stop at the first round's attractors
 
     def evaluate(r: int, values: np.ndarray) -> dict[str, np.ndarray]:
         res, info = run_points(plans[-1], values, store=None if base is None else base / f"round_{r:04d}",
                                batch_size=batch_size, progress=progress, restart=restart, keep_store=True,
-                               executor=executor, overrides=overrides)
+                               executor=executor, overrides=overrides, on_open=opened)
         if cfg.label == "outcome" and "outcome" not in res:
             # the templates integrated at this round's points (the mapper's state of the points' plan)
             res["outcome"] = classify(dataclasses.replace(plan, points=values), res).codes

@@ -433,14 +433,16 @@ class Search:
 
 def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path | None = None,
                batch_size: int | None = None, progress: bool = False, restart: bool = False,
-               keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None) -> xr.Dataset:
+               keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None,
+               on_open: Callable[[], None] | None = None) -> xr.Dataset:
     """Search the minimal fatal shock described by ``plan.spec["shock"]`` at every grid point; write ``out``
     (netCDF) if given.
 
     Each round's trajectories go through the sweep's runner (:func:`stabjax.run.sweep.run_points`) with a chunk
     store per round, ``<store>/round_NNNN`` (default store ``<out>.zarr``): a killed search re-run with the same
     command proposes the same rounds (everything is seeded) and recomputes no finished chunk; ``restart``
-    discards them; the store is removed after ``out`` is written unless ``keep_store``.
+    discards them; the store is removed after ``out`` is written unless ``keep_store``. ``on_open``: called once, when the first round's store accepted the run (as for
+    :func:`stabjax.run.sweep.run_plan`).
     """
     from ..run.store import discard_rounds
     from ..run.sweep import default_store, run_points, write
@@ -459,13 +461,19 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     engines: set[str] = set()
     resumed = [0]
 
+    def opened():  # the caller's word (which file will be replaced) once, when the first round's store accepted
+        nonlocal on_open
+        if on_open is not None:
+            say, on_open = on_open, None
+            say()
+
     def evaluate(r: int, g: np.ndarray, deltas: np.ndarray) -> np.ndarray:
         p = norm.params(g, deltas)
         values = np.concatenate([gv[g], np.stack([p[e.param] if e.index is None else p[e.param][(slice(None), *e.index)]
                                                   for e in cfg.entries], axis=1)], axis=1)
         res, info = run_points(rplan, values, store=None if base_dir is None else base_dir / f"round_{r:04d}",
                                batch_size=batch_size, progress=progress, restart=restart, keep_store=True,
-                               executor=executor, overrides=overrides)
+                               executor=executor, overrides=overrides, on_open=opened)
         engines.update(info["engines"])
         resumed[0] += info["n_resumed"] == info["n_chunks"]
         params = dataclasses.replace(rplan, points=values).params_for(0, len(values))

@@ -261,14 +261,15 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
 def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = None, batch_size: int | None = None,
                progress: bool = False, restart: bool = False, keep_store: bool = False,
                memory_limit: int | None = None, overrides: Mapping[str, Any] | None = None,
-               executor=None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+               executor=None, on_open: Callable[[], None] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Integrate the plan's samples at explicit grid points ``values`` (P, n_axes) through the same runner as
     :func:`run_plan` (chunks, engine, Dask workers, chunk store, resume): the per-trajectory records, point-major
     (each point's samples contiguous), and the run's record (``engines``, ``steps``, ``wall``, ``batch``,
     ``n_resumed``, ``n_chunks``). An explorer (:mod:`stabjax.explore.refine`) hands each round's points here.
 
     With ``store`` the chunks go to a chunk store whose identity covers the points (a store of other points is
-    refused, the same points resume); it is removed once read unless ``keep_store``. Without a batch size the
+    refused, the same points resume); it is removed once read unless ``keep_store``. ``on_open``: as for
+    :func:`run_plan`, called once the store accepted the run. Without a batch size the
     chunks are a power of two (>= 64) trajectories, so that a shape-compiled engine compiles a few shapes for
     all the rounds of an explorer rather than one per round.
     """
@@ -289,6 +290,8 @@ def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = Non
     sink = S.ChunkStore(store, plan, batch, overrides=overrides, restart=restart) if store is not None \
         else _Memory(plan, batch)
     try:
+        if on_open is not None:
+            on_open()
         info = _run_chunks(plan, sink, batch, progress=progress, executor=executor, overrides=overrides)
         if isinstance(sink, _Memory):
             results = sink.results

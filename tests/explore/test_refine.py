@@ -309,12 +309,13 @@ def test_bad_grids(oscillator):
 
 def test_a_store_folder_of_the_users_keeps_its_files(oscillator, tmp_path):
     """``--store DIR`` naming a folder that holds a user's file: only the rounds' stores are removed (the
-    whole tree was)."""
+    whole tree was); what will be replaced is said once the first round's store accepted the run."""
     from stabjax.explore.refine import refine_spec
-    from user_store import check_user_store_folder_kept
+    from user_store import check_said_once_the_store_accepts, check_user_store_folder_kept
 
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"rel_tol": "1/16"}, params={"c": C1})
     check_user_store_folder_kept(lambda out, **kw: refine_spec(s, out, **kw), tmp_path)
+    check_said_once_the_store_accepts(lambda out, **kw: refine_spec(s, out, **kw), tmp_path)
 
 
 def test_cli_sweep_with_refine_and_bad_field(oscillator, tmp_path, capsys):

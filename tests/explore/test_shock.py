@@ -195,12 +195,13 @@ def test_deterministic_and_resumed_from_the_store(tmp_path):
 
 def test_a_store_folder_of_the_users_keeps_its_files(tmp_path):
     """``--store DIR`` naming a folder that holds a user's file: only the rounds' stores are removed (the
-    whole tree was)."""
-    from user_store import check_user_store_folder_kept
+    whole tree was); what will be replaced is said once the first round's store accepted the run."""
+    from user_store import check_said_once_the_store_accepts, check_user_store_folder_kept
 
     shock = {"components": ["x0"], "max_radius": 2.0, "directions": 2}
     spec = {"system": "test_shock_t1", "name": "shock", "integrate": T1_INTEGRATE, "shock": shock}
     check_user_store_folder_kept(lambda out, **kw: shock_spec(spec, out, **kw), tmp_path)
+    check_said_once_the_store_accepts(lambda out, **kw: shock_spec(spec, out, **kw), tmp_path)
 
 
 def test_python_entry_point_and_cf_attributes():
