@@ -137,20 +137,30 @@ def _port_error(port: int, exc: OSError):
 
 def horizon_check_cmd(
     file: Path = typer.Argument(..., help="sweep result (netCDF)"),
-    factor: float = typer.Option(4.0, help="re-run with t1 * factor"),
+    factor: float = typer.Option(4.0, help="re-run with t1 * factor (1: the same horizon)"),
     n: int = typer.Option(64, help="number of trajectories re-run"),
     seed: int = typer.Option(0),
+    tighten: float = typer.Option(1.0, help="re-run with rtol and atol divided by this (10: a tenfold tighter "
+                                            "tolerance)"),
     as_json: bool = typer.Option(False, "--json"),
 ):
-    """Re-run a random subset at a longer horizon and report how many verdicts change.
+    """Re-run a random subset at a longer horizon, or a tighter tolerance, and report how many verdicts change.
 
     The sweep's dataset already holds the verdicts at t1 and the decades below it (dimension 'horizon',
-    from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory."""
+    from the same runs; shown first); this extends a subset beyond t1 in one run per trajectory. With
+    --factor 1 --tighten 10 it checks the tolerance instead: a verdict that changes was decided by the
+    solver's error."""
     from .. import validate
     from ..fold import verdict as V
     from ..run.horizon import horizon_check
 
-    validate.number(factor, "--factor", lo=1.0, lo_open=True)
+    validate.number(factor, "--factor", lo=1.0)
+    validate.number(tighten, "--tighten", lo=1.0)
+    if factor == 1 and tighten == 1:
+        from ..errors import ValidationError
+
+        raise ValidationError("--factor", "give a longer horizon (--factor > 1), a tighter tolerance (--tighten > 1) "
+                                          "or both: with neither the re-run is the sweep's own")
     validate.integer(n, "--n", lo=1)
     validate.integer(seed, "--seed", lo=0)
     ds = open_result_file(file)
@@ -163,13 +173,18 @@ def horizon_check_cmd(
         for j, T in enumerate(ds["horizon"].values):
             c = V.counts(ds["verdict"].isel(horizon=j).values)
             console.print(f"dataset, T = {T:<9.3g}" + " ".join(f"{k[:4]} {v:<6d}" for k, v in c.items()))
-    hc = horizon_check(ds, factor=factor, n=n, seed=seed)
+    hc = horizon_check(ds, factor=factor, n=n, seed=seed, tighten=tighten)
     if as_json:
-        console.print_json(json.dumps(jsonable({"n_checked": hc.attrs["n_checked"], "n_changed": hc.attrs["n_changed"],
-                                                  "t1_short": hc.attrs["t1_short"], "t1_long": hc.attrs["t1_long"],
+        keys = ("n_checked", "n_changed", "t1_short", "t1_long", "rtol_short", "rtol_long", "atol_short", "atol_long")
+        console.print_json(json.dumps(jsonable({**{k: hc.attrs[k] for k in keys},
                                                   "transition": hc["transition"].values})))
         return
-    t = Table(title=f"verdicts at t1 = {hc.attrs['t1_short']:g} (rows) vs t1 = {hc.attrs['t1_long']:g} (columns)")
+    a = hc.attrs
+
+    def run_of(which: str) -> str:
+        return f"t1 = {a['t1_' + which]:g}" + (f", rtol = {a['rtol_' + which]:g}" if tighten != 1 else "")
+
+    t = Table(title=f"verdicts at {run_of('short')} (rows) vs {run_of('long')} (columns)")
     t.add_column("")
     for name in V.NAMES:
         t.add_column(name)

@@ -1,6 +1,6 @@
-"""The horizon check (``stabjax horizon-check``): re-run a random subset of a finished sweep beyond its t1
-and count the verdicts that change. Not a sweep: a sample of single trajectories of the sweep's plan,
-solved in one batch on the plan's engine.
+"""The horizon check (``stabjax horizon-check``): re-run a random subset of a finished sweep beyond its t1, or
+at a tighter tolerance, or both, and count the verdicts that change. Not a sweep: a sample of single
+trajectories of the sweep's plan, solved in one batch on the plan's engine.
 """
 from __future__ import annotations
 
@@ -16,9 +16,14 @@ from ..errors import ValidationError
 from ..plan.spec import make_plan
 
 
-def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int = 0,
+def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int = 0, tighten: float = 1.0,
                   batch_size: int | None = None) -> xr.Dataset:
-    """Re-run a random subset of a finished sweep with ``t1 * factor``; return old/new verdicts.
+    """Re-run a random subset of a finished sweep with ``t1 * factor`` and ``rtol``, ``atol`` divided by
+    ``tighten``; return old/new verdicts.
+
+    ``tighten`` checks the tolerance rather than the horizon (``factor = 1``): a verdict that changes with a
+    tighter tolerance was decided by the solver's error, not by the dynamics (the main job at rtol 1e-8 had 11
+    such cells, late flips grown from the error that each destabilising window amplifies).
 
     A thin use of the multi-horizon classifier: the sweep's own dataset already holds verdicts at
     t1 and the decades below it (dim ``horizon``); this extends the run *beyond* t1 for a subset,
@@ -30,12 +35,17 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
     spec = json.loads(ds.attrs["spec_json"])
     plan = make_plan(spec)
     icfg = plan.icfg
-    if factor <= 1:
-        raise ValidationError("factor", f"must be > 1, got {factor}")
+    if not factor >= 1:
+        raise ValidationError("factor", f"must be >= 1, got {factor}")
+    if not tighten >= 1:
+        raise ValidationError("tighten", f"must be >= 1, got {tighten}")
+    if factor == 1 and tighten == 1:
+        raise ValidationError("factor", "a longer horizon (factor > 1), a tighter tolerance (tighten > 1) or both: "
+                                        "with neither the re-run is the sweep's own")
     rng = np.random.default_rng(seed)
     n = min(n, plan.size)
     idx = np.sort(rng.choice(plan.size, size=n, replace=False))
-    long_cfg = icfg.replace(t1=icfg.t1 * factor)
+    long_cfg = icfg.replace(t1=icfg.t1 * factor, rtol=icfg.rtol / tighten, atol=icfg.atol / tighten)
     hs = V.horizon_times(plan.vcfg, icfg.t0, icfg.t1)
     long_v = V.bind(plan.vcfg, long_cfg.t0, long_cfg.t1, horizons=list(hs[-(V.MAX_HORIZONS - 1):]))
     plan_long = dataclasses.replace(plan, icfg=long_cfg, vcfg=long_v, engine="")
@@ -53,5 +63,7 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
         coords={"traj": idx, "short": list(V.NAMES), "long": list(V.NAMES),
                 **({"horizon": ("horizon", np.asarray(long_v.horizons))} if new_all.ndim == 2 else {})},
     )
-    out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, n_changed=int((old != new).sum()), n_checked=int(n))
+    out.attrs.update(t1_short=icfg.t1, t1_long=long_cfg.t1, rtol_short=icfg.rtol, rtol_long=long_cfg.rtol,
+                     atol_short=icfg.atol, atol_long=long_cfg.atol, n_changed=int((old != new).sum()),
+                     n_checked=int(n))
     return out

@@ -337,6 +337,7 @@ def test_cli_bad_options_exit_2(tmp_path, capsys, monkeypatch):
         (["bench", "--out", spec, "--quick"], "--out"),
         (["horizon-check", spec, "--factor", "nan"], "--factor"),
         (["horizon-check", spec, "--n", "0"], "--n"),
+        (["horizon-check", spec, "--tighten", "nan"], "--tighten"),
     ]:
         code, out, err = cli(capsys, *args)
         assert code == 2 and f"error: {field}:" in err, (args, err)
