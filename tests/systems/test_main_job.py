@@ -28,14 +28,14 @@ def verdicts(rtol: float, atol: float) -> np.ndarray:
 
 def test_the_verdicts_do_not_change_with_a_tenfold_tighter_tolerance():
     """Every cell's verdict at every horizon (20, 200, 2e3, 2e4) is the same at the spec's tolerance and at a
-    tenfold tighter one. The test has teeth: the former rtol 1e-8 (atol 1e-10) disagrees with 1e-9 (1e-11)."""
+    tenfold tighter one. (That the comparison has teeth, the former rtol 1e-8 changing 4 cells of the corner
+    against 1e-10, is the next test's.)"""
     icfg = make_plan(load_spec(SPEC)).icfg
     assert (icfg.rtol, icfg.atol) == (1e-10, 1e-12)
     at_spec = verdicts(icfg.rtol, icfg.atol)
     tighter = verdicts(icfg.rtol / 10, icfg.atol / 10)
     differ = np.argwhere(at_spec != tighter)
     assert len(differ) == 0, f"{len(differ)} verdicts change with the tolerance, e.g. at index {differ[:5].tolist()}"
-    assert (verdicts(1e-8, 1e-10) != verdicts(1e-9, 1e-11)).sum() > 0
 
 
 @pytest.mark.slow
