@@ -476,7 +476,7 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     """
     from ..mapping.classify import classify
     from ..run.store import discard_rounds
-    from ..run.sweep import default_store, run_points, write
+    from ..run.sweep import default_store, once, run_points, write
 
     cfg = refine_config(plan)
     base = Path(store) if store is not None else (default_store(out) if out is not None else None)
@@ -488,11 +488,7 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     engines: set[str] = set()
     resumed = [0]
 
-    def opened():  # the caller's word (which file will be replaced) once, when the first round's store accepted
-        nonlocal on_open
-        if on_open is not None:
-            say, on_open = on_open, None
-            say()
+    opened = once(on_open)  # the caller's word (which file will be replaced), at the first round's store
 
     plans = [rplan]  # with the recurrence stop: rounds after the first stop at the first round's attractors
 

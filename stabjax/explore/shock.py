@@ -441,11 +441,11 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     Each round's trajectories go through the sweep's runner (:func:`stabjax.run.sweep.run_points`) with a chunk
     store per round, ``<store>/round_NNNN`` (default store ``<out>.zarr``): a killed search re-run with the same
     command proposes the same rounds (everything is seeded) and recomputes no finished chunk; ``restart``
-    discards them; the store is removed after ``out`` is written unless ``keep_store``. ``on_open``: called once, when the first round's store accepted the run (as for
-    :func:`stabjax.run.sweep.run_plan`).
+    discards them; the store is removed after ``out`` is written unless ``keep_store``. ``on_open``: called
+    once, when the first round's store accepted the run (as for :func:`stabjax.run.sweep.run_plan`).
     """
     from ..run.store import discard_rounds
-    from ..run.sweep import default_store, run_points, write
+    from ..run.sweep import default_store, once, run_points, write
     from .shock_result import assemble
 
     cfg = shock_config(plan)
@@ -461,11 +461,7 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     engines: set[str] = set()
     resumed = [0]
 
-    def opened():  # the caller's word (which file will be replaced) once, when the first round's store accepted
-        nonlocal on_open
-        if on_open is not None:
-            say, on_open = on_open, None
-            say()
+    opened = once(on_open)  # the caller's word (which file will be replaced), at the first round's store
 
     def evaluate(r: int, g: np.ndarray, deltas: np.ndarray) -> np.ndarray:
         p = norm.params(g, deltas)

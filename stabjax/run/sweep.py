@@ -258,6 +258,17 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     return ds
 
 
+def once(f: Callable[[], None] | None) -> Callable[[], None]:
+    """``f`` (if any) called the first time the result is, never again: an explorer opens a store per round, and
+    what its caller says when the run goes ahead (``on_open``) is said at the first."""
+    pending = [f] if f is not None else []
+
+    def call() -> None:
+        if pending:
+            pending.pop()()
+    return call
+
+
 def run_points(plan: Plan, values: np.ndarray, *, store: str | Path | None = None, batch_size: int | None = None,
                progress: bool = False, restart: bool = False, keep_store: bool = False,
                memory_limit: int | None = None, overrides: Mapping[str, Any] | None = None,
