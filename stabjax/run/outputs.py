@@ -279,7 +279,7 @@ def stamp_output(path: str | Path, source: str | Path | None = None, *, spec: st
     found = _find_stamp(kind, data)
     if found is not None:  # stamped before (a file drawn by a stamping helper): one stamp, the new one
         data = data[:found[0]] + data[found[1]:]
-    payload = json.dumps({"source": str(Path(source).resolve()) if source is not None else None, "spec": spec,
+    payload = json.dumps({"source": _relative_source(source, path), "spec": spec,
                           "sha256": hashlib.sha256(data).hexdigest()},
                          ensure_ascii=True, sort_keys=True).replace("-", "\\u002d")  # "--" ends an XML comment
     at = _stamp_offset(kind, data)
@@ -292,10 +292,23 @@ def stamp_output(path: str | Path, source: str | Path | None = None, *, spec: st
         raise
 
 
+def _relative_source(source: str | Path | None, path: Path) -> str | None:
+    """The result's path as the stamp records it: relative to the stamped file's folder, so that the same
+    figure drawn in another checkout (the README's map in a user's clone) has the same bytes; absolute only
+    where no relative path leads there (another drive)."""
+    if source is None:
+        return None
+    src = Path(source).resolve()
+    try:
+        return os.path.relpath(src, Path(path).resolve().parent)
+    except ValueError:
+        return str(src)
+
+
 def output_stamp(path: str | Path) -> dict | None:
     """The stamp of a file written by :func:`stamp_output` -- ``{"source": resolved path of the result it
-    was drawn from, "sha256": ...}`` -- or None: no stamp, not a file, unreadable, or changed since it was
-    stamped (the digest of its other bytes differs)."""
+    was drawn from (recorded relative to the file's folder), "sha256": ...}`` -- or None: no stamp, not a
+    file, unreadable, or changed since it was stamped (the digest of its other bytes differs)."""
     path = Path(path)
     kind = STAMPED.get(path.suffix.lower())
     if kind is None or not path.is_file():
@@ -314,6 +327,9 @@ def output_stamp(path: str | Path) -> dict | None:
         return None
     if not isinstance(stamp, dict) or stamp.get("sha256") != hashlib.sha256(data[:start] + data[end:]).hexdigest():
         return None
+    src = stamp.get("source")
+    if isinstance(src, str) and not os.path.isabs(src):
+        stamp["source"] = str((path.resolve().parent / src).resolve())
     return stamp
 
 

@@ -34,6 +34,30 @@ def result(tmp_path):
     return r
 
 
+def test_the_same_figure_in_another_checkout_has_the_same_bytes(tmp_path):
+    """The stamp records the result relative to the figure's folder: the README's map, drawn again in a user's
+    clone from its own results/default.nc, is byte for byte the committed one (before, the stamp held the
+    absolute path, so a fresh clone's first command left results/default.png modified). Moved together, the
+    figure still names its result; a figure whose result is elsewhere still names it."""
+    outs = []
+    for where in ("a", "b"):
+        d = tmp_path / where / "results"
+        d.mkdir(parents=True)
+        (d / "R.nc").write_bytes(b"stand-in for a result")
+        write_image(d / "R.png", draw, d / "R.nc", spec="0123")
+        outs.append(d / "R.png")
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    moved = tmp_path / "c"
+    (tmp_path / "a").rename(moved)
+    assert is_own_output(moved / "results" / "R.png", moved / "results" / "R.nc")
+    assert output_stamp(moved / "results" / "R.png")["source"] == str((moved / "results" / "R.nc").resolve())
+    far = tmp_path / "elsewhere" / "S.nc"
+    far.parent.mkdir()
+    far.write_bytes(b"another result")
+    write_image(tmp_path / "S.png", draw, far)
+    assert is_own_output(tmp_path / "S.png", far) and not is_own_output(tmp_path / "S.png", moved / "results" / "R.nc")
+
+
 @pytest.mark.parametrize("suffix", [".png", ".svg", ".pdf", ".html"])
 def test_a_stamped_output_names_its_result_and_stays_a_valid_file(tmp_path, result, suffix):
     out = tmp_path / f"R{suffix}"
