@@ -81,4 +81,3 @@ def describe(code: int) -> str:
         return "the state left the escape radius"
     name = DIFFRAX_RESULTS[code] if 0 <= code < len(DIFFRAX_RESULTS) else "unknown"
     return f"the solver failed ({name.replace('_', ' ')}, code {code})"
-
