@@ -67,9 +67,17 @@ def test_installed_wheel_reproduces_from_another_directory(tmp_path):
                    check=True, cwd=tmp_path, env=env)
     (wheel,) = whl.glob("stabjax-*.whl")
     venv = tmp_path / "venv"
-    # jax etc. from the system; --ignore-installed: an editable stabjax there must not count as installed
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, env=env)
+    # jax etc. from the interpreter running the tests (a .pth line: its packages, not its .pth hooks, so an
+    # editable stabjax there is not importable; --system-site-packages would reach the base interpreter, which
+    # has no jax when the tests run in a virtual environment); --ignore-installed: only the wheel counts
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, env=env)
     py = venv / "bin" / "python"
+    site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    import sysconfig
+
+    here = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
+    (Path(site) / "tests-parent.pth").write_text("\n".join(sorted(here)) + "\n")
     subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--ignore-installed", str(wheel)],
                    check=True, cwd=tmp_path, env=env)
     run_dir = tmp_path / "elsewhere"
