@@ -74,9 +74,10 @@ def nearest(values, target: float) -> int:
 
 def test_the_tolerance_check_finds_the_cells_the_solver_decided(tmp_path, capsys):
     """``horizon_check(..., factor=1, tighten=100)`` re-runs at the same horizon with rtol and atol / 100 and
-    counts the verdicts that change. On the main job's corner (4 cells of the 11 that rtol 1e-8 decided wrongly)
-    at the former rtol 1e-8 it finds every one and the re-run equals a sweep run directly at 1e-10; at the spec's
-    rtol 1e-10 it finds none. ``stabjax horizon-check R.nc --factor 1 --tighten 100`` says the same, its table's
+    counts the verdicts that change. On 4 cells of the main job's corner at the former rtol 1e-8 (here all 4 flip
+    late; which of them do is the machine's rounding, so the count is checked against the datasets, not fixed)
+    the re-run equals a sweep run directly at 1e-10 and it counts exactly the cells whose verdict differs from
+    that sweep's, at least one; at the spec's rtol 1e-10 it finds none. ``stabjax horizon-check R.nc --factor 1 --tighten 100`` says the same, its table's
     runs named by their tolerance; --factor 1 alone (nothing to compare) and --tighten below 1 are refused."""
     from stabjax.run.horizon import horizon_check
     from stabjax.run.sweep import run_spec
@@ -88,14 +89,16 @@ def test_the_tolerance_check_finds_the_cells_the_solver_decided(tmp_path, capsys
     ds = run_spec(old, tmp_path / "r.nc")
     hc = horizon_check(ds, factor=1, tighten=100, n=4)
     assert (hc.attrs["rtol_long"], hc.attrs["atol_long"], hc.attrs["t1_long"]) == (1e-10, 1e-12, 2e4)
-    assert hc.attrs["n_checked"] == 4 and hc.attrs["n_changed"] == 4
     direct = run_spec(corner)["verdict"].isel(horizon=-1).values.ravel()
     np.testing.assert_array_equal(hc["verdict_long"].values, direct)
+    solvers = int((ds["verdict"].isel(horizon=-1).values.ravel() != direct).sum())
+    assert hc.attrs["n_checked"] == 4 and hc.attrs["n_changed"] == solvers >= 1
     assert horizon_check(run_spec(corner), factor=1, tighten=10, n=4).attrs["n_changed"] == 0
 
     code, out, err = captured(capsys, "horizon-check", tmp_path / "r.nc", "--factor", "1", "--tighten", "100")
     assert code == 0, err
-    assert "rtol = 1e-08 (rows) vs t1 = 20000, rtol = 1e-10 (columns)" in out and "4 of 4 verdicts changed" in out, out
+    assert "rtol = 1e-08 (rows) vs t1 = 20000, rtol = 1e-10 (columns)" in out, out
+    assert f"{solvers} of 4 verdicts changed" in out, out
     code, _, err = captured(capsys, "horizon-check", tmp_path / "r.nc", "--factor", "1")
     assert code == 2 and "--factor" in err and "tighter tolerance" in err, err
     code, _, err = captured(capsys, "horizon-check", tmp_path / "r.nc", "--tighten", "0.5")
