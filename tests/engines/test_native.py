@@ -82,6 +82,41 @@ def test_every_summary_is_bit_identical_across_threads_and_runs(nat):
             np.testing.assert_array_equal(other[k], nat[k], err_msg=k)
 
 
+def test_model_functions_behind_a_call_change_no_bit(nat, monkeypatch):
+    """A large rhs and classifier update are compiled once and called from each site (kernel.CALL_LINES);
+    every summary and final state equals the kernel that inlines them at every site, bit for bit: paper A's
+    (t-only values shared by the last two stages, a verdict classifier) and Lorenz-63's features-only fold
+    (an autonomous rhs, every stage behind the call)."""
+    from stabjax.engines.native import kernel as K
+    from stabjax.run.sweep import static_params
+
+    default = K.CALL_LINES
+
+    def run(call_lines, *args, **kw):
+        monkeypatch.setattr(K, "CALL_LINES", call_lines)
+        native.clear_cache()
+        system, params, icfg, vcfg = args
+        kern, _ = native.kernel_for(system, icfg, vcfg, params, static=kw.get("static"))
+        return kern.source, native.solve(*args, **kw)
+
+    try:
+        src, inlined = run(10**9, SYS, batch(), ICFG, SYS.verdict, with_state=True, threads=2)
+        assert "rhs_lanes(" not in src and "upd_lanes(" not in src
+        assert K._lines(src, "f_rhs") >= default and K._lines(src, "f_upd") >= default  # so nat called both
+        for k in nat:
+            np.testing.assert_array_equal(inlined[k], nat[k], err_msg=k)
+        plan = _example_plan("lorenz", early_stop=False)
+        args = (plan.integrated, plan.params_for(0, plan.size), plan.icfg, plan.vcfg)
+        kw = {"static": static_params(plan), "threads": 2}
+        src0, called = run(0, *args, **kw)
+        src1, inlined = run(10**9, *args, **kw)
+        assert "rhs_lanes(TS, YT" in src0 and "upd_lanes(C" in src0 and "rhs_lanes(" not in src1
+        for k in inlined:
+            np.testing.assert_array_equal(called[k], inlined[k], err_msg=k)
+    finally:
+        native.clear_cache()
+
+
 def test_classifier_queue_overflow_and_late_drains_change_nothing():
     """Checkpoints so dense that lane FIFOs fill (QCAP) and hold items until the lane finishes: the
     kernel's drain counters (``run_raw(...)["drains"]``) show both overflow drains and end-of-lane drains
@@ -233,7 +268,7 @@ def test_rhs_split_and_zero_terms():
 
 
 def test_classifier_update_equals_jax():
-    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8))
+    kern, _ = native.kernel_for(SYS, ICFG, SYS.verdict, batch(8), eval_only=True)
     m = kern.model
     t_late = V.late_start(SYS.verdict, float(ICFG.t0), float(ICFG.t1))
     upd = jax.jit(lambda c, t, o: V.update(c, t, o, SYS.verdict, t_late))
@@ -270,7 +305,7 @@ def test_huge_trig_arguments():
     for any pow of finite accuracy at such arguments."""
     p = batch_params(SYS, None, 2)
     p["alpha"] = np.array([1.0, 1.0])
-    kern, dyn = native.kernel_for(SYS, ICFG, SYS.verdict, p)
+    kern, dyn = native.kernel_for(SYS, ICFG, SYS.verdict, p, eval_only=True)
     a, _ = kern.model.host_inputs(dyn, 2)
     q = {k: jnp.asarray(v[0]) for k, v in p.items()}
     y = np.array([0.1, -0.2, 0.3, 0.6, 0.48, 0.64])

@@ -90,7 +90,8 @@ class _Kernel:
         # but the last one (kernel_source)
         window_from = 0 if vcfg.verdicts or not SKIP_BEFORE_WINDOW else stops.window_index(self.ts, vcfg)
         self.source = kernel_source(self.model, width, escape_radius(system, icfg),
-                                    fp_every=stops.fixed_point_every(len(self.ts)), window_from=window_from)
+                                    fp_every=stops.fixed_point_every(len(self.ts)), window_from=window_from,
+                                    eval_entries=eval_only)
         if eval_only:
             self.source = _eval_only_source(self.source)
         self.lib = _build(self.source)

@@ -66,6 +66,21 @@ def _coef(x) -> str:
     return flit(x)
 
 
+# A model function of at least this many lines of C is compiled once and called from each site (rhs_lanes,
+# upd_lanes); a smaller one is inlined at each, as before: its copies cost GCC little, and a call per stage measurably
+# slowed the pendulum's rhs of a dozen lines (kernel alone, one thread, min of 5 runs in each of five
+# alternating pairs of processes: 1.30-1.53 s inlined, 1.36-1.67 s called)
+CALL_LINES = 100
+
+
+def _lines(functions: str, name: str) -> int:
+    """Lines of C in the body of the generated function ``name`` (0 where there is none)."""
+    head = f"void {name}("
+    if head not in functions:
+        return 0
+    return functions.split(head, 1)[1].split("\n}\n", 1)[0].count("\n")
+
+
 def _unrolled(n: int, line: Callable[[int], str]) -> str:
     """``n`` statements, unrolled here: GCC does not vectorise a loop over lanes that still holds
     an inner loop (measured: the error estimate and classifier loops stayed scalar)."""
@@ -73,15 +88,18 @@ def _unrolled(n: int, line: Callable[[int], str]) -> str:
 
 
 def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_every: int = 8,
-                  window_from: int = 0) -> str:
+                  window_from: int = 0, eval_entries: bool = False) -> str:
     """C source of the integration loop for ``model`` with blocks of ``W`` lanes; ``escape``: the
     escape radius (None: no escape test, and the source is that of a kernel without one).
     ``window_from``: for a fold of the late-window features alone, the index of the first checkpoint in
     the window; of the checkpoints before it only the last one of each step is observed and folded (the
     others' updates change nothing the last one does not overwrite: the last value, the span), so results
-    are those of every checkpoint, bit for bit. 0: every checkpoint (the attitude classifier reads all)."""
+    are those of every checkpoint, bit for bit. 0: every checkpoint (the attitude classifier reads all).
+    ``eval_entries``: also the scalar entry points ``stabjax_eval*`` / ``stabjax_update`` that the tests
+    compare with JAX (a sweep never calls them, and each is another compiled copy of the model)."""
     NS, NA, NC, NO = model.n_state, max(model.n_args, 1), model.n_c, max(model.n_obs, 1)
     stage_loops = []
+    call_rhs, call_upd = (_lines(model.functions, name) >= CALL_LINES for name in ("f_rhs", "f_upd"))
     # The sixth stage and the next step's first are both at t + h: the t-only part of the
     # right-hand side (paper A: cos(omega0 t**alpha), a log, an exp and a cos) is computed once for
     # both, at TN (diffrax takes the sixth at t + 1.0 * h, which can differ from TN in the last bit)
@@ -92,22 +110,29 @@ def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_ev
         body = _unrolled(NS, lambda q: f"YT[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
         pre = ""
-        call = f"f_rhs(T[l] + {_coef(C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);"
+        call = (f"""#pragma omp simd
+        for (int l = 0; l < W; l++) TS[l] = T[l] + {_coef(C[i - 1])} * H[l];
+        rhs_lanes(TS, YT, A, KS[{i}]);""" if call_rhs else f"""#pragma omp simd
+        for (int l = 0; l < W; l++) f_rhs(T[l] + {_coef(C[i - 1])} * H[l], YT + l, A + l, KS[{i}] + l, W);""")
         if share and i == 5:
             pre = """
         #pragma omp simd
         for (int l = 0; l < W; l++) f_rhs_t(TN[l], A + l, TV + l, W);"""
-            call = f"f_rhs_y(TN[l], TV + l, YT + l, A + l, KS[{i}] + l, W);"
+            call = f"""#pragma omp simd
+        for (int l = 0; l < W; l++) f_rhs_y(TN[l], TV + l, YT + l, A + l, KS[{i}] + l, W);"""
         stage_loops.append(f"""{pre}
         #pragma omp simd
         for (int l = 0; l < W; l++) {{
             const double h = H[l];
             {body}
         }}
-        #pragma omp simd
-        for (int l = 0; l < W; l++) {call}""")
-    last_call = ("f_rhs_y(TN[l], TV + l, YN + l, A + l, KS[6] + l, W)" if share
-                 else "f_rhs(TN[l], YN + l, A + l, KS[6] + l, W)")
+        {call}""")
+    # the t-only values TV stay in the same function as the two stages that read them: behind a call,
+    # GCC could no longer fuse a product of them into a multiply-add, and results moved in the last bit
+    last_call = ("""#pragma omp simd
+        for (int l = 0; l < W; l++) f_rhs_y(TN[l], TV + l, YN + l, A + l, KS[6] + l, W);""" if share
+                 else "rhs_lanes(TN, YN, A, KS[6]);" if call_rhs else
+                 "#pragma omp simd\n        for (int l = 0; l < W; l++) f_rhs(TN[l], YN + l, A + l, KS[6] + l, W);")
     row = A[5]
     new_body = _unrolled(NS, lambda q: f"YN[{q} * W + l] = Y[{q} * W + l] + h * ("
                          + " + ".join(f"{_coef(c)} * KS[{j}][{q} * W + l]" for j, c in enumerate(row) if c != 0.0) + ");")
@@ -152,6 +177,21 @@ def kernel_source(model: NativeModel, W: int, escape: float | None = None, fp_ev
     commit_body = _unrolled(NS, lambda q: f"Y[{q} * W + l] = kp != 0.0 ? YN[{q} * W + l] : Y[{q} * W + l]; "
                                           f"KS[0][{q} * W + l] = kp != 0.0 ? KS[6][{q} * W + l] : KS[0][{q} * W + l];")
     decls = _vector_decls()
+    upd_call = ("upd_lanes(C, TC, OBS, CN);" if call_upd else
+                "#pragma omp simd\n    for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);")
+    lanes = ("" if not call_rhs else """
+static __attribute__((noinline)) void rhs_lanes(const double *restrict TT, const double *restrict YY,
+                                                const double *restrict AA, double *restrict KK) {
+    #pragma omp simd
+    for (int l = 0; l < W; l++) f_rhs(TT[l], YY + l, AA + l, KK + l, W);
+}
+""") + ("" if not call_upd else """
+static __attribute__((noinline)) void upd_lanes(const double *restrict CC, const double *restrict TT,
+                                                const double *restrict OO, double *restrict NN) {
+    #pragma omp simd
+    for (int l = 0; l < W; l++) f_upd(CC + l, TT[l], OO + l, NN + l, W);
+}
+""")
     src = (_HEADER % {"decls": decls}) + f"""
 #define W {W}
 #define NS {NS}
@@ -179,6 +219,14 @@ static inline double jpow(const double x, const double y) {{
 
 {model.functions}
 
+/* The rhs and the classifier update of a block's W lanes. A large one (CALL_LINES) is compiled once and
+   called from every site: GCC compiles each inlined copy anew, and the stages' copies of the rhs and the
+   classifier's two made most of a large model's compile time (the drain below was the first;
+   docs/performance.md), while a call per block of W lanes costs nothing measurable beside their work. The
+   results are those of the inlined copies, bit for bit (every shipped sweep and example compared). Not
+   behind a call: the two stages that share the rhs's t-only values, and a new lane's first rhs (either
+   changed GCC's fusing of multiply-adds, and so the last bits). */
+{lanes}
 static inline int finite_row(const double *x) {{
     int ok = 1;
     for (int q = 0; q < NS; q++) ok &= isfinite(x[q * W]);
@@ -238,8 +286,7 @@ static __attribute__((noinline)) void drain_one(const int L, const double *T, do
     for (int l_ = 0; l_ < W; l_++) TC[l_] = T[l_];  /* other lanes: computed, discarded */
     TC[L] = FT[L * QCAP + p_];
     for (int q = 0; q < NO; q++) OBS[q * W + L] = FO[(L * QCAP + p_) * NO + q];
-    #pragma omp simd
-    for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);
+    {upd_call}
     for (int q = 0; q < NC; q++) C[q * W + L] = CN[q * W + L];
     QH[L] = (p_ + 1) % QCAP; QN[L]--;
 }}
@@ -248,7 +295,7 @@ int64_t stabjax_run(const job_t *jb) {{
     /* per-lane flags and counters are doubles too (see CEmit): every simd loop is pure V8DF */
     double Y[NS * W] ALIGN, KS[7][NS * W] ALIGN, YT[NS * W] ALIGN, YN[NS * W] ALIGN, A[NA * W] ALIGN, C[NC * W] ALIGN,
         CN[NC * W] ALIGN, OBS[NO * W] ALIGN, T[W] ALIGN, TN[W] ALIGN, H[W] ALIGN, TP[W] ALIGN, TNX[W] ALIGN, TC[W] ALIGN,
-        NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN, TV[NTV * W] ALIGN;
+        NACC[W] ALIGN, NREJ[W] ALIGN, KEEP[W] ALIGN, HAS[W] ALIGN, ACT[W] ALIGN, TV[NTV * W] ALIGN{", TS[W] ALIGN" if call_rhs else ""};
     /*FP_DECL*/
     int64_t CK[W] ALIGN, IDX[W] ALIGN;
     /* checkpoint items of one step */
@@ -307,8 +354,7 @@ int64_t stabjax_run(const job_t *jb) {{
             const double h = H[l];
             {new_body}
         }}
-        #pragma omp simd
-        for (int l = 0; l < W; l++) {last_call};
+        {last_call}
 
         /* error estimate and diffrax's PIDController (I-controller defaults) */
         #pragma omp simd
@@ -429,8 +475,7 @@ int64_t stabjax_run(const job_t *jb) {{
                 }}
             }}
             if (!any) break;
-            #pragma omp simd
-            for (int l = 0; l < W; l++) f_upd(C + l, TC[l], OBS + l, CN + l, W);
+            {upd_call.replace(chr(10) + "    ", chr(10) + "            ")}
             #pragma omp simd
             for (int l = 0; l < W; l++) {{
                 const double has = HAS[l];
@@ -488,6 +533,7 @@ int64_t stabjax_run(const job_t *jb) {{
     return finished;
 }}
 
+/*EVAL*/
 /* one trajectory's rhs, observables and classifier update at stride 1 (tests compare them with JAX) */
 void stabjax_eval(const double t, const double *y, const double *a, double *dy, double *obs) {{
     f_rhs(t, y, a, dy, 1);
@@ -503,6 +549,8 @@ void stabjax_update(const double *c, const double t, const double *o, double *ou
     f_upd(c, t, o, out, 1);
 }}
 """
+    if not eval_entries:
+        src = src[: src.index("/*EVAL*/")]
     if window_from > 1:  # a features-only fold: skip to the last checkpoint before the window in each step
         src = src.replace("/*SKIP*/", f"""/* features-only fold: a checkpoint before the feature window (index {int(window_from)}) sets the
            last value alone, so of those a step crosses only the last is observed (the pendulum's 2000
