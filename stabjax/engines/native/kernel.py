@@ -69,7 +69,7 @@ def _coef(x) -> str:
 # A model function of at least this many lines of C is compiled once and called from each site (rhs_lanes,
 # upd_lanes); a smaller one is inlined at each, as before: its copies cost GCC little, and a call per stage measurably
 # slowed the pendulum's rhs of a dozen lines (kernel alone, one thread, min of 5 runs in each of five
-# alternating pairs of processes: 1.30-1.53 s inlined, 1.36-1.67 s called)
+# alternating pairs of processes: 1.30-1.53 s inlined, 1.36-1.67 s called; docs/performance.md)
 CALL_LINES = 100
 
 
