@@ -95,6 +95,38 @@ def model_timeout() -> float | None:
     return v or None
 
 
+class _ModelExit(Exception):
+    """The model's code called ``os._exit``."""
+
+
+@contextlib.contextmanager
+def no_exit():
+    """While the block runs, ``os._exit`` in this process raises :class:`_ModelExit` instead of ending it.
+
+    Why: ``os._exit`` ends the process at once, past every ``except``, ``finally`` and exit handler,
+    with the status the model chose; a model calling ``os._exit(0)`` would make the command exit 0
+    with nothing written, which reads as success. ``sys.exit`` needs no guard (it raises SystemExit,
+    reported by :func:`_last_line`). A process forked inside the block (another pid) exits as usual,
+    since its ``os._exit`` is how multiprocessing ends a child."""
+    real = os._exit
+    if getattr(real, "_stabjax_no_exit", False):  # nested: the outer guard stays
+        yield
+        return
+    pid = os.getpid()
+
+    def guarded(status):
+        if os.getpid() != pid:
+            real(status)
+        raise _ModelExit(f"it called os._exit({status!r}); a model must not end the program")
+
+    guarded._stabjax_no_exit = True
+    os._exit = guarded
+    try:
+        yield
+    finally:
+        os._exit = real
+
+
 @contextlib.contextmanager
 def time_limit(what: str, where: str):
     """Run the block under :func:`model_timeout`; past it, a ValidationError naming ``where``.
@@ -108,7 +140,8 @@ def time_limit(what: str, where: str):
     """
     limit = model_timeout()
     if limit is None or not hasattr(signal, "setitimer") or threading.current_thread() is not threading.main_thread():
-        yield
+        with no_exit():
+            yield
         return
     active = [True]
 
@@ -120,7 +153,8 @@ def time_limit(what: str, where: str):
     outer, _ = signal.setitimer(signal.ITIMER_REAL, limit)  # a limit around this one (nested loads) resumes after
     t0 = time.monotonic()
     try:
-        yield
+        with no_exit():
+            yield
         active[0] = False
     except _ModelTimeout:
         raise ValidationError("system", f"{where}: {what} did not finish within {limit:g} s (a loop that never "
@@ -343,6 +377,9 @@ def _last_line(exc: BaseException) -> str:
     """``Type: message (line N of file)``, pointing at the innermost frame outside stabjax and importlib."""
     if isinstance(exc, SystemExit):
         return f"it called sys.exit({exc.code!r}); loading a model must not end the program"
+    if isinstance(exc, _ModelExit):
+        tb = [f for f in traceback.extract_tb(exc.__traceback__) if f"{Path(__file__).parent}" not in f.filename]
+        return f"{exc}" + (f" (line {tb[-1].lineno} of {Path(tb[-1].filename).name})" if tb else "")
     if isinstance(exc, SyntaxError):
         if exc.lineno is None:
             return f"SyntaxError: {exc.msg}"

@@ -165,6 +165,51 @@ def test_sys_exit_in_a_model_is_a_model_error(project, capsys, where):
 
 
 @pytest.mark.parametrize("where", ["import", "rhs"])
+def test_os_exit_in_a_model_is_a_model_error(project, where):
+    """``os._exit(0)`` ends a process past every handler: unguarded, the sweep would exit 0 with nothing
+    written. Run in a child process, so that a regression ends the child (status 0, no message: this
+    test fails) and not the test run."""
+    import os
+    import subprocess
+    import sys
+
+    if where == "import":
+        (project / "model.py").write_text("import os\nos._exit(0)\n" + MODEL)
+        needle = "line 2 of model.py"
+    else:
+        (project / "model.py").write_text(MODEL.replace("return damped_rhs(y, p)", "import os; os._exit(0)"))
+        needle = "Oscillator.rhs: raised"
+    out = project / "res.nc"
+    r = subprocess.run([sys.executable, "-m", "stabjax", "sweep", str(project / "spec.toml"), "--out", str(out),
+                        "--no-progress", "--no-plot"], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    text = r.stdout + r.stderr
+    assert r.returncode == 2, text
+    assert "os._exit(0)" in text and needle in text and "Traceback" not in text
+    assert not out.exists()
+
+
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # the child only calls os._exit: no lock to meet
+def test_the_exit_guard_lets_a_forked_child_exit():
+    """Inside the guard a forked child still ends with its own ``os._exit`` (multiprocessing's way),
+    and the guard is gone after the block."""
+    import os
+
+    from stabjax.model.loading import no_exit
+
+    real = os._exit
+    with no_exit():
+        assert os._exit is not real
+        pid = os.fork()
+        if pid == 0:
+            os._exit(7)
+        _, status = os.waitpid(pid, 0)
+        with pytest.raises(Exception, match="os._exit"):
+            os._exit(0)
+    assert os.waitstatus_to_exitcode(status) == 7 and os._exit is real
+
+
+@pytest.mark.parametrize("where", ["import", "rhs"])
 def test_a_model_that_never_returns_is_stopped_by_the_time_limit(project, capsys, monkeypatch, where):
     """A loop that never ends at import or in rhs: exit 2 within the limit (1 s here), naming the model."""
     monkeypatch.setenv("STABJAX_MODEL_TIMEOUT", "1")
