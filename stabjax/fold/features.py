@@ -41,9 +41,13 @@ def fold_observation(fe, obs, w, xp=jnp):
     has = w > 0
     ref = xp.where(has & (fe[..., 4, :m] == 0), o, fe[..., 6, :m])  # the window's first value
     d = o - ref
+    # selected, not weighted by w = 0: an observable that is NaN before the window (a sqrt of a
+    # coordinate that starts negative) must not reach the window's sums through 0 * NaN = NaN
     rows = [xp.where(has, xp.maximum(fe[..., 0, :m], o), fe[..., 0, :m]),
             xp.where(has, xp.minimum(fe[..., 1, :m], o), fe[..., 1, :m]),
-            fe[..., 2, :m] + w * o, fe[..., 3, :m] + w * d * d, fe[..., 4, :m] + w * xp.ones_like(o), o, ref]
+            xp.where(has, fe[..., 2, :m] + w * o, fe[..., 2, :m]),
+            xp.where(has, fe[..., 3, :m] + w * d * d, fe[..., 3, :m]),
+            fe[..., 4, :m] + w * xp.ones_like(o), o, ref]
     head = xp.stack(rows, axis=-2)
     return head if m == F else xp.concatenate([head, fe[..., m:]], axis=-1)
 
