@@ -269,7 +269,8 @@ def _num(x: float) -> str:
 # ---- the opener ------------------------------------------------------------------------------------
 
 
-def open_result(path: str | Path, *, field: str = "result", partial: bool = True) -> xr.Dataset:
+def open_result(path: str | Path, *, field: str = "result", partial: bool = True,
+                verified: dict | None = None) -> xr.Dataset:
     """The result at ``path``, loaded: a netCDF file a sweep, a refinement or ``stabjax export`` wrote, or a
     sweep's chunk store (``RESULT.nc.zarr``), finished, running or interrupted.
 
@@ -279,6 +280,10 @@ def open_result(path: str | Path, *, field: str = "result", partial: bool = True
     False`` refuses an unfinished store instead (a figure or a report of part of a sweep would read as the
     whole). Anything that is not a stabjax result is refused with a :class:`~stabjax.errors.ValidationError`
     naming ``field``, never a traceback of the netCDF library.
+
+    ``verified``: an empty dict, kept by a caller that reads the same store again and again (the viewer of a
+    running sweep): the chunk files that matched their checksums are remembered there, and one unchanged
+    since (same inode, size and modification time) is not read a second time to check it.
     """
     path = Path(path)
     if not path.exists():
@@ -286,7 +291,7 @@ def open_result(path: str | Path, *, field: str = "result", partial: bool = True
         hint = f" (its sweep has finished: the result is {done})" if done is not None and done.is_file() else ""
         raise ValidationError(field, f"not found: {path}{hint}")
     if path.is_dir():
-        return _open_store(path, field, partial)
+        return _open_store(path, field, partial, verified)
     if not path.is_file():  # a FIFO would block the open forever
         raise ValidationError(field, f"{path} is not a regular file (a pipe, device or socket)")
     import xarray as xr
@@ -308,7 +313,7 @@ def finished_file(store: str | Path) -> Path | None:
     return store.with_name(store.name[: -len(".zarr")]) if store.name.endswith(".nc.zarr") else None
 
 
-def _open_store(path: Path, field: str, partial: bool):
+def _open_store(path: Path, field: str, partial: bool, verified: dict | None = None):
     from ..run import dataset as D
     from ..run.store import (REWRITING, ROOT, StoreError, damage, holder, open_store, pending_mask, plan_from_manifest,
                              read_manifest)
@@ -330,7 +335,7 @@ def _open_store(path: Path, field: str, partial: bool):
         raise ValidationError(field, f"{path}: its sweep is writing the statistics of its finished run; try again "
                                      "in a moment")
     try:
-        problem = damage(path, m)  # checked as export checks it: a damaged chunk is never shown as a value
+        problem = damage(path, m, verified)  # checked as export checks it: a damaged chunk is never shown as a value
     except StoreError as exc:
         problem = (str(exc), "Run the sweep command again: it recomputes them")
     if problem is not None:

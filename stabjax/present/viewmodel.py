@@ -45,12 +45,14 @@ class Result:
         self.note = ""
         self.ds = None
         self._plan = None
+        self._verified: dict = {}  # the store's chunk files checked so far (kit.open_result)
         self.reload()
 
     def reload(self) -> None:
-        """Read the result again (a store: the chunks finished so far)."""
+        """Read the result again (a store: the chunks finished so far, each checked against its checksum once
+        while its file is unchanged)."""
         try:
-            ds = kit.open_result(self.path)
+            ds = kit.open_result(self.path, verified=self._verified if self.path == self.store else None)
         except Exception as exc:  # noqa: BLE001 - a store being removed fails in many ways midway
             if self.store is None or self.path != self.store:
                 raise
@@ -98,6 +100,7 @@ class Result:
 
         other = copy.copy(self)
         other._plan = None
+        other._verified = dict(self._verified)
         other.reload()
         return other
 

@@ -854,10 +854,24 @@ def metadata_problem(bad: Mapping[str, str]) -> str:
     return "; ".join(said[:3]) + (f" and {len(said) - 3} more metadata file(s)" if len(said) > 3 else "")
 
 
-def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
+def _file_id(f: Path) -> tuple | None:
+    """What identifies one version of a chunk file without reading it (None: no such file)."""
+    try:
+        st = f.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def verify(path: str | Path, manifest: Mapping[str, Any], known: dict | None = None) -> dict[int, str]:
     """Chunk index -> what is wrong, for every finished chunk whose block of some array is missing
     (no chunk file), unreadable, or differs from the checksum recorded when it was written. Raises
-    :class:`StoreError` when the metadata the arrays are read through is damaged."""
+    :class:`StoreError` when the metadata the arrays are read through is damaged.
+
+    ``known``: a cache the caller keeps between calls on the same store (``stabjax view`` refreshing a
+    running sweep's store), of the chunk files that matched their checksums, each with its inode, size
+    and modification time; a file unchanged since is not read again. Why: each refresh would otherwise
+    read every finished chunk twice, once here and once to show it."""
     arrays = manifest.get("arrays") or {}
     if not manifest["chunks"]:
         return {}
@@ -872,12 +886,19 @@ def verify(path: str | Path, manifest: Mapping[str, Any]) -> dict[int, str]:
         for k, a in arr.items():
             trailing = len(arrays[k]["trailing"])
             ck = a.metadata.encode_chunk_key(coords + (0,) * trailing)
+            want = (entry.get("sha256") or {}).get(k)
+            fid = _file_id(Path(path) / k / ck) if known is not None else None
+            if fid is not None and known.get((k, ck)) == (want, fid):
+                continue
             try:
                 b = a[ch.region(i) + (slice(None),) * trailing]
             except Exception:  # noqa: BLE001 - a truncated or overwritten chunk file
                 bad[i] = _unreadable(f"{k}/{ck}")
                 break
-            if checksum(b) != (entry.get("sha256") or {}).get(k):
+            got = checksum(b)
+            if got == want and fid is not None:
+                known[(k, ck)] = (want, fid)
+            if got != want:
                 # zarr writes no chunk equal to the fill value (an outcome code 0 throughout): a chunk without
                 # its file is lost only when what it reads as differs from the checksum
                 gone = not (Path(path) / k / ck).is_file()
@@ -992,7 +1013,7 @@ def holder(path: Path) -> dict | None:
     return h
 
 
-def damage(store: str | Path, manifest: Mapping[str, Any]) -> tuple[str, str] | None:
+def damage(store: str | Path, manifest: Mapping[str, Any], known: dict | None = None) -> tuple[str, str] | None:
     """What is wrong with the finished part of a store, and how to go on, each in words; None when every
     metadata file, every finished chunk and every whole array matches the checksum recorded when it was
     written. What reads a store for a user (``export``, :func:`stabjax.open_result`, ``plot``, ``report``,
@@ -1001,7 +1022,7 @@ def damage(store: str | Path, manifest: Mapping[str, Any]) -> tuple[str, str] | 
     if damaged:
         return metadata_problem(damaged), ("Run the sweep command again: it writes the store's arrays again and "
                                            "recomputes its chunks")
-    bad = verify(store, manifest)
+    bad = verify(store, manifest, known)  # ``known``: :func:`verify`'s cache of chunk files already checked
     broken = verify_arrays(store, manifest)
     if not (bad or broken):
         return None

@@ -336,3 +336,28 @@ def test_the_sweep_says_a_repair_in_one_line_and_never_wraps_its_output(made, tm
     table = [ln for ln in cap.out.splitlines() if ln.strip().startswith(("0.1 ", "0.12 "))]
     assert len(table) == 2 and all(ln.count("±") == 2 for ln in table), cap.out
     assert_same(open_result(tmp_path / "r.nc"), ref)
+
+
+def test_a_viewer_checks_each_unchanged_chunk_file_once_and_a_changed_one_again(made, tmp_path, monkeypatch):
+    """``stabjax view`` refreshes a running store every few seconds: with the cache ``verified`` each chunk
+    file is decoded and checksummed once while it stays the same file, so a refresh reads the store once, not
+    twice. A chunk file damaged after it was checked (a new modification time) is checked again and
+    refused, naming it."""
+    _, clean, _ = made["interrupted"]
+    store = tmp_path / "i.nc.zarr"
+    shutil.copytree(clean, store)
+    calls = []
+    real = S.checksum
+    monkeypatch.setattr(S, "checksum", lambda b: calls.append(1) or real(b))
+    verified: dict = {}
+    first = show_result(store, verified=verified)
+    n_first = len(calls)
+    files = {k for k, _ in verified}
+    assert {"outcome", "feat_mean"} <= files and len(verified) == len(files)  # one chunk finished: one file each
+    del calls[:]
+    again = show_result(store, verified=verified)
+    assert len(calls) == n_first - len(verified)  # only the whole-array checks of the static arrays remain
+    assert_same(again, first)
+    damage(store, "feat_mean", "flip")
+    with pytest.raises(ValidationError, match="feat_mean"):
+        show_result(store, verified=verified)
