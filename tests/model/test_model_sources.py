@@ -148,19 +148,25 @@ def test_editing_a_helper_changes_the_fingerprint(project):
     assert fp1 != fp2 and make_plan(load_spec(project / "spec.toml")).fingerprint() == fp1
 
 
+def _exiting_model(project, call: str, where: str) -> str:
+    """Write a model that calls ``call`` (``sys.exit(0)``, ``os._exit(0)``) at import or in rhs; what the
+    error must name besides the call."""
+    module = call.split(".")[0]
+    if where == "import":
+        (project / "model.py").write_text(f"import {module}\n{call}\n" + MODEL)
+        return "model.py"
+    (project / "model.py").write_text(MODEL.replace("return damped_rhs(y, p)", f"import {module}; {call}"))
+    return "Oscillator.rhs: raised"
+
+
 @pytest.mark.parametrize("where", ["import", "rhs"])
 def test_sys_exit_in_a_model_is_a_model_error(project, capsys, where):
     """A model calling sys.exit(0) must not end the program with status 0 and no output."""
-    if where == "import":
-        (project / "model.py").write_text("import sys\nsys.exit(0)\n" + MODEL)
-        needle = "sys.exit(0)"
-    else:
-        (project / "model.py").write_text(MODEL.replace("return damped_rhs(y, p)", "import sys; sys.exit(0)"))
-        needle = "Oscillator.rhs: raised"
+    needle = _exiting_model(project, "sys.exit(0)", where)
     out = project / "res.nc"
     code, text = _run(["sweep", project / "spec.toml", "--out", out, "--no-progress", "--no-plot"], capsys)
     assert code == 2, text
-    assert needle in text and "model.py" in text and "Traceback" not in text
+    assert needle in text and "sys.exit(0)" in text and "model.py" in text and "Traceback" not in text
     assert not out.exists()
 
 
@@ -173,12 +179,9 @@ def test_os_exit_in_a_model_is_a_model_error(project, where):
     import subprocess
     import sys
 
+    needle = _exiting_model(project, "os._exit(0)", where)
     if where == "import":
-        (project / "model.py").write_text("import os\nos._exit(0)\n" + MODEL)
         needle = "line 2 of model.py"
-    else:
-        (project / "model.py").write_text(MODEL.replace("return damped_rhs(y, p)", "import os; os._exit(0)"))
-        needle = "Oscillator.rhs: raised"
     out = project / "res.nc"
     r = subprocess.run([sys.executable, "-m", "stabjax", "sweep", str(project / "spec.toml"), "--out", str(out),
                         "--no-progress", "--no-plot"], capture_output=True, text=True, timeout=300,
