@@ -35,8 +35,12 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    ``fixed_point_tol`` of the range) -- are grouped by where they rest (their last observables), the
    others by their window features: a fixed point is a point, whatever transient its window still
    holds. Fixed points found twice (by both groupings, or split by a transient) whose positions lie
-   within ``eps`` are one; a trajectory left ungrouped that approaches a stable equilibrium (at rest,
-   or its exponent below ``-chaos_threshold`` in an autonomous model) joins the fixed point it ends at.
+   within ``eps`` are one; a trajectory left ungrouped that ends within the rest threshold of a fixed
+   point in every observable is at it, and one that approaches a stable equilibrium (at rest, its
+   exponent below ``-chaos_threshold`` in an autonomous model, or, without the exponent, ending its
+   window at an extreme of every observable) joins the fixed point it ends at within ``eps``. Without
+   the exponent, groups still in such a monotone approach join the fixed point they end at, or, where
+   none rests, each other when they end within ``eps`` of one another: one equilibrium, one name.
    Why DBSCAN and not HDBSCAN (pyBasin's default) or recurrences (Attractors.jl): a chaotic
    attractor's features scatter between finite windows but form one connected cloud, which
    density-connectivity keeps whole at any radius above the sampling gaps, while two attractors
@@ -55,7 +59,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    motion: its exponent is 0 for autonomous flows, negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
-   group not at rest is ``attractor``.
+   group not at rest is ``attractor``; where it, or an unclassified trajectory, ends its window in a
+   monotone approach, a :class:`TransientWarning` says that t1 did not outlast the transient.
    Names: the type and a number, ``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ... numbered
    by decreasing basin size within each type.
 5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point's attractors are
@@ -314,51 +319,121 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     found = [(g, *_describe(g, f, cfg)) for g in groups if g.size]
     points = [r for r in found if r[1] == "fixed_point"]
     others = [r for r in found if r[1] != "fixed_point"]
+    xm = f.x[:, ::len(STATS)]  # the scaled window means
     merged: list[np.ndarray] = []
-    centres: list[np.ndarray] = []
+    centres: list[np.ndarray] = []  # where each fixed point's members end (scaled observables)
+    means: list[np.ndarray] = []  # and the median of their window means
     for g, *_ in points:  # one fixed point found by both groupings, or split by its transient: one attractor
-        c = np.median(f.xf[g], axis=0)
-        near = [i for i, o in enumerate(centres) if np.linalg.norm(c - o) <= cfg.eps]
+        # placed by where its members end or by their window means: a decaying oscillation (x'' + 0.04 x' + x
+        # = 0 at t1 = 150) still ends up to 0.1 of its range from the focus, while its window mean is within 0.01
+        c, cm = np.median(f.xf[g], axis=0), np.median(xm[g], axis=0)
+        near = [i for i, (o, om) in enumerate(zip(centres, means))
+                if min(np.linalg.norm(c - o), np.linalg.norm(cm - om)) <= cfg.eps]
         if near:
             merged[near[0]] = np.concatenate([merged[near[0]], g])
             centres[near[0]] = np.median(f.xf[merged[near[0]]], axis=0)
+            means[near[0]] = np.median(xm[merged[near[0]]], axis=0)
         else:
             merged.append(g)
             centres.append(c)
+            means.append(cm)
+    ends: list[np.ndarray] = []  # where each group still in a monotone approach ends (scaled observables)
+    approach: list[np.ndarray] = []
+    if f.lam is None:
+        # without the exponent a group still in a monotone approach is untyped (``attractor``); one that ends
+        # where a fixed point rests is that fixed point's transient, and such groups ending at one place are
+        # one approach (at t1 = 20 the trajectories of x' = 1 - x from farther away made two groups beside
+        # fixed_point_1, three names for one equilibrium; at t1 = 8, four 'attractors')
+        kept = []
+        for r in others:
+            g = r[0]
+            if r[1] != "attractor" or np.mean(_ends_at_extreme(g, f)) <= 0.5:
+                kept.append(r)
+                continue
+            c = np.median(f.xf[g], axis=0)
+            d = np.linalg.norm(c[None] - np.asarray(centres), axis=1) if centres else np.array([np.inf])
+            j = int(np.argmin(d))
+            if d[j] <= cfg.eps:
+                merged[j] = np.concatenate([merged[j], g])
+                continue
+            near = [i for i, o in enumerate(ends) if np.linalg.norm(c - o) <= cfg.eps]
+            if near:
+                approach[near[0]] = np.concatenate([approach[near[0]], g])
+                ends[near[0]] = np.median(f.xf[approach[near[0]]], axis=0)
+            else:
+                approach.append(g)
+                ends.append(c)
+        others = kept
     left = np.setdiff1d(idx, np.concatenate([g for g, *_ in found]) if found else idx[:0])
-    left = left[_approaching(left, f, cfg)]
     if left.size and centres:
-        d = np.linalg.norm(f.xf[left][:, None, :] - np.asarray(centres)[None], axis=-1)
-        j = np.argmin(d, axis=1)
-        for i in np.flatnonzero(d[np.arange(left.size), j] <= cfg.eps):
-            merged[j[i]] = np.append(merged[j[i]], left[i])
-    points = [(np.sort(g), *_describe(np.sort(g), f, cfg)) for g in merged]
+        # ending within the rest threshold of a fixed point in every observable is being there, whatever the
+        # window still held (a y decaying from 6e-7 to 1e-11 over the window has a std just above the 1000
+        # tolerances of atol 1e-10: unclassified before, though it ends 1e-11 from the equilibrium)
+        near = np.abs(f.xf[left][:, None, :] - np.asarray(centres)[None]) <= (rest_threshold(f.scale, f.tol, cfg)
+                                                                               / f.scale)[None, None, :]
+        there = np.all(near, axis=2)
+        for i in np.flatnonzero(there.any(axis=1)):
+            j = int(np.argmax(there[i]))
+            merged[j] = np.append(merged[j], left[i])
+        left = left[~there.any(axis=1)]
+    left = left[_approaching(left, f, cfg)]
+    for targets, tmeans, into in ((centres, means, merged), (ends, None, approach)):  # a fixed point first
+        if left.size and targets:
+            d = np.linalg.norm(f.xf[left][:, None, :] - np.asarray(targets)[None], axis=-1)
+            if tmeans is not None:
+                d = np.minimum(d, np.linalg.norm(xm[left][:, None, :] - np.asarray(tmeans)[None], axis=-1))
+            j = np.argmin(d, axis=1)
+            joins = np.flatnonzero(d[np.arange(left.size), j] <= cfg.eps)
+            for i in joins:
+                into[j[i]] = np.append(into[j[i]], left[i])
+            left = np.delete(left, joins)
+    # approaching trajectories that joined nothing (their transients' window features too far apart for
+    # DBSCAN: x' = -x from 20 starts at t1 = 10), gathered about where they end or their window means
+    while left.size >= cfg.min_samples:
+        d = np.minimum(np.linalg.norm(f.xf[left] - f.xf[left[0]], axis=1), np.linalg.norm(xm[left] - xm[left[0]], axis=1))
+        near = d <= cfg.eps
+        if near.sum() >= cfg.min_samples:
+            g = np.sort(left[near])
+            kind = _describe(g, f, cfg)[0]
+            (merged if kind == "fixed_point" else approach).append(g)
+            left = left[~near]
+        else:
+            left = left[1:]
+    # an approach that some members finish, at rest there (too few to be a group of their own), is to a point
+    merged += [g for g in approach if f.at_rest[g].any()]
+    others += [(np.sort(g), *_describe(np.sort(g), f, cfg)) for g in approach if not f.at_rest[g].any()]
+    # every member rests at the point or approaches it (at rest, a negative exponent, a monotone approach)
+    points = [(np.sort(g), *_describe(np.sort(g), f, cfg, kind="fixed_point")) for g in merged]
     return points + others, stats
 
 
 def _approaching(members: np.ndarray, f: _Features, cfg: DiscoveryConfig) -> np.ndarray:
     """Per trajectory: approaching a stable equilibrium -- at rest, or its exponent below
-    -chaos_threshold in an autonomous model (a bounded motion other than an equilibrium has a zero one)."""
+    -chaos_threshold in an autonomous model (a bounded motion other than an equilibrium has a zero one),
+    or, without the exponent, ending its window at an extreme of every observable (a monotone approach)."""
     out = f.at_rest[members].copy()
     if f.lam is not None and f.autonomous:
         with np.errstate(invalid="ignore"):
             out |= f.lam[members] < -cfg.chaos_threshold
+    elif f.lam is None:
+        out |= _ends_at_extreme(members, f)
     return out
 
 
-def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig):
-    """(type, median features, median exponent, representative index) of one group of trajectories."""
-    n_obs = len(f.scale)
-    min_cols = [k * len(STATS) + 2 for k in range(n_obs)]
+def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | None = None):
+    """(type, median features, median exponent, representative index) of one group of trajectories;
+    ``kind``: its type when already known (a fixed point and the trajectories found approaching it)."""
     med = np.median(f.feats[g], axis=0)
     lam = float(np.nanmedian(f.lam[g])) if f.lam is not None and np.isfinite(f.lam[g]).any() else math.nan
-    if np.mean(f.at_rest[g]) > 0.5:  # most at rest (the stop froze them, or their spread is numerical)
+    if kind is not None:
+        pass
+    elif np.mean(f.at_rest[g]) > 0.5:  # most at rest (the stop froze them, or their spread is numerical)
         kind = "fixed_point"
     elif f.lam is None:
         kind = "attractor"
     elif lam > cfg.chaos_threshold:
         kind = "chaotic"
-    elif lam < -cfg.chaos_threshold and (f.autonomous or _monotone(g, f, min_cols)):
+    elif lam < -cfg.chaos_threshold and (f.autonomous or np.mean(_ends_at_extreme(g, f)) > 0.5):
         # still approaching a stable equilibrium: a bounded motion of an autonomous flow other than an
         # equilibrium has a zero exponent, and a monotone approach is no cycle in any flow
         kind = "fixed_point"
@@ -369,13 +444,14 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig):
     return kind, med, lam, rep
 
 
-def _monotone(g: np.ndarray, f: _Features, min_cols) -> bool:
-    """Whether most members end their window at an extreme of every observable (a monotone approach,
-    no oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
+def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
+    """Per member: whether it ends its window at an extreme of every observable (a monotone approach, no
+    oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
+    min_cols = [k * len(STATS) + 2 for k in range(len(f.scale))]
     lo = f.feats[g][:, min_cols]
     hi = f.feats[g][:, [c + 1 for c in min_cols]]
     end = f.final[g]
-    return bool(np.mean(np.all((end == lo) | (end == hi), axis=1)) > 0.5)
+    return np.all((end == lo) | (end == hi), axis=1)
 
 
 def _named(found, f: _Features, stats, kinds=None) -> Attractors:
@@ -398,7 +474,12 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
         lams.append(lam)
         reps.append(rep)
         labels[g] = a
-    stats.update(n_grouped=int((labels >= 0).sum()), n_unbounded=int(f.unbounded.sum()))
+    stats.update(n_grouped=int((labels >= 0).sum()), n_unbounded=int(f.unbounded.sum()),
+                 # untyped groups whose members mostly end their window in a monotone approach: a transient
+                 # that t1 did not outlast (:func:`_warn_transient`)
+                 transient=[n for n, t, g in zip(names, types, (r[3] for r in typed))
+                            if t == "attractor" and np.mean(_ends_at_extreme(g, f)) > 0.5],
+                 transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()))
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
                       lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
@@ -497,6 +578,9 @@ class Discovery(Mapper):
         if away.any():
             code = np.where(away, names.index(decl.escape), code)
             _warn_unbounded(int(away.sum()), status.size, decl.escape, self.escape)
+        if disc.stats.get("transient") or disc.stats.get("transient_unclassified"):
+            _warn_transient(disc.stats["transient"], dict(zip(disc.names, disc.counts.tolist())),
+                            disc.stats["transient_unclassified"], "lyapunov" in results)
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
@@ -509,6 +593,25 @@ class Discovery(Mapper):
                              f"index where it is present (birth) or absent again (death), the {ax.name} value there)",
                 "match_threshold": threshold})
         return Mapped(code, OutcomeScheme(names, colors, decl), data, coords)
+
+
+class TransientWarning(UserWarning):
+    """Discovery, without the Lyapunov exponent, found untyped groups still in a monotone approach at t1."""
+
+
+def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int, lyapunov: bool) -> None:
+    """Said, not only stored: such a group is where trajectories were still heading at t1, typed by nothing
+    (and such trajectories in no group are unclassified); a longer horizon lets them rest (typed
+    ``fixed_point``), and the exponent types an approach at once."""
+    import warnings
+
+    parts = [f"{counts[k]} in {k}" for k in names] + ([f"{unclassified} unclassified"] if unclassified else [])
+    n = sum(counts[k] for k in names) + unclassified
+    how = "raise [integrate] t1" + ("" if lyapunov else ", or set [outcomes.discovery] lyapunov = true to type the "
+                                                         "approach")
+    warnings.warn(f"{n} trajectories ({', '.join(parts)}) end their feature window still approaching something "
+                  f"monotonically: a transient that t1 did not outlast, left untyped; {how}", TransientWarning,
+                  stacklevel=3)
 
 
 class UnboundedWarning(UserWarning):

@@ -252,6 +252,9 @@ class _Verdicts:
 VERDICTS = _Verdicts()
 
 
+MIN_SUBSAMPLE = 1000  # the smallest [outcomes.discovery] subsample (DiscoveryConfig)
+
+
 @dataclass(frozen=True)
 class DiscoveryConfig:
     """``[outcomes.discovery]``: the grouping, typing and continuation settings of attractor discovery
@@ -269,6 +272,7 @@ class DiscoveryConfig:
     min_samples      DBSCAN: neighbours within eps (itself included) that make a core sample; a sweep (or,
                      under continuation, a grid point) with fewer trajectories is refused before integrating
     subsample        trajectories grouped by DBSCAN itself; the others join their nearest core sample
+                     (at least ``MIN_SUBSAMPLE`` = 1000: it changes the speed, not the partition)
     fixed_point_tol  window std / range below this for every observable -> fixed point (so is a window
                      std within the fixed-point stop's 1000 solver tolerances, and a group the stop froze)
     chaos_threshold  median largest Lyapunov exponent above this -> chaotic; below minus this, an
@@ -317,11 +321,21 @@ class DiscoveryConfig:
                     raise ValidationError(f"{section}.{k}", f"must be true or false, got {v!r}")
             elif isinstance(default, int):
                 if isinstance(v, bool) or not isinstance(v, int) or v < (0 if k == "seed" else 1):
-                    raise ValidationError(f"{section}.{k}", f"must be a positive integer, got {v!r}")
+                    what = "a non-negative integer" if k == "seed" else "a positive integer"
+                    raise ValidationError(f"{section}.{k}", f"must be {what}, got {v!r}")
+                if k == "subsample" and v < MIN_SUBSAMPLE:
+                    # DBSCAN's density on a small draw depends on which trajectories were drawn: at 6 of 200
+                    # the pendulum's one running cycle came out as three
+                    raise ValidationError(f"{section}.{k}", f"must be at least {MIN_SUBSAMPLE} (a smaller draw "
+                                          f"splits attractors by chance; a sweep of fewer trajectories is grouped "
+                                          f"whole), got {v!r}")
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or (
                         math.isinf(v) and k != "match_threshold"):
                     raise ValidationError(f"{section}.{k}", f"must be a finite number, got {v!r}")
+                if k == "chaos_threshold" and v < 0:  # 0: the sign of the exponent alone types
+                    raise ValidationError(f"{section}.{k}", f"must be >= 0 (a negative one would call an equilibrium "
+                                                           f"chaotic), got {v!r}")
                 if k != "chaos_threshold" and not v > 0:
                     raise ValidationError(f"{section}.{k}", f"must be > 0, got {v!r}")
                 v = float(v)

@@ -52,6 +52,14 @@ def test_discovery_config_is_checked():
         DiscoveryConfig.from_dict({"eps": -1})
     with pytest.raises(ValidationError, match="unknown key"):
         DiscoveryConfig.from_dict({"radius": 0.1})
+    # a negative chaos threshold named an equilibrium (exponent -0.05) and a cycle chaotic_1 and chaotic_2; a
+    # subsample of 6 split the pendulum's one running cycle into three names; seed 0 is the default
+    for key, value, said in (("chaos_threshold", -0.1, "must be >= 0"), ("subsample", 6, "at least 1000"),
+                             ("subsample", 999, "at least 1000"), ("seed", -1, "non-negative")):
+        with pytest.raises(ValidationError, match=said) as exc:
+            DiscoveryConfig.from_dict({key: value})
+        assert exc.value.field == f"outcomes.discovery.{key}"
+    assert DiscoveryConfig.from_dict({"chaos_threshold": 0.0, "subsample": 1000, "seed": 0}).subsample == 1000
 
 
 def _example(name, n, **over):
@@ -355,6 +363,119 @@ def test_a_stable_equilibrium_is_one_fixed_point_with_or_without_the_exponent(ly
                        "outcomes": {"discover": True, "discovery": {"lyapunov": False}}})
         names = ds["outcome"].attrs["flag_meanings"].split()
         assert not any(n.startswith(("limit_cycle", "chaotic")) for n in names), names
+
+
+def _line():
+    import jax.numpy as jnp
+
+    Relax, _ = _relax()
+
+    class Line(Relax):
+        """x' = -(x - 1): one stable node at x = 1 (y0 is not read)."""
+
+        name = "line_test"
+        state = (("x", ()),)
+        observables = ("x",)
+        observable_doc = ("x",)
+
+        def initial_state(self, p):
+            return p["x0"][None]
+
+        def rhs(self, t, y, p):
+            return 1.0 - y
+
+        def observe(self, t, y, p):
+            return y
+
+    class Bistable(Line):
+        """x' = x - x^3: stable nodes at x = +-1."""
+
+        name = "bistable_test"
+
+        def rhs(self, t, y, p):
+            return y - y**3
+
+    return Line, Bistable
+
+
+def _discovered(model, sample, t1, discovery, warning, params=None):
+    """The discovery run of ``model``: dataset, outcome names, and the messages of the ``warning``s it gave."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        ds = run_spec({"system": model, "params": params or {}, "sample": sample, "integrate": {"t1": t1},
+                       "outcomes": {"discover": True, "discovery": discovery}})
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    return ds, names, [str(w.message) for w in said if issubclass(w.category, warning)]
+
+
+def test_approaching_trajectories_keep_one_name_with_the_exponent():
+    """With the exponent (the default). A slowly decaying focus x' = -a (x - 1) - y, y' = (x - 1) - a y,
+    a = 0.02 (eigenvalues -0.02 +- i), 60 starts, t1 = 150: its window [75, 150] still holds oscillations of
+    0.1 of its range, so its members end far apart, but every exponent is -0.02: one fixed point (before, three
+    fixed points at three points that are no equilibria, and 5 unclassified). Its window means lie within 0.01
+    of the focus. And x' = 1 - x from 20 starts, t1 = 10: each transient's window features lie too far apart
+    for DBSCAN, but every exponent is -1 and every one ends within 1e-4 of x = 1: one fixed point (before, all
+    unclassified, exit 1, with a warning to turn on the exponent that was on)."""
+    from stabjax.mapping.discover import TransientWarning
+
+    Relax, Focus = _relax()
+    Line, _ = _line()
+    box = {"n": 60, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    ds, names, said = _discovered(Focus, box, 150.0, {}, TransientWarning, params={"a": 0.02})
+    assert names == ["fixed_point_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), \
+        (names, np.bincount(ds["outcome"].values.ravel()))
+    np.testing.assert_allclose(ds["attractor_lyapunov"].values, -0.02, rtol=0.05)
+    assert np.abs(ds["feat_final"].values.reshape(-1, 2) - [1.0, 0.0]).max() > 0.1  # far apart at t1
+    assert not said
+    ds, names, said = _discovered(Line, {**box, "n": 20}, 10.0, {}, TransientWarning)
+    assert names == ["fixed_point_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
+    assert not said
+
+
+def test_a_monotone_approach_is_one_group_without_the_exponent():
+    """Without the exponent a trajectory still approaching x' = -(x - 1), y' = -y at t1 is untyped, but one
+    equilibrium keeps one name. 100 starts in [-2, 2]^2, window [t1/2, t1], the rest threshold 1000 solver
+    tolerances (1e-7 for y at atol 1e-10). At t1 = 26 ten starts rest, the others still approach, monotonically
+    (each ends its window at an extreme of x and y) where the ten rest: one fixed point. At t1 = 30, 92 rest and
+    8 end within 3e-11 of (1, 0) with a y window std just above 1e-7: they are at the fixed point too (before:
+    unclassified). At t1 = 8 none rests: x alone (x' = 1 - x) made four untyped groups before, now one, ending
+    where they all head; with y too the window features lie too far apart for DBSCAN (before: all unclassified),
+    and the monotone approaches are gathered by where they end; either way a warning says that the transient
+    outlasted t1. The bistable x' = x - x^3 at t1 = 8 keeps its two
+    equilibria apart: every start with x0 > 0 at one, x0 < 0 at the other (but one near the unstable x = 0,
+    still on its way)."""
+    from stabjax.mapping.discover import TransientWarning
+
+    Relax, _ = _relax()
+    Line, Bistable = _line()
+    box = {"n": 100, "seed": 0, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+
+    def run(model, t1):
+        return _discovered(model, box, t1, {"lyapunov": False}, TransientWarning)
+
+    for t1 in (26.0, 30.0):
+        ds, names, said = run(Relax, t1)
+        assert names == ["fixed_point_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), \
+            (t1, names, np.bincount(ds["outcome"].values.ravel()))
+        np.testing.assert_allclose(ds["attractor_observables"].values[0], [1.0, 0.0], atol=1e-6)
+        assert not said
+    ds, names, said = run(Line, 8.0)
+    assert names == ["attractor_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
+    assert len(said) == 1 and "100 trajectories (100 in attractor_1)" in said[0] and "raise [integrate] t1" in said[0]
+    ds, names, said = run(Relax, 8.0)  # the transients' window features too far apart to group: gathered
+    assert names == ["attractor_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
+    assert len(said) == 1 and "100 trajectories (100 in attractor_1)" in said[0] and "lyapunov = true" in said[0]
+    ds, names, said = run(Bistable, 8.0)
+    x0, code = ds["x0_sample"].values.ravel(), ds["outcome"].values.ravel()
+    slow = np.abs(x0) < 1e-3  # leaves x = 0 as x0 e^t: still on its way at t1 = 8 (x0 = -4e-4 is at x = -0.78)
+    assert (code[slow] == names.index("unclassified")).all() and slow.sum() <= 1
+    assert [names[c] for c in np.unique(code[~slow & (x0 > 0)])] == ["fixed_point_1"]
+    assert [names[c] for c in np.unique(code[~slow & (x0 < 0)])] == ["fixed_point_2"]
+    np.testing.assert_allclose(np.sort(ds["attractor_observables"].values.ravel()), [-1.0, 1.0], atol=1e-6)
 
 
 def test_discovery_with_fewer_starts_than_min_samples_is_refused_before_integrating(tmp_path):
