@@ -78,7 +78,8 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
 
     sol = diffrax.diffeqsolve(
         term, solver, icfg.t0, icfg.t1, icfg.dt0, y0, args=args, saveat=saveat,
-        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, dtmin=dtmin, force_dtmin=False, **pi),
+        stepsize_controller=diffrax.PIDController(rtol=icfg.rtol, atol=icfg.atol, dtmin=dtmin, force_dtmin=False,
+                                                  norm=_error_norm, **pi),
         max_steps=icfg.max_steps, throw=False,
         adjoint=diffrax.ForwardMode(),  # plain while loop: no checkpointing machinery for a forward-only solve
         event=None if radius is None else diffrax.Event(stop),
@@ -89,6 +90,20 @@ def solve_one(system, icfg: IntegrateConfig, ts: jnp.ndarray, saveat_fn, p, fina
     if radius is not None:
         status = jnp.where(sol.result == diffrax.RESULTS.event_occurred, STATUS_ESCAPED, status)
     return sol, status.astype(jnp.int32)
+
+
+_RMS = diffrax.PIDController(rtol=1e-3, atol=1e-6).norm  # diffrax's own default error norm
+
+
+def _error_norm(err):
+    """diffrax's RMS error norm, with NaN read as infinite. Why: a step whose error estimate is NaN (a stage
+    that overflowed: x' = -1e4 x^3 from x = 1 with the step diffrax picks at t0) was rejected without
+    shrinking, the same step retried until max_steps (diffrax 0.7.2), so the sweep's re-integration of a
+    trajectory the lane engines solved in 117 steps failed at t0; an infinite error is rejected with the
+    controller's smallest factor, as a failed step is. A finite error is the same number: results are
+    unchanged bit for bit wherever the solve did not meet a NaN."""
+    e = _RMS(err)
+    return jnp.where(jnp.isnan(e), jnp.inf, e)
 
 
 @functools.lru_cache(maxsize=64)

@@ -614,6 +614,18 @@ def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int,
                   stacklevel=3)
 
 
+class RepresentativeWarning(UserWarning):
+    """An attractor's representative could not be integrated again on its own for its state at t1."""
+
+
+def _warn_representative(name: str) -> None:
+    import warnings
+
+    warnings.warn(f"{name}: its representative trajectory, integrated again on its own (diffrax) for its state at "
+                  f"t1, did not reach t1; attractor_state is NaN and its place is given by its observables "
+                  f"(attractor_observables)", RepresentativeWarning, stacklevel=3)
+
+
 class UnboundedWarning(UserWarning):
     """Discovery found trajectories that run away (:func:`unbounded`) and counted them as escaped."""
 
@@ -636,6 +648,9 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
     states = np.full((a, len(comps)), np.nan)
     for k, rep in enumerate(disc.representative):
         states[k] = representative_state(plan, int(rep))
+        if not np.all(np.isfinite(states[k])):  # never an attractor "at x = inf": unknown, and said
+            states[k] = np.nan
+            _warn_representative(disc.names[k])
     starts = plan.params_at(disc.representative) if a else {}
     varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     n_obs = len(plan.system.observables)

@@ -239,9 +239,12 @@ def attractors(ds) -> list[dict[str, Any]]:
     comps = [str(c) for c in ds["state_component"].values] if "state_component" in ds.coords else []
     for k, name in enumerate(ds["attractor"].values):
         typ = str(ds["attractor_type"].values[k])
-        if typ == "fixed_point" and "attractor_state" in ds and comps:
-            state = np.asarray(ds["attractor_state"].values[k], float)
+        state = np.asarray(ds["attractor_state"].values[k], float) if "attractor_state" in ds and comps else None
+        obs = [str(o) for o in ds["observable"].values] if "observable" in ds.coords else []
+        if typ == "fixed_point" and state is not None and np.all(np.isfinite(state)):
             where = "at " + ", ".join(f"{c} = {_num(v)}" for c, v in zip(comps, state))
+        elif typ == "fixed_point" and "attractor_observables" in ds and obs:  # its state could not be recomputed
+            where = "at " + ", ".join(f"{o} = {_num(v)}" for o, v in zip(obs, ds["attractor_observables"].values[k]))
         elif "attractor_features" in ds and feats:
             f = np.asarray(ds["attractor_features"].values[k], float)
             obs = [n[4:-1] for n in feats if n.startswith("min(")]

@@ -328,6 +328,37 @@ def test_blow_up_stops_at_once_on_every_engine(name):
         assert np.all(np.abs(res["t_stop"] - 1.0) < RTOL * res["n_steps"]) and np.all(res["state_t1"] > 1e6)
 
 
+def test_the_diffrax_engine_shortens_a_step_whose_error_is_nan():
+    """x' = -1e4 x^3, y' = -y from (1, 0): the step diffrax picks at t0 overflows a stage, and its error
+    estimate is NaN. diffrax 0.7.2 retried that step unshortened until max_steps (status 1 at t0, the state
+    inf), so a discovered attractor's representative re-integrated on its own was placed at x = inf; the lane
+    engines solve it. Read as an infinite error the step is shortened: the solve reaches t1 = 50 with the
+    closed form x = 1 / sqrt(1 + 2e4 t) to its tolerance, in a number of steps like the lane engines'."""
+    from stabjax.engines.simulate import simulate
+
+    class Cube(System):
+        name = "cube_test"
+        params = ParamSet((Param("x0", 1.0, "x start", kind="initial"),))
+        state = (("x", ()), ("y", ()))
+        observables = ("x",)
+        observable_doc = ("x",)
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], 0.0 * p["x0"]])
+
+        def rhs(self, t, s, p):
+            return jnp.stack([-1e4 * s[0] ** 3, -s[1]])
+
+        def observe(self, t, s, p):
+            return s[:1]
+
+    ds = simulate(Cube(), {}, t1=50.0, ts=[10.0, 50.0], rtol=1e-8, atol=1e-10)
+    assert ds.attrs["solver_status"] == 0 and 0 < ds.attrs["n_steps"] < 1000, ds.attrs
+    exact = 1 / np.sqrt(1 + 2e4 * ds["t"].values)
+    # a contracting flow: the global error stays of the order of the local tolerance on x ~ 1e-3
+    np.testing.assert_allclose(ds["x"].values, exact, rtol=1e-5)
+
+
 @pytest.mark.parametrize("name", _engines())
 def test_non_finite_derivative_stops_at_once(name):
     """A derivative that is NaN from t0 (k = NaN): status 1 at once on the native and fused engines;

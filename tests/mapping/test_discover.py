@@ -435,6 +435,23 @@ def test_approaching_trajectories_keep_one_name_with_the_exponent():
     assert not said
 
 
+def test_an_attractor_whose_representative_fails_again_is_placed_by_its_observables(monkeypatch):
+    """The state at t1 of each attractor's representative is integrated again on its own (diffrax); where that
+    run fails (it did on x' = -1e4 x^3, where the sweep's own engine did not), the attractor was stored and
+    printed "at x = inf". Now its state is NaN, a warning names it, and its place is that of its observables at
+    t1 in the sweep itself (x' = 1 - x: at x = 1)."""
+    from stabjax.mapping import discover as D
+    from stabjax.present.kit import attractors
+
+    Line, _ = _line()
+    monkeypatch.setattr(D, "representative_state", lambda plan, index: np.array([np.inf]))
+    box = {"n": 20, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0}}
+    ds, names, said = _discovered(Line, box, 40.0, {}, D.RepresentativeWarning)
+    assert names[0] == "fixed_point_1" and len(said) == 1 and said[0].startswith("fixed_point_1:"), (names, said)
+    assert np.isnan(ds["attractor_state"].values).all()
+    assert attractors(ds)[0]["where"] == "at x = 1"
+
+
 def test_a_monotone_approach_is_one_group_without_the_exponent():
     """Without the exponent a trajectory still approaching x' = -(x - 1), y' = -y at t1 is untyped, but one
     equilibrium keeps one name. 100 starts in [-2, 2]^2, window [t1/2, t1], the rest threshold 1000 solver
