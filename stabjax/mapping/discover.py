@@ -55,8 +55,11 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    when that exponent is below ``-chaos_threshold`` and the model is autonomous (a bounded motion of an
    autonomous flow other than an equilibrium has a zero exponent) or most members end their window at
    an extreme of every observable (a monotone approach, no oscillation): a group still approaching a
-   stable equilibrium is never called a cycle; else ``limit_cycle`` (a periodic or quasi-periodic
-   motion: its exponent is 0 for autonomous flows, negative for forced ones). The finite-time
+   stable equilibrium is never called a cycle; else ``attractor`` (untyped) when its negative exponent
+   has not contracted a separation of the observables' range below ``eps`` by the window's start
+   (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet); else
+   ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
+   negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
    group not at rest is ``attractor``; where it, or an unclassified trajectory, ends its window in a
@@ -222,10 +225,12 @@ class _Features:
     at_rest: np.ndarray  # (N,) stopped by the fixed-point stop, or every window std at the rest threshold
     autonomous: bool
     unbounded: np.ndarray  # (N,) runs away over its window (:func:`unbounded`); never in ``valid``
+    settle: float | None = None  # time from t0 to the window's start (None: not known)
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
-             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False) -> _Features:
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
+             settle: float | None = None) -> _Features:
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     final = np.asarray(results["feat_final"], float)[:, :n_obs]
@@ -242,7 +247,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     if "stop_reason" in results:
         at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, lam, at_rest, bool(autonomous), away)
+                     final, lam, at_rest, bool(autonomous), away, settle)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -294,11 +299,13 @@ def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> 
 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
-             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False) -> Attractors:
+             valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
+             settle: float | None = None) -> Attractors:
     """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
     ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales and the fixed
-    points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring)."""
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous)
+    points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring);
+    ``settle``: the time from t0 to the window's start (a contraction that has not settled is no cycle)."""
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle)
     found, stats = _found(f, cfg, np.flatnonzero(f.valid))
     return _named(found, f, stats)
 
@@ -437,11 +444,22 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         # still approaching a stable equilibrium: a bounded motion of an autonomous flow other than an
         # equilibrium has a zero exponent, and a monotone approach is no cycle in any flow
         kind = "fixed_point"
+    elif _unsettled(lam, f, cfg):
+        kind = "attractor"
     else:
         kind = "limit_cycle"
     xm = np.median(f.x[g], axis=0)
     rep = int(g[np.argmin(np.linalg.norm(f.x[g] - xm, axis=1))])
     return kind, med, lam, rep
+
+
+def _unsettled(lam: float, f: _Features, cfg: DiscoveryConfig) -> bool:
+    """Whether a group contracting at its exponent ``lam`` < 0 has not settled by the window's start: a
+    separation of the order of the observables' range shrinks to exp(lam * settle) of it there, and while
+    that exceeds ``eps`` the window holds the transient, not an attractor (x'' + 0.04 x' + x = exp(-t):
+    exponent -0.02, exp(-0.02 * 75) = 0.22 at t1 = 150, and its decaying oscillations were five 'limit
+    cycles'). A forced model's periodic attractor, contracting faster or watched longer, passes."""
+    return f.settle is not None and lam < -cfg.chaos_threshold and math.exp(lam * f.settle) > cfg.eps
 
 
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
@@ -477,8 +495,9 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
     stats.update(n_grouped=int((labels >= 0).sum()), n_unbounded=int(f.unbounded.sum()),
                  # untyped groups whose members mostly end their window in a monotone approach: a transient
                  # that t1 did not outlast (:func:`_warn_transient`)
-                 transient=[n for n, t, g in zip(names, types, (r[3] for r in typed))
-                            if t == "attractor" and np.mean(_ends_at_extreme(g, f)) > 0.5],
+                 transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                            # (with the exponent, an untyped group is one still contracting: _unsettled)
+                            if t == "attractor" and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()))
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
@@ -487,7 +506,7 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
 
 
 def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
-               atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False
+               atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False, settle: float | None = None
                ) -> tuple[Attractors, list[dict[str, Any]], float]:
     """Attractors followed along one grid axis: each point's attractors found on their own (:func:`_found`,
     features scaled by the whole sweep's ranges so distances compare between points), then matched from
@@ -497,7 +516,7 @@ def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_
     (:func:`stabjax.mapping.continuation.events`) and the match threshold used."""
     from . import continuation as C
 
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous)
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle)
     per = len(f.feats) // n_points
     found: list[list[C.Found]] = []
     for k in range(n_points):
@@ -558,11 +577,12 @@ class Discovery(Mapper):
         status = np.asarray(results["solver_status"])
         events = None
         obs, auto = tuple(plan.system.observables), is_autonomous(plan.system)
+        settle = (1.0 - float(decl.window)) * (plan.icfg.t1 - plan.icfg.t0)
         if continues(plan, cfg):
             disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
-                                                 plan.icfg.rtol, auto)
+                                                 plan.icfg.rtol, auto, settle)
         else:
-            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto)
+            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle)
         away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
         # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
         # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
@@ -609,8 +629,9 @@ def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int,
     n = sum(counts[k] for k in names) + unclassified
     how = "raise [integrate] t1" + ("" if lyapunov else ", or set [outcomes.discovery] lyapunov = true to type the "
                                                          "approach")
+    way = "contracting at a negative exponent, or monotonically" if lyapunov else "monotonically"
     warnings.warn(f"{n} trajectories ({', '.join(parts)}) end their feature window still approaching something "
-                  f"monotonically: a transient that t1 did not outlast, left untyped; {how}", TransientWarning,
+                  f"({way}): a transient that t1 did not outlast, left untyped; {how}", TransientWarning,
                   stacklevel=3)
 
 
@@ -658,7 +679,8 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
     data = {
         "attractor_type": ("attractor", np.array(disc.types, dtype=object),
                            {"long_name": "fixed_point (window std ~ 0), chaotic (lyapunov > threshold), "
-                                         "limit_cycle (else), attractor (no exponent)"}),
+                                         "limit_cycle (else), attractor (untyped: no exponent, or a transient "
+                                         "still contracting at the window)"}),
         "attractor_count": ("attractor", disc.counts, {"long_name": "trajectories grouped into the attractor "
                                                                     "(all grid points)"}),
         "attractor_features": (("attractor", "attractor_feature"), disc.features,

@@ -452,6 +452,41 @@ def test_an_attractor_whose_representative_fails_again_is_placed_by_its_observab
     assert attractors(ds)[0]["where"] == "at x = 1"
 
 
+def test_a_forced_transient_that_has_not_settled_is_no_limit_cycle():
+    """The slow focus (a = 0.02) forced by exp(-t), which dies out: the model reads t, so a negative exponent
+    does not type a fixed point, and its decaying oscillations, still 0.22 of their start at the window's start
+    (exp(-0.02 * 75)), were five 'limit cycles'. Now no group is a cycle: they are untyped, and a warning says
+    that t1 did not outlast the transient. The same focus with a = 0.5 forced by 0.5 cos(0.7 t) has a true
+    periodic attractor (contracted by exp(-0.5 * 75) at the window's start): one limit cycle."""
+    import jax.numpy as jnp
+
+    from stabjax.mapping.discover import TransientWarning
+
+    _, Focus = _relax()
+
+    class Kick(Focus):
+        name = "kick_test"
+
+        def rhs(self, t, y, p):
+            return super().rhs(t, y, p) + jnp.stack([jnp.exp(-t), 0.0 * t])
+
+    class Forced(Focus):
+        name = "forced_test"
+
+        def rhs(self, t, y, p):
+            return super().rhs(t, y, p) + jnp.stack([0.5 * jnp.cos(0.7 * t), 0.0 * t])
+
+    box = {"n": 60, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    ds, names, said = _discovered(Kick, box, 150.0, {}, TransientWarning, params={"a": 0.02})
+    assert not any(n.startswith(("limit_cycle", "chaotic")) for n in names), names
+    assert set(ds["attractor_type"].values) == {"attractor"} and len(said) == 1 and "raise [integrate] t1" in said[0]
+    assert "lyapunov = true" not in said[0]  # it is on
+    ds, names, said = _discovered(Forced, box, 150.0, {}, TransientWarning, params={"a": 0.5})
+    assert names == ["limit_cycle_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
+    assert not said
+
+
 def test_a_monotone_approach_is_one_group_without_the_exponent():
     """Without the exponent a trajectory still approaching x' = -(x - 1), y' = -y at t1 is untyped, but one
     equilibrium keeps one name. 100 starts in [-2, 2]^2, window [t1/2, t1], the rest threshold 1000 solver
