@@ -480,8 +480,10 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
 
     cfg = refine_config(plan)
     base = Path(store) if store is not None else (default_store(out) if out is not None else None)
-    # the default <out>.zarr is the sweep's own; a --store folder only if this run makes it
-    own_base = base is not None and (store is None or not base.exists())
+    # the default <out>.zarr is the sweep's own (also when named, as the command line names it: resumed, the
+    # folder exists and stayed behind, empty); a --store folder elsewhere only if this run makes it
+    own_base = base is not None and (store is None or not base.exists()
+                                     or (out is not None and base == default_store(out)))
     spec = dict(plan.spec)
     spec["refine"] = {k: v for k, v in spec.get("refine", {}).items() if k != "max_points"}
     rplan = dataclasses.replace(plan, spec=spec)

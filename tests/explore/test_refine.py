@@ -179,7 +179,7 @@ def test_quadtree_2d_brackets_boundary_and_resumes(oscillator, tmp_path):
 
 def test_partial_resume_after_kill(oscillator, tmp_path):
     """A run killed after some rounds resumes them from the chunk store (the sweep's) and ends with the
-    uninterrupted result; a store of another spec is refused rather than mixed in."""
+    uninterrupted result, removing the store it made; a store of another spec is refused rather than mixed in."""
     from stabjax.run import store as S
     from stabjax.run import sweep
     from stabjax.errors import StabjaxError
@@ -204,8 +204,9 @@ def test_partial_resume_after_kill(oscillator, tmp_path):
     rounds = sorted((tmp_path / "osc1.nc.zarr").iterdir())
     assert [r.name for r in rounds] == ["round_0000", "round_0001", "round_0002"]
     assert [len(S.read_manifest(r)["chunks"]) for r in rounds] == [1, 1, 0]
-    resumed = refine_spec(s, out)
+    resumed = refine_spec(s, out, store=tmp_path / "osc1.nc.zarr")  # the default place, named as the CLI does
     assert resumed.attrs["rounds_resumed"] == 2
+    assert not (tmp_path / "osc1.nc.zarr").exists()  # the sweep's own folder goes with its rounds (it stayed, empty)
     for k in ("k_lo", "k_hi", "label_lo", "label_hi", "point_k", "point_label", "point_steps"):
         np.testing.assert_array_equal(resumed[k].values, full[k].values)
     # a changed spec is refused rather than mixed in
