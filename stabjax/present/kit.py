@@ -319,14 +319,15 @@ def finished_file(store: str | Path) -> Path | None:
 def _open_store(path: Path, field: str, partial: bool, verified: dict | None = None):
     from ..run import dataset as D
     from ..run.store import (REWRITING, ROOT, StoreError, damage, holder, open_store, pending_mask, plan_from_manifest,
-                             read_manifest)
+                             read_manifest, rounds_note)
 
     try:
         m = read_manifest(path)
     except StoreError as exc:
         raise ValidationError(field, f"{path}: {exc}") from None
     if m is None:
-        raise ValidationError(field, f"{path} is a directory but not a sweep's chunk store (no manifest)")
+        raise ValidationError(field, f"{path} is a directory but not a sweep's chunk store (no manifest)"
+                                     f"{rounds_note(path)}")
     pending = pending_mask(m)
     if not m.get("arrays") or pending.all():
         raise ValidationError(field, f"{path}: no chunk has finished yet; try again in a moment")

@@ -252,6 +252,21 @@ def remove_listed(path: Path, m: Mapping[str, Any], *, manifest: bool = True) ->
         (path / MANIFEST).unlink(missing_ok=True)
 
 
+def rounds_note(folder: str | Path) -> str:
+    """For a folder holding the per-round stores of a refinement or a shock search (``round_NNNN``, each with
+    its manifest): where its result is, as a clause for a message; else empty."""
+    folder = Path(folder)
+    try:
+        rounds = [d for d in folder.glob("round_[0-9]*") if (d / MANIFEST).is_file()]
+    except OSError:
+        return ""
+    if not rounds:
+        return ""
+    done = folder.with_name(folder.name[: -len(".zarr")]) if folder.name.endswith(".zarr") else None
+    where = f": the search's result is {done}" if done is not None else ""
+    return f"; {folder} holds the kept rounds of a refinement or a shock search{where}"
+
+
 def discard_rounds(base: Path, remove_base: bool) -> None:
     """After a refinement or a shock search has written its result: its per-round stores under ``base``
     (``round_NNNN``), each removed by its own manifest's list, and ``base`` itself if ``remove_base`` and
@@ -1048,11 +1063,14 @@ def finished_store(store: str | Path):
     m = read_manifest(store, hint=f"nothing can be exported from it. Compute it again with the sweep that wrote "
                                   f"it: stabjax sweep SPEC --store {store} --restart")
     if m is None:
-        raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST})")
+        raise ValidationError("store", f"{store} is not a stabjax store (no {MANIFEST}){rounds_note(store)}")
     h = holder(store)
     if h is not None:
         raise StoreError(f"{store} is being written by pid {h.get('pid')} on {h.get('host')}; export it when that sweep ends")
     done = len(m["chunks"])
+    if done == m["n_chunks"] and not m.get("finished") and rounds_note(store.parent):
+        raise ValidationError("store", f"{store} is one round of a refinement or a shock search (its points' "
+                                       f"integrations, not a result){rounds_note(store.parent)}")
     if done != m["n_chunks"] or not m.get("finished"):
         raise StoreError(f"{store} is incomplete: {done} of {m['n_chunks']} chunks finished; run the sweep command "
                          "again to finish it")

@@ -215,6 +215,25 @@ def test_partial_resume_after_kill(oscillator, tmp_path):
         refine_spec({**s, "params": {"c": 0.6}}, tmp_path / "osc2.nc")
 
 
+def test_kept_rounds_point_to_the_result(oscillator, tmp_path, capsys):
+    """A refinement kept with its rounds (``keep_store``): ``export`` of one round said "incomplete: 1 of 1
+    chunks finished; run the sweep command again" (a round is never a finished sweep), and of the folder
+    "not a stabjax store". Both are refused (exit 2) naming what the folder is and where the result is."""
+    from clirun import captured
+
+    from stabjax.explore.refine import refine_spec
+
+    out = tmp_path / "kept.nc"
+    refine_spec(spec({"k": {"start": 0.0, "stop": 1.0, "num": 3}}, {"rel_tol": 1 / 16}, params={"c": C1}), out,
+                keep_store=True)
+    folder = tmp_path / "kept.nc.zarr"
+    for target, said in ((folder / "round_0000", "is one round of a refinement or a shock search"),
+                         (folder, "not a stabjax store")):
+        code, _, err = captured(capsys, "export", target, "--out", tmp_path / "x.nc")
+        assert code == 2 and said in err and f"the search's result is {out}" in err, err
+        assert "run the sweep command again" not in err and not (tmp_path / "x.nc").exists()
+
+
 def test_samples_dominant_label_and_pair(oscillator):
     """With samples a point's label is its dominant outcome; pair restricts which boundaries count."""
     from stabjax.explore.refine import refine_spec
