@@ -162,7 +162,8 @@ def _refine(plan, out: Path, plot: bool, **run) -> int:
 
 def _shock(plan, out: Path, plot: bool, **run) -> int:
     """``stabjax sweep SPEC`` for a spec with a [shock] section: search, write ``out`` (and its figure), print the
-    summary (red flags with the command replaying their witness); exit 0 (a red flag is a finding, not an error)."""
+    summary (red flags with the command replaying their witness); the exit status of :func:`shock_status` (a red
+    flag is a finding, not an error; a failed shocked start is a fatal shock, not a failure)."""
     from ..explore.shock import shock_plan
     from ..explore.shock_config import shock_config
 
@@ -171,7 +172,38 @@ def _shock(plan, out: Path, plot: bool, **run) -> int:
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']:,} trajectories, {ds.attrs['wall_time_s']:.1f} s)",
                   markup=False)
     print_result(ds, out.with_suffix(".png") if plot else None, result=out)
-    return 0
+    return shock_status(ds, out)
+
+
+def shock_status(ds, out: Optional[Path] = None) -> int:
+    """The exit status a finished shock search deserves: 0, or 1 (said in one line) when the unshocked start
+    failed at some grid point -- the solver did not reach t1, or an observable the outcome reads was not finite --
+    so that no attractor was there to shock and no search ran (a shocked start that fails is a fatal shock, a
+    finding)."""
+    import numpy as np
+
+    if ds is None or "base_outcome" not in ds:
+        return 0
+    names = str(ds.attrs.get("outcome_names", "")).split()
+    if "failed" not in names:
+        return 0
+    failed = np.asarray(ds["base_outcome"].values).ravel() == names.index("failed")
+    if not failed.any():
+        return 0
+    see = f" (see base_solver_status in {out})" if out is not None else ""
+    solver = "the solver did not reach t1" + see
+    obs = "it reached t1 but an observable the outcome reads was NaN or infinite"
+    if "base_solver_status" in ds:
+        stopped = int((failed & (np.asarray(ds["base_solver_status"].values).ravel() != 0)).sum())
+        n = int(failed.sum())
+        why = (solver if stopped == n else obs if stopped == 0
+               else f"{stopped} where {solver}, {n - stopped} where {obs}")
+    else:  # a result written before the status was kept
+        why = "the solver did not reach t1, or an observable the outcome reads was not finite"
+    where = "" if failed.size == 1 else f" at {int(failed.sum())} of {failed.size} grid points"
+    err_console.print(f"the unshocked start failed{where}: {why}; no attractor to shock, no search there; "
+                      "exit status 1", style="red", markup=False)
+    return 1
 
 
 def _stops_line(ds) -> str:

@@ -275,6 +275,8 @@ class Search:
             for g in range(self.G):
                 if g != h and self.attractor[g] >= 0:
                     shared.append(r.add(g, r.u[k], 2))
+        if not shared:  # one grid point searched, the others with no attractor to shock
+            return
         ks = np.array(shared)
         self._scan(evaluate, ks, np.full(len(ks), self.cfg.max_radius))
         self._bisect(evaluate)
@@ -451,7 +453,10 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     cfg = shock_config(plan)
     base_dir = Path(store) if store is not None else (default_store(out) if out is not None else None)
     # the default <out>.zarr is the search's own; a --store folder only if this run makes it
-    own_base = base_dir is not None and (store is None or not base_dir.exists())
+    # the default <out>.zarr is the search's own, also when named as the command line names it (resumed, it
+    # exists: it stayed behind, empty); a --store folder elsewhere only if this run makes it
+    own_base = base_dir is not None and (store is None or not base_dir.exists()
+                                         or (out is not None and base_dir == default_store(out)))
     rplan = round_plan(plan, cfg)
     base, gv = base_points(plan)
     if cfg.settle:
@@ -460,6 +465,7 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     label = Labeller(rplan, base)
     engines: set[str] = set()
     resumed = [0]
+    base_status = np.zeros(plan.size, np.int32)  # round 0 opens with the unshocked starts: why one of them failed
 
     opened = once(on_open)  # the caller's word (which file will be replaced), at the first round's store
 
@@ -472,6 +478,8 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
                                executor=executor, overrides=overrides, on_open=opened)
         engines.update(info["engines"])
         resumed[0] += info["n_resumed"] == info["n_chunks"]
+        if r == 0:
+            base_status[:] = np.asarray(res["solver_status"])[: plan.size]
         params = dataclasses.replace(rplan, points=values).params_for(0, len(values))
         return label(g, params, res)
 
@@ -484,7 +492,7 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
             discard_rounds(base_dir, own_base)
         raise
     ds = assemble(plan, rplan, cfg, norm, search, label.names, base, wall=time.perf_counter() - t0,
-                  engines=engines, rounds_resumed=resumed[0], label=label)
+                  engines=engines, rounds_resumed=resumed[0], label=label, base_status=base_status)
     if out is not None:
         write(ds, out)
         if not keep_store and base_dir is not None:

@@ -288,11 +288,68 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
     if theory:
         _check_theory(plan, theory)
     settle_ = V.boolean(raw.get("settle", False), "shock.settle")
-    return ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, settle=settle_, space=space, norm=norm, blocks=tuple(blocks),
-                       weights=dict(weights), attractor=attractor, target=target, excitability=excit,
-                       directions=directions, radii=radii, max_radius=max_radius, resolution=resolution,
-                       rel_resolution=rel, refine=refine, popsize=popsize, generations=generations, seed=seed,
-                       theory=theory)
+    cfg = ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, settle=settle_, space=space,
+                      norm=norm, blocks=tuple(blocks), weights=dict(weights), attractor=attractor, target=target,
+                      excitability=excit, directions=directions, radii=radii, max_radius=max_radius,
+                      resolution=resolution, rel_resolution=rel, refine=refine, popsize=popsize,
+                      generations=generations, seed=seed, theory=theory)
+    check_rounds(plan, cfg)
+    return cfg
+
+
+def cma_popsize(cfg: ShockConfig) -> int:
+    """Candidates CMA-ES asks for per grid point and generation: ``popsize``, or pycma's default 4 + 3 ln d."""
+    return cfg.popsize or int(4 + 3 * math.log(cfg.dim))
+
+
+def round_sizes(G: int, cfg: ShockConfig) -> list[tuple[int, str, str]]:
+    """The most trajectories each kind of round can hold at ``G`` grid points, as ``(n, field, what)`` (``field``:
+    the spec field that makes it large). A bound, not a forecast: sharing and bisection reach it when every grid
+    point finds a fatal shock, the usual case."""
+    D, K = cfg.directions, cfg.radii
+    shared = G * (G - 1)  # every grid point's best direction at every other one
+    at = "" if G == 1 else f"{G:,} grid points x "
+    out = [(G * (D * K + 1), "shock.directions",
+            f"round 0 (the scan: {at}({D:,} directions x {K:,} radii + the unshocked start) = {G * (D * K + 1):,} "
+            "trajectories)")]
+    if G > 1:
+        out.append((shared * K, "grid", f"the round sharing each grid point's best direction with the others "
+                                        f"({G:,} x {G - 1:,} grid points x {K:,} radii = {shared * K:,} trajectories)"))
+    # a bisection round: one trajectory per ray still open, at most every ray (scanned, shared, polished)
+    rays = G * D + shared + G
+    out.append((rays, "grid" if shared > G * D else "shock.directions",
+                f"a bisection round (one trajectory per direction searched: {at}{D:,} directions"
+                + (f" + {shared:,} shared" if shared else "") + f" + {G:,} polished = {rays:,} trajectories)"))
+    if cfg.refine == "cma" and cfg.dim >= 2 and cfg.generations > 0:
+        P = cma_popsize(cfg)
+        out.append((G * P * K, "shock.popsize" if cfg.popsize else "shock.radii",
+                    f"a CMA-ES round ({at}{P:,} candidates x {K:,} radii = {G * P * K:,} "
+                    "trajectories)"))
+    return out
+
+
+_FEWER = {"shock.directions": "use fewer directions or radii, or fewer grid points",
+          "grid": "use fewer grid points, or split the grid into several specs",
+          "shock.popsize": "use a smaller popsize or fewer radii", "shock.radii": "use fewer radii"}
+
+
+def check_rounds(plan, cfg: ShockConfig) -> None:
+    """Refuse, before anything runs, a search whose largest round could not be held: each round's trajectories
+    against the limits a sweep's are held to (a sample's number of points, and the memory of the results,
+    :func:`stabjax.validate.check_allocation`), with what the round itself holds per trajectory besides its
+    results. A round is built whole (its shocks, then its parameters, then the runner's results): one too large
+    allocates until the machine kills it."""
+    from ..plan.spec import MAX_AXIS_POINTS, RESULT_BYTES_PER_TRAJECTORY
+
+    # per trajectory: every parameter twice (the shocked starts, the runner's rows), the grid point's values and
+    # shocked entries, the shock and its direction, radius, indices and codes
+    n_params = sum(math.prod(p.shape) for p in plan.system.params)
+    per = RESULT_BYTES_PER_TRAJECTORY + 8 * (2 * n_params + len(plan.grid) + 4 * cfg.dim + 8)
+    for n, fld, what in round_sizes(plan.size, cfg):
+        if n > MAX_AXIS_POINTS:
+            raise ValidationError(fld, f"{what}: over the {MAX_AXIS_POINTS:,} trajectories a round may hold (a "
+                                       f"sample's bound); {_FEWER[fld]}")
+        V.check_allocation(fld, n * per, what)
 
 
 def _outcome_names(plan) -> tuple[str, ...] | None:

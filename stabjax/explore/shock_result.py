@@ -151,8 +151,12 @@ def _units(plan, cfg: ShockConfig) -> str:
 
 
 def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str, ...], base, *,
-             wall: float = float("nan"), engines=frozenset(), rounds_resumed: int = 0, label=None) -> xr.Dataset:
-    from ..run.dataset import cf_attributes
+             wall: float = float("nan"), engines=frozenset(), rounds_resumed: int = 0, label=None,
+             base_status: np.ndarray | None = None) -> xr.Dataset:
+    """The result's dataset (see the module docstring and docs/guide/shock.md for its variables).
+    ``base_status``: the unshocked starts' solver status (diffrax's codes), which says why a base start that
+    failed did (the solver stopped, or it reached t1 with observables not finite)."""
+    from ..run.dataset import cf_attributes, status_flags
     from ..run.derive import provenance
 
     G, d = search.G, cfg.dim
@@ -189,6 +193,9 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
         "base_outcome": (gdims, shp(np.where(search.valid, search.attractor, getattr(search, "base_codes", -1))
                                     .astype(np.int16)),
                          {"long_name": "outcome of the unshocked start (the attractor shocked)", **flags}),
+        **({} if base_status is None else {"base_solver_status": (gdims, shp(np.asarray(base_status, np.int32)), {
+            "long_name": "solver status of the unshocked start (diffrax RESULTS codes; 100: escaped the escape "
+                         "radius)", "flag_values": status_flags()[0], "flag_meanings": status_flags()[1]})}),
         "shock_norm": (gdims, shp(hi), {"long_name": "size of the minimal fatal shock found: norm of the smallest "
                                                      "fatal shock (NaN: none up to max_radius)", **nu}),
         "shock_norm_lo": (gdims, shp(lo), {"long_name": "lower end of the bracket: no fatal shock below it among the "
@@ -276,15 +283,29 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
         norm=describe_norm(cfg), outcome_names=" ".join(names), rounds=search.rounds,
         round_sizes=list(search.round_sizes), n_directions=N, n_trajectories=n_traj, total_steps=0,
         wall_time_s=float(wall), engine=",".join(sorted(engines)) or "resumed", rounds_resumed=int(rounds_resumed),
-        statement=(f"no fatal shock among the {N} directions searched below shock_norm_lo (each scanned at "
-                   f"{cfg.radii} radii up to {cfg.max_radius:g}, then bisected; a direction is assumed to leave the "
-                   f"basin once between two scan radii): the share of directions that could hold a smaller one is "
-                   f"below {fraction_bound(N):.2g} at 95 % confidence; a narrower cone can escape. shock_norm is a "
-                   "fatal shock found (its witness start is stored): an upper bound."),
+        statement=_statement(cfg, search.valid),
         theory_json=json.dumps(theory_json), grid_keys_json=json.dumps({ax.name: ax.key for ax in plan.grid}),
     )
     cf_attributes(ds, plan, activity="shock search", trajectories=n_traj)
     return ds
+
+
+def _statement(cfg: ShockConfig, valid: np.ndarray) -> str:
+    """What the result promises, where a search ran: a grid point whose unshocked start failed or reached no
+    attractor to shock (``valid`` false) holds no bracket, so the statistical statement is not made of it."""
+    N = cfg.directions
+    why = "the unshocked start failed or did not reach the attractor to shock; base_outcome says which"
+    if not valid.any():
+        return (f"no search ran{' at any grid point' if valid.size > 1 else ''} ({why}): shock_norm and "
+                "shock_norm_lo are NaN.")
+    skipped = int((~valid).sum())
+    where = f"at the {int(valid.sum())} of {valid.size} grid points searched: " if skipped else ""
+    elsewhere = f" At the other {skipped} no search ran ({why})." if skipped else ""
+    return (f"{where}no fatal shock among the {N} directions searched below shock_norm_lo (each scanned at "
+            f"{cfg.radii} radii up to {cfg.max_radius:g}, then bisected; a direction is assumed to leave the "
+            f"basin once between two scan radii): the share of directions that could hold a smaller one is "
+            f"below {fraction_bound(N):.2g} at 95 % confidence; a narrower cone can escape. shock_norm is a "
+            f"fatal shock found (its witness start is stored): an upper bound.{elsewhere}")
 
 
 # ---- replay ----------------------------------------------------------------------------------------------

@@ -164,6 +164,8 @@ def _single(ax, ds):
     if np.isfinite(hi):
         ax.errorbar([0], [hi], yerr=[[hi - lo], [0]], fmt="o", color="#0072B2", capsize=6, ms=8,
                     label=f"minimal fatal shock found: {hi:.4g} (bracket [{lo:.4g}, {hi:.4g}])")
+    elif np.isnan(lo):  # nothing searched: the unshocked start reached no attractor to shock
+        ax.plot([0], [0], "x", color="#6c757d", ms=9, label=f"no search: the unshocked start reaches {att}")
     else:
         ax.plot([0], [lo], "^", color="#009E73", ms=9, label=f"no fatal shock up to {lo:.4g}")
     _theory_lines(ax, ds)

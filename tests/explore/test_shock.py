@@ -180,7 +180,8 @@ def test_wrong_theorem_is_a_red_flag_with_a_witness_scipy_confirms():
 
 
 def test_deterministic_and_resumed_from_the_store(tmp_path):
-    """The same seed gives the same search; a second run over a kept store resumes every round, bitwise."""
+    """The same seed gives the same search; a second run over a kept store resumes every round, bitwise, and one
+    that does not keep it removes the store it made."""
     shock = {"components": ["x0"], "max_radius": 2.0, "directions": 4}
     spec = {"system": "test_shock_t1", "name": "shock", "integrate": T1_INTEGRATE, "shock": shock}
     a = shock_spec(spec, tmp_path / "a.nc", keep_store=True)
@@ -191,6 +192,10 @@ def test_deterministic_and_resumed_from_the_store(tmp_path):
         np.testing.assert_array_equal(a[v].values, b[v].values)
     c = shock_spec(spec)
     np.testing.assert_array_equal(a.shock_delta.values, c.shock_delta.values)
+    # resumed without keep_store, its default store named as the command line names it: the rounds and their
+    # folder go (the folder stayed behind, empty)
+    d = shock_spec(spec, tmp_path / "a.nc", store=tmp_path / "a.nc.zarr")
+    assert d.attrs["rounds_resumed"] == a.attrs["rounds"] and not (tmp_path / "a.nc.zarr").exists()
 
 
 def test_a_store_folder_of_the_users_keeps_its_files(tmp_path):
@@ -283,3 +288,68 @@ def test_rounds_run_on_dask_workers_with_the_local_result():
     for v in ("shock_norm", "shock_norm_lo", "shock_delta", "direction_exit_lo", "direction_exit_hi"):
         np.testing.assert_array_equal(ds[v].values, local[v].values, err_msg=v)
     assert_brackets(ds, 1.0)
+
+
+@pytest.fixture
+def never_searched(monkeypatch):
+    """A search that starts fails the test at once: before the size check a round too large was built whole and
+    allocated memory until the machine killed it."""
+    from stabjax.explore.shock import Search
+
+    def started(self, evaluate):
+        raise AssertionError("the search started: its largest round was not refused")
+
+    monkeypatch.setattr(Search, "run", started)
+
+
+@pytest.mark.parametrize("shock, grid, field", [
+    ({"directions": 16777216, "radii": 64}, None, "shock.directions"),  # round 0: 1e9 trajectories
+    ({"directions": 100000}, {"claim": {"start": 0.5, "stop": 1.5, "num": 100000}}, "shock.directions"),  # x the grid
+    ({"directions": 4}, {"claim": {"start": 0.5, "stop": 1.5, "num": 5000}}, "grid"),  # sharing: G (G - 1) radii
+    ({"directions": 4, "popsize": 16777216}, None, "shock.popsize"),  # a CMA-ES generation
+])
+def test_a_round_too_large_is_refused_before_the_search(never_searched, shock, grid, field):
+    """The largest round a search can reach -- the scan (grid points x (directions x radii + 1)), the round
+    sharing every grid point's best direction with every other, a bisection, a CMA-ES generation -- is held to
+    a sweep's bound on the points of a sample, and refused naming the field that makes it large, before anything
+    runs."""
+    extra = {"grid": grid} if grid else {}
+    with pytest.raises(ValidationError) as exc:
+        search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 2.0, **shock}, t1=60.0, **extra)
+    assert exc.value.field == field and "over the 100,000,000 trajectories a round may hold" in exc.value.message
+
+
+def test_a_round_over_the_memory_allowed_is_refused(never_searched, monkeypatch):
+    """Below the bound on points, a round whose trajectories' results and arrays exceed the memory a sweep may
+    take (stabjax.validate.check_allocation, a quarter of the free memory, here of 1 GiB) is refused too."""
+    from stabjax import validate
+
+    monkeypatch.setattr(validate, "available_memory", lambda: 1 << 30)
+    with pytest.raises(ValidationError) as exc:
+        search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 1_000_000}, t1=60.0)
+    assert exc.value.field == "shock.directions" and "would need" in exc.value.message
+
+
+def test_a_round_too_large_exits_2_and_leaves_nothing(never_searched, tmp_path, capsys):
+    """From the command line: exit status 2 naming shock.directions, and no result, figure or store on disk."""
+    from clirun import captured
+
+    spec = tmp_path / "big.toml"
+    spec.write_text('system = "test_shock_t2"\nname = "big"\n[shock]\ncomponents = ["x0", "y0"]\nmax_radius = 1.0\n'
+                    'directions = 16777216\nradii = 64\n')
+    code, out, err = captured(capsys, "sweep", spec, "--out", tmp_path / "big.nc", "--no-progress")
+    assert code == 2 and "shock.directions" in err + out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.toml"]
+
+
+def test_no_statement_where_the_start_reaches_another_outcome():
+    """A start that reaches an outcome other than the attractor asked for holds no search: the result says so,
+    and makes no statistical statement about directions that were never bisected; it is no failure (exit 0)."""
+    ds = search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 1.0, "directions": 2, "refine": "none",
+                                  "attractor": "origin"}, t1=60.0, n_checkpoints=300, params={"x0": 2.0})
+    assert ds.attrs["outcome_names"].split()[int(ds.base_outcome)] == "cycle2"
+    assert np.isnan(float(ds.shock_norm)) and np.isnan(float(ds.shock_norm_lo))
+    assert ds.attrs["statement"].startswith("no search ran") and "no fatal shock among" not in ds.attrs["statement"]
+    from stabjax.app.sweep_cmds import shock_status
+
+    assert shock_status(ds) == 0

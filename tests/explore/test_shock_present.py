@@ -71,3 +71,53 @@ def test_plane_over_a_basin_picture(tmp_path):
     fig = plot_shock(ds, tmp_path / "plane.png", basin=basin)
     assert (tmp_path / "plane.png").stat().st_size > 0
     assert len(fig.axes) >= 2
+
+
+BLOW = '''
+import jax.numpy as jnp
+from stabjax import Outcomes, Param, ParamSet, System
+
+class Blow(System):
+    title = "x' = x^2 - c: from 0, to -sqrt(c) for c > 0; blows up in finite time for c < 0"
+    params = ParamSet((Param("x0", 0.0, "initial x", kind="initial"), Param("c", 1.0, "offset")))
+    state = (("x", ()),)
+    observables = ("x",)
+    observable_doc = ("x",)
+    default_t1 = 20.0
+    outcomes = Outcomes(rules={"rest": "abs(final(x) + 1) < 0.1"}, window=0.1)
+
+    def initial_state(self, p):
+        return jnp.stack([p["x0"]])
+
+    def rhs(self, t, y, p):
+        return y ** 2 - p["c"]
+
+    def observe(self, t, y, p):
+        return y
+'''
+
+
+def test_a_failed_unshocked_start_exits_1(tmp_path, capsys):
+    """Where the unshocked start fails (c = -1: it blows up before t1) no search runs there: the sweep writes the
+    result, says in one line why the start failed, exits 1, and makes the statistical statement only of the grid
+    point searched (c = 1, whose bracket holds the closed form's delta* = 1: x0 > 1 blows up). With one grid point
+    searched there is no other to share its best direction with: that round is skipped (it raised IndexError)."""
+    from clirun import captured
+
+    from stabjax.run.sweep import open_result
+
+    (tmp_path / "blow.py").write_text(BLOW)
+    spec = tmp_path / "blow.toml"
+    spec.write_text('system = "blow.py:Blow"\nname = "blow"\n[grid]\nc = [1.0, -1.0]\n[integrate]\nt1 = 20.0\n'
+                    'n_checkpoints = 100\n[shock]\ncomponents = ["x0"]\nmax_radius = 2.5\ndirections = 2\n'
+                    'refine = "none"\n')
+    out = tmp_path / "blow.nc"
+    code, text, err = captured(capsys, "sweep", spec, "--out", out, "--no-progress", "--no-plot")
+    assert code == 1, text + err
+    assert "the unshocked start failed at 1 of 2 grid points: the solver did not reach t1" in err
+    assert "c = -1: the unshocked start reaches failed: no search" in text
+    assert "at the 1 of 2 grid points searched: no fatal shock among the 2 directions" in text
+    assert "At the other 1 no search ran" in text
+    ds = open_result(out)
+    assert ds.base_solver_status.sel(c=-1.0) != 0 and ds.base_solver_status.sel(c=1.0) == 0
+    assert float(ds.shock_norm_lo.sel(c=1.0)) <= 1.0 <= float(ds.shock_norm.sel(c=1.0))
