@@ -327,23 +327,11 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     points = [r for r in found if r[1] == "fixed_point"]
     others = [r for r in found if r[1] != "fixed_point"]
     xm = f.x[:, ::len(STATS)]  # the scaled window means
-    merged: list[np.ndarray] = []
-    centres: list[np.ndarray] = []  # where each fixed point's members end (scaled observables)
-    means: list[np.ndarray] = []  # and the median of their window means
-    for g, *_ in points:  # one fixed point found by both groupings, or split by its transient: one attractor
-        # placed by where its members end or by their window means: a decaying oscillation (x'' + 0.04 x' + x
-        # = 0 at t1 = 150) still ends up to 0.1 of its range from the focus, while its window mean is within 0.01
-        c, cm = np.median(f.xf[g], axis=0), np.median(xm[g], axis=0)
-        near = [i for i, (o, om) in enumerate(zip(centres, means))
-                if min(np.linalg.norm(c - o), np.linalg.norm(cm - om)) <= cfg.eps]
-        if near:
-            merged[near[0]] = np.concatenate([merged[near[0]], g])
-            centres[near[0]] = np.median(f.xf[merged[near[0]]], axis=0)
-            means[near[0]] = np.median(xm[merged[near[0]]], axis=0)
-        else:
-            merged.append(g)
-            centres.append(c)
-            means.append(cm)
+    # one fixed point found by both groupings, or split by its transient: one attractor, placed by where its
+    # members end or by their window means (a decaying oscillation, x'' + 0.04 x' + x = 0 at t1 = 150, still
+    # ends up to 0.1 of its range from the focus, while its window mean is within 0.01)
+    merged, placed = _merge_near([g for g, *_ in points], (f.xf, xm), cfg.eps)
+    centres, means = [c for c, _ in placed], [m for _, m in placed]
     ends: list[np.ndarray] = []  # where each group still in a monotone approach ends (scaled observables)
     approach: list[np.ndarray] = []
     if f.lam is None:
@@ -357,20 +345,15 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             if r[1] != "attractor" or np.mean(_ends_at_extreme(g, f)) <= 0.5:
                 kept.append(r)
                 continue
-            c = np.median(f.xf[g], axis=0)
-            d = np.linalg.norm(c[None] - np.asarray(centres), axis=1) if centres else np.array([np.inf])
-            j = int(np.argmin(d))
-            if d[j] <= cfg.eps:
+            d = [np.linalg.norm(np.median(f.xf[g], axis=0) - c) for c in centres]
+            if d and min(d) <= cfg.eps:
+                j = int(np.argmin(d))
                 merged[j] = np.concatenate([merged[j], g])
-                continue
-            near = [i for i, o in enumerate(ends) if np.linalg.norm(c - o) <= cfg.eps]
-            if near:
-                approach[near[0]] = np.concatenate([approach[near[0]], g])
-                ends[near[0]] = np.median(f.xf[approach[near[0]]], axis=0)
             else:
                 approach.append(g)
-                ends.append(c)
         others = kept
+        approach, placed = _merge_near(approach, (f.xf,), cfg.eps)
+        ends = [c for c, in placed]
     left = np.setdiff1d(idx, np.concatenate([g for g, *_ in found]) if found else idx[:0])
     if left.size and centres:
         # ending within the rest threshold of a fixed point in every observable is being there, whatever the
@@ -412,6 +395,25 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     # every member rests at the point or approaches it (at rest, a negative exponent, a monotone approach)
     points = [(np.sort(g), *_describe(np.sort(g), f, cfg, kind="fixed_point")) for g in merged]
     return points + others, stats
+
+
+def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float
+                ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, ...]]]:
+    """Groups merged in order: one joins the first earlier group whose median in any of the positions ``by``
+    (scaled, one row per trajectory) lies within ``eps`` of its own. The merged groups and their medians."""
+    merged: list[np.ndarray] = []
+    placed: list[tuple[np.ndarray, ...]] = []
+    for g in groups:
+        here = tuple(np.median(p[g], axis=0) for p in by)
+        near = [i for i, there in enumerate(placed)
+                if min(np.linalg.norm(a - b) for a, b in zip(here, there)) <= eps]
+        if near:
+            merged[near[0]] = np.concatenate([merged[near[0]], g])
+            placed[near[0]] = tuple(np.median(p[merged[near[0]]], axis=0) for p in by)
+        else:
+            merged.append(g)
+            placed.append(here)
+    return merged, placed
 
 
 def _approaching(members: np.ndarray, f: _Features, cfg: DiscoveryConfig) -> np.ndarray:
@@ -493,10 +495,10 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
         reps.append(rep)
         labels[g] = a
     stats.update(n_grouped=int((labels >= 0).sum()), n_unbounded=int(f.unbounded.sum()),
-                 # untyped groups whose members mostly end their window in a monotone approach: a transient
-                 # that t1 did not outlast (:func:`_warn_transient`)
+                 # untyped groups still in a transient that t1 did not outlast (:func:`_warn_transient`): most
+                 # members end their window in a monotone approach, or (with the exponent, where an untyped
+                 # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
-                            # (with the exponent, an untyped group is one still contracting: _unsettled)
                             if t == "attractor" and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()))
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
@@ -616,7 +618,8 @@ class Discovery(Mapper):
 
 
 class TransientWarning(UserWarning):
-    """Discovery, without the Lyapunov exponent, found untyped groups still in a monotone approach at t1."""
+    """Discovery found trajectories still approaching something at t1 (monotonically, or contracting at a
+    negative exponent that has not settled by the window's start): untyped groups or unclassified ones."""
 
 
 def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int, lyapunov: bool) -> None:
