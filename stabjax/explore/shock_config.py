@@ -190,9 +190,10 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
         raise ValidationError(f"shock.{unknown[0]}", f"unknown field; known: {', '.join(SHOCK_KEYS)}")
     if "refine" in plan.spec:
         raise ValidationError("refine", "a spec runs either a [refine] or a [shock] search, not both")
-    if plan.n_sample:
-        raise ValidationError("sample", "a shock search chooses its own starts: remove [sample] (the start to shock "
-                                        "is the spec's, set in [params])")
+    if plan.n_sample:  # a [shock] table given beside a plan whose spec had none (the spec refuses the pair itself)
+        from ..plan.spec import SHOCK_TAKES_NO_SAMPLE
+
+        raise ValidationError("sample", SHOCK_TAKES_NO_SAMPLE)
     for ax in plan.grid:
         if ax.values.ndim != 1:
             raise ValidationError(f"grid.{ax.key}", "a shock search needs scalar axes (sweep one entry like \"J[0]\")")

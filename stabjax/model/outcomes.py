@@ -109,6 +109,8 @@ class Rule:
             if node.id == LYAPUNOV:  # the largest Lyapunov exponent over the window (stabjax.model.tangent)
                 self.used.add(("final", LYAPUNOV))
                 return "num"
+            if node.id.lower() == "nan":  # the user meant a number, not a name to suggest max(nan) for
+                raise self._err("NaN is not allowed here: give a number")
             raise self._err(f"unknown name {node.id!r}; use a feature such as max({node.id}) for observables, "
                             f"or one of the parameters {', '.join(self.params)}")
         if isinstance(node, ast.Call):

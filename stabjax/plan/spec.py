@@ -45,6 +45,9 @@ TOP_KEYS = {"system", "name", "description", "params", "grid", "sample", "integr
 _NAME = re.compile(r"^(?![.\-\s])[^/\\\x00-\x1f]{1,128}$")  # a file stem: no path, no hidden file
 _ENTRY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\[(\d+(?:\s*,\s*\d+)*)\]$")
 
+SHOCK_TAKES_NO_SAMPLE = ("a shock search chooses its own starts: remove [sample] (the start to shock is the "
+                         "spec's, set in [params])")
+
 
 @dataclass
 class Axis:
@@ -334,6 +337,10 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     # sizes first, from the spec alone: nothing of the plan's size is allocated before they pass
     grid_spec = dict(spec.get("grid") or {})
     sample_spec = dict(spec.get("sample") or {})
+    if sample_spec and "shock" in spec:
+        # said here, before the sample table is read: its own complaints (a parameter to sample, a starts file)
+        # would send the user to fix a table that a shock search refuses whole
+        raise ValidationError("sample", SHOCK_TAKES_NO_SAMPLE)
     # a parameter both fixed and swept (or sampled): the fixed value is never used, yet it would be
     # recorded as a fixed parameter of the result (fixed_params_json). One entry swept ("J[0]") with
     # the whole vector fixed is fine: the other entries come from [params].
