@@ -96,7 +96,8 @@ def test_global_claim_fails_inverted_spin_attracts(name, extra):
     th = s.theory(p)
     main = th.predicates[th.main]
     assert main.ok  # the paper claims convergence from everywhere
-    ds = simulate(s, over, t1=300.0, ts=np.linspace(0, 300, 7))
+    # t1 and save times of test_printed_44_is_conservative (its gravity case reuses that compiled loop)
+    ds = simulate(s, over, t1=400.0, ts=np.linspace(0, 400, 9))
     ang = ds["angle"].values
     assert ang[0] == pytest.approx(np.pi - 0.1, abs=1e-9)
     assert ang[-1] > np.pi - 1e-6  # converged onto the inverted spin
@@ -202,7 +203,9 @@ def test_no_mu_linearisation_has_positive_real_root_and_phi0():
 
 def test_no_mu_simulation_leaves_the_target_with_mu_it_returns():
     over = dict(I=I432, H=tuple(H_), lam=1.0, K=5.0, init=1.0, rho=1e-6, use_mu=0.0)
-    ds = simulate("saakyan_fixed", over, t1=150.0, ts=np.linspace(0, 150, 4))
+    # t1 and save times of the spurious-spin test above (the same compiled loop): the error is ~1 by t = 20
+    # without mu and ~1e-10 by t = 30 with it
+    ds = simulate("saakyan_fixed", over, t1=50.0, ts=np.linspace(0, 50, 6))
     assert ds["error"].values[0] < 1e-5 and ds["error"].values[-1] > 1.0
-    ds = simulate("saakyan_fixed", dict(over, use_mu=1.0), t1=150.0, ts=np.linspace(0, 150, 4))
+    ds = simulate("saakyan_fixed", dict(over, use_mu=1.0), t1=50.0, ts=np.linspace(0, 50, 6))
     assert ds["error"].values[-1] < 1e-8

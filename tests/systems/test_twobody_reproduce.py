@@ -3,10 +3,18 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 import stabjax  # noqa: F401
 from stabjax.model.registry import get_reproducer
 
 
+# the full suite's (~20 s on 2 cores); in CI's 10 minutes: the reproduce command end to end is
+# test_saakyan_sweeps.py::test_reproduce_quick; the b* figures of the summary are the theory's, checked in
+# test_twobody_theory.py::test_physical_koenig_bstar_spec_value_and_explicit_formula and ::test_rotating_bstar_spec_value;
+# convergence near s0 = -r0 in test_twobody_sweeps.py::test_near_unstable_and_b_rate_end_to_end and
+# test_twobody_dynamics.py::test_starts_near_unstable_equilibria_leave
+@pytest.mark.slow
 def test_reproduce_quick(tmp_path):
     files = get_reproducer("twobody")(tmp_path, quick=True)
     assert files and all(f.exists() and f.stat().st_size > 0 for f in files)

@@ -53,7 +53,7 @@ def test_near_unstable_and_b_rate_end_to_end():
     assert abs(ds["derived_b_star_physical"].values[-1, 0, 0] - 6 * 2.3458 / 3) < 1e-3
 
 
-@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the loops against SciPy in test_twobody_reference.py, reproduce --quick
+@pytest.mark.slow  # the full suite's; in CI's 10 minutes: the loops against SciPy in test_twobody_reference.py, the sweeps above
 @pytest.mark.parametrize("name", ["twobody_uniaxial", "twobody_triaxial_rotating"])
 def test_generic_classifier_on_the_fused_engine(name):
     """No system-specific classify(): the fused engine takes these loops (no primitive without a
