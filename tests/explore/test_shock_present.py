@@ -23,6 +23,7 @@ max_radius = 2.0
 directions = 12
 refine = "none"
 theory = ["disc"]
+rel_resolution = 0.1  # coarse (fewer bisection rounds): the witness still lies between 1 (the edge) and the claim 1.3
 """
 
 
@@ -65,7 +66,8 @@ def test_plane_over_a_basin_picture(tmp_path):
 
     integ = {"t1": 60.0, "n_checkpoints": 300, "rtol": 1e-8, "atol": 1e-10}
     ds = shock_spec({"system": "test_shock_t2", "name": "c", "integrate": integ,
-                     "shock": {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 12, "refine": "none"}})
+                     "shock": {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 12, "refine": "none",
+                               "rel_resolution": 0.1}})  # the figure's test: a coarse bracket draws the same
     basin = run_spec({"system": "test_shock_t2", "name": "b", "integrate": integ,
                       "grid": {"x0": {"start": -2, "stop": 2, "num": 9}, "y0": {"start": -2, "stop": 2, "num": 9}}})
     fig = plot_shock(ds, tmp_path / "plane.png", basin=basin)

@@ -3,10 +3,26 @@ import pytest
 
 @pytest.fixture(scope="session")
 def results(tmp_path_factory):
-    """One small result of each kind (see_results.py), built once for the report, view and plot tests."""
+    """One small result of each kind (see_results.py), built once for the report, view and plot tests: once per
+    test run, also under pytest-xdist, whose workers share it (the first to need it builds it under a lock in
+    the run's own temporary folder, the others read the same files; no test writes into that folder)."""
+    import fcntl
+    import json
+    import os
+    from pathlib import Path
+
     from see_results import build
 
-    return build(tmp_path_factory.mktemp("results"), along=True)
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return build(tmp_path_factory.mktemp("results"), along=True)
+    root = tmp_path_factory.getbasetemp().parent  # this run's folder, shared by its workers (pytest-N)
+    folder, index = root / "present-results", root / "present-results.json"
+    with open(root / "present-results.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not index.exists():
+            folder.mkdir(exist_ok=True)
+            index.write_text(json.dumps({k: str(v) for k, v in build(folder, along=True).items()}))
+    return {k: Path(v) for k, v in json.loads(index.read_text()).items()}
 
 
 @pytest.fixture(scope="session")

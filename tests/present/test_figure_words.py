@@ -109,11 +109,23 @@ def test_at2019_figures(saved, tmp_path):
     _assert_clean(saved, ["alpha_sweep.png", "decay_laws.png"])
 
 
-def test_saakyan_figures(saved, tmp_path):
+def test_saakyan_figures(saved, tmp_path, monkeypatch):
+    """The quick run's figures. The example panels' words do not depend on the trajectories drawn: those are
+    stand-ins here (the quick run with its real trajectories is tests/systems/test_saakyan_sweeps.py::
+    test_reproduce_quick's, which checks what they show); the region sweep is run as the quick run runs it."""
     from stabjax.reproduce import load_shipped, saakyan, shipped_specs
 
     assert set(saakyan.TITLES) == set(shipped_specs("saakyan_"))  # every shipped map is titled in words
+    drawn = []
+
+    def stand_in(name, over, *, t1, ts, **_kw):
+        drawn.append(name)
+        e = np.exp(-np.asarray(ts) / 10.0)
+        return xr.Dataset({"error": ("t", e), "angle": ("t", 0.5 * e)}, coords={"t": np.asarray(ts)})
+
+    monkeypatch.setattr(saakyan, "simulate", stand_in)
     saakyan.run(tmp_path, quick=True)
+    assert len(drawn) == len(saakyan.QUICK_EXAMPLES)  # every example panel was drawn
     _assert_clean(saved, ["saakyan_examples.png", "saakyan_region_generic.png", "saakyan_region_generic_fraction.png"])
     assert load_shipped("saakyan_region_generic")  # the quick run drew the shipped spec's figures
 
@@ -154,13 +166,13 @@ def test_gyrodyne_maps(saved, tmp_path):
     _assert_clean(saved, [f"{s}.png" for s in shipped_specs("gyrodyne_")])
 
 
-def test_refine_figure(saved, tmp_path):
-    from stabjax.explore.refine import refine_spec
+def test_refine_figure(saved, results, tmp_path):
+    """The figure of a 2-D refinement of a paper system: the one the report, view and plot tests read (see_results.py,
+    monoaxial on a 3 x 3 grid of alpha and sigma), built once for them all."""
+    from stabjax.present.kit import open_result
     from stabjax.present.refinement import plot_refine
 
-    spec = {"system": "monoaxial", "name": "tiny_refine", "params": {"mu": 1.5},
-            "grid": {"alpha": {"start": 0.3, "stop": 1.0, "num": 3}, "sigma": {"start": 1.2, "stop": 1.6, "num": 3}},
-            "integrate": {"t1": 200.0, "n_checkpoints": 200}, "refine": {"rel_tol": "1/4"}}
-    ds = refine_spec(spec)
+    ds = open_result(results["refine"])
+    assert ds.attrs["kind"] == "refine" and ds.attrs["n_segments"] > 0
     plot_refine(ds, tmp_path / "tiny_refine.png")
     _assert_clean(saved, ["tiny_refine.png"])

@@ -422,10 +422,11 @@ def test_view_refuses_bad_input(tmp_path, capsys):
 
 
 def test_fractions_follow_the_clicked_row_of_a_2d_sampled_map(tmp_path):
-    spec = {"system": "monoaxial", "name": "sampled2d", "params": {"mu": 1.5},
-            "grid": {"alpha": [0.35, 0.9], "sigma": [1.2, 1.3, 1.5]},
-            "sample": {"n": 4, "seed": 0, "w0": {"dist": "ball", "radius": 0.1}},
-            "integrate": {"t1": 60.0, "n_checkpoints": 64}}
+    from see_results import BASIN_ALONG
+
+    # the small pendulum of the sampled results (see_results.py), on a 2-D grid: the view's code is what is tested
+    spec = {**BASIN_ALONG, "name": "sampled2d", "grid": {"alpha": [0.35, 0.9], "T": [0.3, 0.5, 0.7]},
+            "sample": {**BASIN_ALONG["sample"], "n": 4}}
     out = tmp_path / "s.nc"
     run_spec(spec, out)
     ds = open_result(out)
