@@ -236,8 +236,11 @@ class Search:
     def run(self, evaluate):
         cfg, G = self.cfg, self.G
         rng = np.random.default_rng(cfg.seed)
-        U = rng.standard_normal((cfg.directions, cfg.dim))
-        U /= np.linalg.norm(U, axis=1, keepdims=True)
+        if cfg.dim == 1:  # the whole unit sphere of one component, in turn (shock_config: at most 2)
+            U = np.array([[1.0], [-1.0]])[: cfg.directions]
+        else:
+            U = rng.standard_normal((cfg.directions, cfg.dim))
+            U /= np.linalg.norm(U, axis=1, keepdims=True)
         for g in range(G):
             for u in U:
                 self.rays.add(g, u, 0)

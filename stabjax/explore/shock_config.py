@@ -34,7 +34,7 @@ documentation's settings table is generated from these rows):
 ``attractor``        the outcome the unshocked start must reach (default: whatever it reaches)
 ``target``           only these outcomes are fatal (the excitability threshold into their basins)
 ``excitability``     a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
-``directions``       directions scanned (64)
+``directions``       directions scanned (64; with one component both of its two directions, +1 and -1)
 ``radii``            radii per direction in the scan, and rungs of CMA-ES's ladder (8)
 ``max_radius``       the largest shock searched, in the norm's units (required)
 ``resolution``       bracket width to reach, absolute (default: ``rel_resolution``)
@@ -269,6 +269,10 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
         obs, sc = rule_names(plan.system)
         parse(V.string(excit, "shock.excitability"), obs, sc, "shock.excitability")
     directions = _positive(raw, "directions", 64, integer=True)
+    if len(entries) == 1:
+        # the unit sphere of one component is {+1, -1}: both are searched (stabjax.explore.shock), none drawn
+        # at random (two draws could both be +1 and leave the other side unsearched), and more would repeat them
+        directions = min(directions, 2)
     radii = _positive(raw, "radii", 8, integer=True)
     if "max_radius" not in raw:
         raise ValidationError("shock.max_radius", "required: the largest shock searched, in the norm's units")

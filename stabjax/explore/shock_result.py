@@ -301,11 +301,15 @@ def _statement(cfg: ShockConfig, valid: np.ndarray) -> str:
     skipped = int((~valid).sum())
     where = f"at the {int(valid.sum())} of {valid.size} grid points searched: " if skipped else ""
     elsewhere = f" At the other {skipped} no search ran ({why})." if skipped else ""
-    return (f"{where}no fatal shock among the {N} directions searched below shock_norm_lo (each scanned at "
-            f"{cfg.radii} radii up to {cfg.max_radius:g}, then bisected; a direction is assumed to leave the "
-            f"basin once between two scan radii): the share of directions that could hold a smaller one is "
-            f"below {fraction_bound(N):.2g} at 95 % confidence; a narrower cone can escape. shock_norm is a "
-            f"fatal shock found (its witness start is stored): an upper bound.{elsewhere}")
+    scan = (f"each scanned at {cfg.radii} radii up to {cfg.max_radius:g}, then bisected; a direction is assumed to "
+            f"leave the basin once between two scan radii")
+    if cfg.dim == 1 and N == 2:  # both directions of the one component: nothing is left to chance
+        return (f"{where}no fatal shock in either direction of {cfg.components[0]} below shock_norm_lo ({scan}). "
+                f"shock_norm is a fatal shock found (its witness start is stored): an upper bound.{elsewhere}")
+    return (f"{where}no fatal shock among the {N} directions searched below shock_norm_lo ({scan}): the share of "
+            f"directions that could hold a smaller one is below {fraction_bound(N):.2g} at 95 % confidence; a "
+            f"narrower cone can escape. shock_norm is a fatal shock found (its witness start is stored): an upper "
+            f"bound.{elsewhere}")
 
 
 # ---- replay ----------------------------------------------------------------------------------------------

@@ -221,7 +221,8 @@ def test_python_entry_point_and_cf_attributes():
         if var.dtype.kind in "iuf" and "flag_values" not in var.attrs:
             assert "units" in var.attrs, name
     assert ds.attrs["Conventions"].startswith("CF") and ds.attrs["kind"] == "shock"
-    assert "no fatal shock among the 2 directions" in ds.attrs["statement"]
+    assert "no fatal shock in either direction of x0" in ds.attrs["statement"]  # one component: no statistics
+    assert "confidence" not in ds.attrs["statement"] and ds.attrs["n_directions"] == 2
 
 
 @pytest.mark.parametrize("shock, field", [

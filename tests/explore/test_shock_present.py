@@ -118,7 +118,7 @@ def test_a_failed_unshocked_start_exits_1(tmp_path, capsys):
     assert code == 1, text + err
     assert "the unshocked start failed at 1 of 2 grid points: the solver did not reach t1" in err
     assert "c = -1: the unshocked start reaches failed: no search" in text
-    assert "at the 1 of 2 grid points searched: no fatal shock among the 2 directions" in text
+    assert "at the 1 of 2 grid points searched: no fatal shock in either direction of x0" in text
     assert "At the other 1 no search ran" in text
     ds = open_result(out)
     assert ds.base_solver_status.sel(c=-1.0) != 0 and ds.base_solver_status.sel(c=1.0) == 0
