@@ -1,6 +1,7 @@
 """Continuation (stabjax.mapping.continuation): matching along a parameter never joins two types, its default
 threshold follows from the data, it runs again on saved output; and the issue's Van der Pol case end to end,
 every checked start against an independent SciPy DOP853 integration."""
+import functools
 import json
 import math
 
@@ -55,6 +56,7 @@ M = [-1.0, -0.5, -0.2, 0.2, 0.5, 1.0]
 N, T1 = 200, 200.0
 
 
+@functools.cache  # one model object for both runs: the engines cache their compiled kernels per object (CI time)
 def _vdp():
     import jax.numpy as jnp
 
@@ -81,7 +83,7 @@ def _vdp():
         def observe(self, t, y, p):
             return y
 
-    return VanDerPol
+    return VanDerPol()
 
 
 def _scipy_types(m, x0, v0):

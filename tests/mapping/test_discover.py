@@ -1,6 +1,7 @@
 """Attractor discovery (stabjax.mapping.discover): grouping properties on synthetic feature clouds, and the
 partition of the examples' starts against their declared rules/templates (independent of the
 discovery code: the rules are the examples' own, checked against SciPy in test_examples.py)."""
+import functools
 import tomllib
 from pathlib import Path
 
@@ -10,6 +11,13 @@ from scipy.integrate import solve_ivp
 
 from stabjax.mapping.discover import DiscoveryConfig, group
 from stabjax.run.sweep import run_spec
+
+
+@functools.cache
+def _one(model):
+    """One object per test model class for the whole module: the engines cache their compiled kernels and the
+    representatives' re-integration per model object, so runs at the same settings share them (CI time)."""
+    return model()
 
 
 def _cloud(rng, n, centre, spread, d=8):
@@ -85,7 +93,9 @@ def _matched(declared, found):
 
 
 @pytest.mark.parametrize("name,n,expect", [
-    ("pendulum", 300, {"fixed_point": 1, "limit_cycle": 1}),
+    # pendulum: the full suite's; in CI's run test_pendulum_discovery_start_by_start_against_scipy finds the
+    # example's two attractors, typed so, and each start's against SciPy DOP853 (an independent reference)
+    pytest.param("pendulum", 300, {"fixed_point": 1, "limit_cycle": 1}, marks=pytest.mark.slow),
     ("duffing", 300, {"limit_cycle": 5}),
     ("lorenz", 300, {"chaotic": 2}),
 ])
@@ -263,10 +273,11 @@ theta0 = {{dist = "uniform", low = -2.6, high = 3.6}}
 omega0 = {{dist = "uniform", low = -6.0, high = 6.0}}
 [integrate]
 t1 = 300.0
-n_checkpoints = 300
+n_checkpoints = 1200
 [outcomes]
 discover = true
-''')
+window = 0.2
+''')  # the settings of test_pendulum_discovery_start_by_start_against_scipy: its compiled kernels serve both
     out = tmp_path / "tri.nc"
     for args in (["sweep", str(spec), "--out", str(out), "--no-progress"], ["plot", str(out), "--out",
                                                                              str(tmp_path / "again.png")]):
@@ -281,6 +292,7 @@ discover = true
 # ---- fixed points typed on the solver's tolerances; the stop and the typing agree (issue 29) ---------------
 
 
+@functools.cache  # the same classes on every call: see _one
 def _relax():
     import jax.numpy as jnp
 
@@ -345,13 +357,15 @@ def test_a_stable_equilibrium_is_one_fixed_point_with_or_without_the_exponent(ly
     Relax, Focus = _relax()
     box = {"n": 100, "seed": 0, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
            "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
-    cases = [(Relax, {"c": c}, 100.0, c) for c in (0.0, 1.0, 3.0)] + [(Focus, {"a": 0.5}, 50.0 if lyapunov else 100.0, 1.0)]
-    for model, params, t1, centre in cases:
-        ds = run_spec({"system": model, "params": params, "sample": box, "integrate": {"t1": t1},
+    # each case's parameter on a grid of one point: a parameter of the run, not a constant of its compiled kernel, so
+    # the three centres share one kernel (CI time); each is a sweep of its own, discovered on its own
+    cases = [(Relax, {"c": [c]}, 100.0, c) for c in (0.0, 1.0, 3.0)] + [(Focus, {"a": [0.5]}, 50.0 if lyapunov else 100.0, 1.0)]
+    for model, grid, t1, centre in cases:
+        ds = run_spec({"system": _one(model), "grid": grid, "sample": box, "integrate": {"t1": t1},
                        "outcomes": {"discover": True, "discovery": {"lyapunov": lyapunov}}})
         assert ds["outcome"].attrs["flag_meanings"].split() == ["fixed_point_1", "unclassified", "failed"], \
-            (model.name, params, ds["outcome"].attrs["flag_meanings"])
-        assert (ds["outcome"].values == 0).all(), (model.name, params)
+            (model.name, grid, ds["outcome"].attrs["flag_meanings"])
+        assert (ds["outcome"].values == 0).all(), (model.name, grid)
         # the representative rests at the equilibrium: within the stop's 1000 tolerances (rtol 1e-8, atol 1e-10)
         np.testing.assert_allclose(ds["attractor_state"].values[0], [centre, 0.0], atol=1000 * (1e-10 + 1e-8 * 3))
         if lyapunov:
@@ -359,12 +373,13 @@ def test_a_stable_equilibrium_is_one_fixed_point_with_or_without_the_exponent(ly
         else:
             assert (ds["stop_reason"].values == STOP_FIXED_POINT).all()
     if not lyapunov:  # a transient of ~1e-5 still in the window, no exponent to type it: untyped, never a cycle
-        ds = run_spec({"system": Focus, "params": {"a": 0.5}, "sample": box, "integrate": {"t1": 50.0},
+        ds = run_spec({"system": _one(Focus), "grid": {"a": [0.5]}, "sample": box, "integrate": {"t1": 50.0},
                        "outcomes": {"discover": True, "discovery": {"lyapunov": False}}})
         names = ds["outcome"].attrs["flag_meanings"].split()
         assert not any(n.startswith(("limit_cycle", "chaotic")) for n in names), names
 
 
+@functools.cache
 def _line():
     import jax.numpy as jnp
 
@@ -404,7 +419,7 @@ def _discovered(model, sample, t1, discovery, warning, params=None):
 
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
-        ds = run_spec({"system": model, "params": params or {}, "sample": sample, "integrate": {"t1": t1},
+        ds = run_spec({"system": _one(model), "params": params or {}, "sample": sample, "integrate": {"t1": t1},
                        "outcomes": {"discover": True, "discovery": discovery}})
     names = ds["outcome"].attrs["flag_meanings"].split()
     return ds, names, [str(w.message) for w in said if issubclass(w.category, warning)]
