@@ -21,6 +21,7 @@ from stabjax.engines.simulate import batch_params, solve_batch
 from stabjax.model.registry import get_system, list_systems
 
 from references import monoaxial_rhs
+from tiny_systems import DECAY_CLASSIFY
 
 SYS = get_system("monoaxial")
 R = np.ones(3) / math.sqrt(3)
@@ -111,7 +112,10 @@ def test_failures_are_reported_not_raised():
 def test_engine_dispatch_and_fallback(monkeypatch):
     calls = []
     monkeypatch.setattr(diffrax_engine, "solve", lambda s, p, i, v: calls.append(s.name) or {"verdict": np.zeros(1)})
-    custom = next(get_system(n) for n in list_systems(available_only=True) if get_system(n).classify is not None)
+    # a system with its own classify() (as the gyrodyne): a tiny one, whose model check (run at every
+    # solve_batch) costs milliseconds instead of the gyrodyne's seconds of eager JAX
+    custom = DECAY_CLASSIFY
+    assert custom.classify is not None
     with pytest.raises(Unsupported):
         fast.solve(custom, batch_params(custom, None, 1), ICFG, custom.verdict)
     solve_batch(custom, batch_params(custom, None, 1), ICFG.replace(engine="fused"))  # falls back to diffrax
@@ -182,10 +186,11 @@ def test_fast_log_matches_libm():
     rng = np.random.default_rng(1)
     x = np.concatenate([10 ** rng.uniform(-300, 300, 20000), rng.uniform(0.5, 2.0, 20000),
                         [1.0, 2.0, 0.5, np.finfo(float).max, 2.2250738585072014e-308]])
-    got = np.asarray(vmath.fast_log(jnp.asarray(x)))
+    fast_log = jax.jit(vmath.fast_log)  # jitted, as the engine runs it
+    got = np.asarray(fast_log(jnp.asarray(x)))
     ref = np.log(x)
     assert np.max(np.abs(got - ref) / np.spacing(np.abs(ref) + 1e-300)) <= 2.0  # ulps
-    special = np.asarray(vmath.fast_log(jnp.asarray([0.0, -1.0, np.inf, np.nan])))
+    special = np.asarray(fast_log(jnp.asarray([0.0, -1.0, np.inf, np.nan])))
     assert special[0] == -np.inf and np.isnan(special[1]) and special[2] == np.inf and np.isnan(special[3])
 
 
@@ -203,12 +208,13 @@ def test_fast_sin_cos_match_libm_including_huge_arguments():
 
 
 def test_lanewise_pow_special_cases():
-    ev = lanes.Lanes(1)
     vals = [0.0, -0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5, 3.0, -3.0, np.inf, -np.inf, np.nan, 1e-300, 1e300]
     xs, ys = np.meshgrid(vals, vals)
     xs, ys = xs.ravel(), ys.ravel()
-    got = np.array([float(ev.pow(jnp.asarray([x]), jnp.asarray([y]), [np.float64, np.float64])[0])
-                    for x, y in zip(xs, ys)])
+    # every (x, y) pair in its own lane of one jitted evaluation (the rule is elementwise: a lane sees only its
+    # own x and y), one XLA compile instead of eager operations for each of the 225 pairs
+    pow_lanes = jax.jit(lambda x, y: lanes.Lanes(x.shape[0]).pow(x, y, [np.float64, np.float64]))
+    got = np.asarray(pow_lanes(jnp.asarray(xs), jnp.asarray(ys)))
     ref = np.asarray(jnp.power(jnp.asarray(xs), jnp.asarray(ys)))  # XLA's pow: what the vmap path computes
     finite = np.isfinite(ref)
     # documented accuracy of exp(y ln|x|): (4 + 2 |y ln x|) ulp

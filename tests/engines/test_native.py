@@ -18,6 +18,7 @@ from stabjax.engines.native import emit
 from stabjax.model.registry import get_system, list_systems
 
 from references import monoaxial_rhs
+from tiny_systems import DECAY
 
 pytestmark = pytest.mark.skipif(not native.available(), reason="no working C compiler")
 
@@ -123,12 +124,14 @@ def test_classifier_queue_overflow_and_late_drains_change_nothing():
     happen, and the summaries equal those of the diffrax engine, which classifies checkpoint by
     checkpoint (no queue, hence no overflow). Fails if the overflow no longer happens (the test would
     prove nothing: then raise n_checkpoints) or if a drain changes a summary."""
-    icfg = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=4000)
-    p = batch(20)
+    # ``nat``'s trajectories and tolerances, 20 times denser checkpoints: the same C source as ``nat``'s kernel
+    # (the checkpoint times are data of the run), so no second C compile
+    icfg = ICFG.replace(n_checkpoints=4000)
+    p = batch()
     kern, dyn = native.kernel_for(SYS, icfg, SYS.verdict, p)
-    ain, y0 = kern.model.host_inputs(dyn, 20)
+    ain, y0 = kern.model.host_inputs(dyn, len(ALPHAS))
     drains = native.run_raw(kern, ain, y0, threads=1)["drains"]
-    assert drains["overflow"] > 0 and drains["late"] > 0, drains  # measured: 5,122 and 3,088
+    assert drains["overflow"] > 0 and drains["late"] > 0, drains  # measured: 8,965 and 7,017
     nat = native.solve(SYS, p, icfg, SYS.verdict, threads=1)
     ref = solve_batch(SYS, p, IntegrateConfig(**{**icfg.__dict__, "engine": "diffrax"}))
     np.testing.assert_array_equal(nat["verdict"], ref["verdict"])
@@ -136,10 +139,9 @@ def test_classifier_queue_overflow_and_late_drains_change_nothing():
         np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
     for k in ("error_t1", "error_max_late", "error_max_settled", "peak_last", "decay_exponent"):
         np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
-    # a sparse run of the same trajectories does not overflow: the counter is not stuck above 0
-    sparse = IntegrateConfig(t1=50.0, rtol=1e-10, atol=1e-12, n_checkpoints=64)
-    kern, dyn = native.kernel_for(SYS, sparse, SYS.verdict, p)
-    ain, y0 = kern.model.host_inputs(dyn, 20)
+    # a sparse run of the same trajectories (``nat``'s) does not overflow: the counter is not stuck above 0
+    kern, dyn = native.kernel_for(SYS, ICFG, SYS.verdict, p)
+    ain, y0 = kern.model.host_inputs(dyn, len(ALPHAS))
     assert native.run_raw(kern, ain, y0, threads=1)["drains"]["overflow"] == 0
 
 
@@ -155,12 +157,12 @@ def test_failures_are_reported_not_raised():
     assert out["n_steps"][2] + out["n_rejected"][2] == 400
 
 
-def test_progress_and_interruption():
-    p = batch(64)
-    icfg = IntegrateConfig(t1=3000.0, n_checkpoints=100)
+def test_progress_and_interruption(nat):
+    # the batch and settings of ``nat`` (its compiled kernel); one thread: the last report comes after the end
     seen = []
-    native.solve(SYS, p, icfg, SYS.verdict, progress=lambda done, n: seen.append((done, n)), threads=1)
-    assert seen and all(n == 64 for _, n in seen) and seen[-1][0] == 64
+    out = native.solve(SYS, batch(), ICFG, SYS.verdict, progress=lambda done, n: seen.append((done, n)), threads=1)
+    assert seen and all(n == len(ALPHAS) for _, n in seen) and seen[-1][0] == len(ALPHAS)
+    np.testing.assert_array_equal(out["verdict"], nat["verdict"])
 
     def interrupt(done, n):
         raise KeyboardInterrupt
@@ -175,20 +177,28 @@ def test_dispatch_prefers_native_and_falls_back(monkeypatch):
     assert engines.chain("fused") == ("fused", "native", "diffrax")
     choice = engines.resolve(SYS, IntegrateConfig(solver="dopri5"))
     assert choice.engine == "diffrax" and "solver 'dopri5'" in choice.note
-    small = IntegrateConfig(t1=50.0, n_checkpoints=32)
-    assert engines.resolve(SYS, small, SYS.verdict, batch_params(SYS, None, 2)).engine == "native"
+    # with a batch (translated and compiled): the settings and constants of ``nat``, whose kernel is reused
+    assert engines.resolve(SYS, ICFG, SYS.verdict, batch(2)) == ("native", "")
 
-    # a primitive without a C rule: the fused engine takes over (once, with the reason), same answer
+    # a primitive without a C rule: the fused engine takes over (once, with the reason), same answer. The
+    # fallback does not depend on the model (every C rule refused): a tiny one (dy/dt = -k y, the features-only
+    # fold) compiles on the fused engine in a few seconds where monoaxial with the attitude classifier takes ~20
     def refuse(self, prim, params, es, in_dtypes):
         raise NoRule(prim.name)
 
     native._kernel.cache_clear()
     monkeypatch.setattr(emit.CEmit, "bind_elem", refuse)
-    p = batch_params(SYS, None, 2)
-    choice = engines.resolve(SYS, small, SYS.verdict, p)
-    assert choice.engine == "fused" and choice.note.startswith("engine fused runs monoaxial (native: no C rule for")
-    out = solve_batch(SYS, p, small)
-    assert out["verdict"].shape[0] == 2
+    p = {"k": np.array([0.5, 1.0]), "y0": np.array([1.0, -2.0])}
+    short = IntegrateConfig(t1=5.0, n_checkpoints=32)
+    choice = engines.resolve(DECAY, short, DECAY.verdict, p)
+    assert choice.engine == "fused" and choice.note.startswith("engine fused runs test_decay (native: no C rule for")
+    out = solve_batch(DECAY, p, short)
+    assert out["feat_final"].shape[0] == 2 and np.all(out["solver_status"] == 0)
+    # the answer: |y(t1)| = |y0| e^{-k t1}; for this contracting flow the local errors add up at most unchanged:
+    # each step's is below rtol |y| + atol, so the relative global error is below n_steps (rtol + atol / |y(t1)|)
+    exact = np.abs(p["y0"]) * np.exp(-p["k"] * short.t1)
+    bound = out["n_steps"] * (short.rtol + short.atol / exact)
+    assert np.all(np.abs(out["feat_final"][:, 0] - exact) <= bound * exact), (out["feat_final"][:, 0], exact, bound)
     native._kernel.cache_clear()
 
 
