@@ -200,8 +200,9 @@ def test_model_without_outcomes_gets_its_attractors_not_verdicts():
         tol = 1e-11 / np.sqrt(2 * n)
         return solve_ivp(f, (0, 200.0), np.concatenate([x, v]), method="DOP853", rtol=tol, atol=tol).y[:n, -1]
 
-    e = ends(x0, v0)
-    ok = np.abs(e - ends(x0 * (1 + 1e-7) + 1e-7, v0)) <= 1e-6
+    # the starts and their nudged copies in one integration (2 n starts: each component's bound is the same)
+    e, nudged = np.split(ends(np.r_[x0, x0 * (1 + 1e-7) + 1e-7], np.r_[v0, v0]), 2)
+    ok = np.abs(e - nudged) <= 1e-6
     robust = int(ok.sum())
     np.testing.assert_allclose(e[ok], ds["attractor_state"].values[code[ok], 0], atol=1e-6)
     assert robust >= 95, robust
@@ -383,12 +384,18 @@ def test_a_stable_equilibrium_is_one_fixed_point_with_or_without_the_exponent(ly
 def _line():
     import jax.numpy as jnp
 
+    from stabjax import Param, ParamSet
+
     Relax, _ = _relax()
 
     class Line(Relax):
-        """x' = -(x - 1): one stable node at x = 1 (y0 is not read)."""
+        """x' = (1 - s) (1 - x) + s (x - x^3) (y0 is not read). s = 0 (the default): x' = 1 - x, one stable node
+        at x = 1; s = 1 (Bistable): x' = x - x^3, stable nodes at x = +-1; either way the other term is multiplied
+        by an exact 0. One class, so that with s on a grid of one point (a parameter of the run, not a constant of
+        the compiled kernel) both share one kernel at the same settings (CI time)."""
 
         name = "line_test"
+        params = ParamSet((*Relax.params.params, Param("s", 0.0, "0: x' = 1 - x, 1: x' = x - x^3")))
         state = (("x", ()),)
         observables = ("x",)
         observable_doc = ("x",)
@@ -397,30 +404,28 @@ def _line():
             return p["x0"][None]
 
         def rhs(self, t, y, p):
-            return 1.0 - y
+            return (1.0 - p["s"]) * (1.0 - y) + p["s"] * (y - y**3)
 
         def observe(self, t, y, p):
             return y
 
-    class Bistable(Line):
-        """x' = x - x^3: stable nodes at x = +-1."""
-
-        name = "bistable_test"
-
-        def rhs(self, t, y, p):
-            return y - y**3
-
-    return Line, Bistable
+    return Line
 
 
-def _discovered(model, sample, t1, discovery, warning, params=None):
+LINE, BISTABLE = {"s": [0.0]}, {"s": [1.0]}  # the grids of one point that make _line()'s model each
+
+
+def _discovered(model, sample, t1, discovery, warning, params=None, grid=None):
     """The discovery run of ``model``: dataset, outcome names, and the messages of the ``warning``s it gave."""
     import warnings
 
+    spec = {"system": _one(model), "params": params or {}, "sample": sample, "integrate": {"t1": t1},
+            "outcomes": {"discover": True, "discovery": discovery}}
+    if grid:
+        spec["grid"] = grid
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
-        ds = run_spec({"system": _one(model), "params": params or {}, "sample": sample, "integrate": {"t1": t1},
-                       "outcomes": {"discover": True, "discovery": discovery}})
+        ds = run_spec(spec)
     names = ds["outcome"].attrs["flag_meanings"].split()
     return ds, names, [str(w.message) for w in said if issubclass(w.category, warning)]
 
@@ -436,7 +441,7 @@ def test_approaching_trajectories_keep_one_name_with_the_exponent():
     from stabjax.mapping.discover import TransientWarning
 
     Relax, Focus = _relax()
-    Line, _ = _line()
+    Line = _line()
     box = {"n": 60, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
            "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
     ds, names, said = _discovered(Focus, box, 150.0, {}, TransientWarning, params={"a": 0.02})
@@ -458,7 +463,7 @@ def test_an_attractor_whose_representative_fails_again_is_placed_by_its_observab
     from stabjax.mapping import discover as D
     from stabjax.present.kit import attractors
 
-    Line, _ = _line()
+    Line = _line()
     monkeypatch.setattr(D, "representative_state", lambda plan, index: np.array([np.inf]))
     box = {"n": 20, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0}}
     ds, names, said = _discovered(Line, box, 40.0, {}, D.RepresentativeWarning)
@@ -475,29 +480,32 @@ def test_a_forced_transient_that_has_not_settled_is_no_limit_cycle():
     periodic attractor (contracted by exp(-0.5 * 75) at the window's start): one limit cycle."""
     import jax.numpy as jnp
 
+    from stabjax import Param, ParamSet
     from stabjax.mapping.discover import TransientWarning
 
     _, Focus = _relax()
 
-    class Kick(Focus):
-        name = "kick_test"
+    class Forcing(Focus):
+        """The focus forced by (1 - w) exp(-t) + w 0.5 cos(0.7 t): w = 0 the kick, w = 1 the periodic forcing (the
+        other term multiplied by an exact 0). One class, with a and w on a grid of one point each (parameters of the
+        run, not constants of the compiled kernel): both runs share one kernel (CI time). Two grid axes: grouped
+        over the whole sweep at once, as without a grid."""
+
+        name = "forcing_test"
+        params = ParamSet((*Focus.params.params, Param("w", 0.0, "0: forced by exp(-t), 1: by 0.5 cos(0.7 t)")))
 
         def rhs(self, t, y, p):
-            return super().rhs(t, y, p) + jnp.stack([jnp.exp(-t), 0.0 * t])
+            force = (1.0 - p["w"]) * jnp.exp(-t) + p["w"] * (0.5 * jnp.cos(0.7 * t))
+            return super().rhs(t, y, p) + jnp.stack([force, 0.0 * t])
 
-    class Forced(Focus):
-        name = "forced_test"
-
-        def rhs(self, t, y, p):
-            return super().rhs(t, y, p) + jnp.stack([0.5 * jnp.cos(0.7 * t), 0.0 * t])
-
+    kick, forced = {"a": [0.02], "w": [0.0]}, {"a": [0.5], "w": [1.0]}
     box = {"n": 60, "seed": 0, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
            "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
-    ds, names, said = _discovered(Kick, box, 150.0, {}, TransientWarning, params={"a": 0.02})
+    ds, names, said = _discovered(Forcing, box, 150.0, {}, TransientWarning, grid=kick)
     assert not any(n.startswith(("limit_cycle", "chaotic")) for n in names), names
     assert set(ds["attractor_type"].values) == {"attractor"} and len(said) == 1 and "raise [integrate] t1" in said[0]
     assert "lyapunov = true" not in said[0]  # it is on
-    ds, names, said = _discovered(Forced, box, 150.0, {}, TransientWarning, params={"a": 0.5})
+    ds, names, said = _discovered(Forcing, box, 150.0, {}, TransientWarning, grid=forced)
     assert names == ["limit_cycle_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
     assert not said
 
@@ -517,12 +525,13 @@ def test_a_monotone_approach_is_one_group_without_the_exponent():
     from stabjax.mapping.discover import TransientWarning
 
     Relax, _ = _relax()
-    Line, Bistable = _line()
+    Line = _line()
     box = {"n": 100, "seed": 0, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
            "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
 
-    def run(model, t1):
-        return _discovered(model, box, t1, {"lyapunov": False}, TransientWarning)
+    def run(model, t1, grid=None):  # x' = 1 - x and x' = x - x^3: one kernel, s on a grid of one point (_line),
+        # continuation off: grouped over the whole sweep at once, as without the grid
+        return _discovered(model, box, t1, {"lyapunov": False, "continuation": False}, TransientWarning, grid=grid)
 
     for t1 in (26.0, 30.0):
         ds, names, said = run(Relax, t1)
@@ -530,13 +539,13 @@ def test_a_monotone_approach_is_one_group_without_the_exponent():
             (t1, names, np.bincount(ds["outcome"].values.ravel()))
         np.testing.assert_allclose(ds["attractor_observables"].values[0], [1.0, 0.0], atol=1e-6)
         assert not said
-    ds, names, said = run(Line, 8.0)
+    ds, names, said = run(Line, 8.0, LINE)
     assert names == ["attractor_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
     assert len(said) == 1 and "100 trajectories (100 in attractor_1)" in said[0] and "raise [integrate] t1" in said[0]
     ds, names, said = run(Relax, 8.0)  # the transients' window features too far apart to group: gathered
     assert names == ["attractor_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), names
     assert len(said) == 1 and "100 trajectories (100 in attractor_1)" in said[0] and "lyapunov = true" in said[0]
-    ds, names, said = run(Bistable, 8.0)
+    ds, names, said = run(Line, 8.0, BISTABLE)
     x0, code = ds["x0_sample"].values.ravel(), ds["outcome"].values.ravel()
     slow = np.abs(x0) < 1e-3  # leaves x = 0 as x0 e^t: still on its way at t1 = 8 (x0 = -4e-4 is at x = -0.78)
     assert (code[slow] == names.index("unclassified")).all() and slow.sum() <= 1
@@ -550,16 +559,20 @@ def test_discovery_with_fewer_starts_than_min_samples_is_refused_before_integrat
     the field, with a message about discovery (not rules or templates), before anything is written."""
     from stabjax.errors import ValidationError
 
-    spec = {"system": "examples/pendulum/model.py:Pendulum", "outcomes": {"discover": True},
-            "sample": {"n": 3, "seed": 1, "theta0": {"dist": "uniform", "low": -3.0, "high": 3.0}},
-            "integrate": {"t1": 50.0}}
+    # the settings of test_pendulum_discovery_start_by_start_against_scipy here, then of
+    # test_continuation_through_births_and_deaths with the grid: their compiled kernels serve these runs (CI time)
+    spec = {"system": "examples/pendulum/model.py:Pendulum", "outcomes": {"discover": True, "window": 0.2},
+            "sample": {"n": 3, "seed": 1, "theta0": {"dist": "uniform", "low": -3.0, "high": 3.0},
+                       "omega0": {"dist": "uniform", "low": -6.0, "high": 6.0}},
+            "integrate": {"t1": 300.0, "n_checkpoints": 1200}}
     out = tmp_path / "few.nc"
     with pytest.raises(ValidationError) as exc:
         run_spec(spec, out)
     assert exc.value.field == "outcomes.discovery.min_samples"
     assert "3 trajectories in the sweep" in exc.value.message and "rule" not in exc.value.message
     assert not out.exists() and not (tmp_path / "few.nc.zarr").exists()
-    spec["sample"]["n"], spec["grid"] = 4, {"T": [0.2, 0.4, 0.6]}
+    spec["sample"]["n"], spec["grid"], spec["params"] = 4, {"T": [0.2, 0.4, 0.6]}, {"alpha": 0.3}
+    spec["integrate"] = {"t1": 300.0, "rtol": 1e-8, "atol": 1e-8, "n_checkpoints": 600}
     with pytest.raises(ValidationError, match="4 trajectories per grid point"):
         run_spec(spec, out)
     spec["outcomes"]["discovery"] = {"continuation": False}  # 12 grouped together: runs
@@ -620,8 +633,10 @@ def test_pendulum_discovery_start_by_start_against_scipy():
     flag = ds["outcome"].attrs["flag_meanings"].split()
     kind = dict(zip([str(n) for n in ds["attractor"].values], types))
     th, om = ds["theta0_sample"].values, ds["omega0_sample"].values
-    ref = _pendulum_types(0.5, 0.1, th, om, t1, window)
-    robust = ref == _pendulum_types(0.5, 0.1, th * (1 + 1e-7) + 1e-7, om, t1, window)
+    # the starts and their nudged copies in one integration (2 n starts: each component's bound is the same)
+    ref, nudged = np.split(_pendulum_types(0.5, 0.1, np.r_[th, th * (1 + 1e-7) + 1e-7], np.r_[om, om], t1,
+                                           window), 2)
+    robust = ref == nudged
     got = np.array([kind.get(flag[int(c)], "none") for c in ds["outcome"].values])
     assert robust.sum() >= 100 and {"fixed_point", "limit_cycle"} <= set(ref[robust]), (robust.sum(), ref)
     bad = np.flatnonzero(robust & (got != ref))
