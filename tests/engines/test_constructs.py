@@ -261,6 +261,19 @@ def test_mass_matrix_model_runs_natively_and_matches_dop853():
 # ---- the unrolled algorithms against LAPACK ------------------------------------------------------
 
 
+# all 16 forms of the primitive (left/right side, lower/upper, transposed or not, unit diagonal or not)
+TRSM_FORMS = [dict(left_side=left, lower=lower, transpose_a=trans, unit_diagonal=unit)
+              for left in (False, True) for lower in (False, True) for trans in (False, True) for unit in (False, True)]
+
+
+@jax.jit
+def _lapack_triangular_solves(t, b_right, b_left):
+    """The reference: the primitive itself (LAPACK's trsm on CPU) in every form, as one XLA program (~0.3 s to
+    compile per n, against ~2.5 s for 16 primitives compiled one by one when run eagerly); the same
+    primitive, parameters and inputs as before, so the same reference values."""
+    return [jax.lax.linalg.triangular_solve(t, b_left if kw["left_side"] else b_right, **kw) for kw in TRSM_FORMS]
+
+
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
 def test_unrolled_lu_and_triangular_solve_match_lapack(n):
     """Same pivots and permutation as LAPACK's getrf (first largest |a_ik|), factors to rounding;
@@ -277,15 +290,11 @@ def test_unrolled_lu_and_triangular_solve_match_lapack(n):
         np.testing.assert_array_equal(unrolled.lu_pivots_to_permutation(piv, permutation_size=n),
                                       jax.lax.linalg.lu_pivots_to_permutation(piv, n))
     t = a + n * np.eye(n)
-    for left in (False, True):
-        b = rng.normal(size=(n, 2) if left else (2, n))
-        for lower in (False, True):
-            for trans in (False, True):
-                for unit in (False, True):
-                    kw = dict(left_side=left, lower=lower, transpose_a=trans, unit_diagonal=unit)
-                    np.testing.assert_allclose(unrolled.triangular_solve(t, b, **kw),
-                                               jax.lax.linalg.triangular_solve(t, b, **kw),
-                                               rtol=1e-12, atol=1e-12, err_msg=str(kw))
+    bs = {left: rng.normal(size=(n, 2) if left else (2, n)) for left in (False, True)}  # drawn in this order
+    refs = _lapack_triangular_solves(t, bs[False], bs[True])
+    for kw, ref in zip(TRSM_FORMS, refs):
+        np.testing.assert_allclose(unrolled.triangular_solve(t, bs[kw["left_side"]], **kw), ref,
+                                   rtol=1e-12, atol=1e-12, err_msg=str(kw))
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 5, 6])

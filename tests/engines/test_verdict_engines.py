@@ -38,11 +38,17 @@ def _check(out, ref):
         np.testing.assert_allclose(out[k], ref[k], rtol=1e-5, atol=1e-8, err_msg=k)
 
 
+# slow: covered in the fast suite by test_native.py's test_verdicts_summaries_and_steps_match_diffrax_engine (the same
+# check, on 40 trajectories to t1 = 800 with 4 horizons: several outcomes, and verdicts that change between horizons)
+@pytest.mark.slow
 def test_several_outcomes_and_horizons_are_exercised(ref):
     v = ref["verdict"]
     assert len(np.unique(v)) >= 2 and np.any(v[:, 0] != v[:, -1])
 
 
+# slow: covered in the fast suite by test_native.py's test_verdicts_summaries_and_steps_match_diffrax_engine (the same
+# keys compared the same way, exact or at rtol 1e-5 / atol 1e-8, native against the diffrax engine at every horizon)
+@pytest.mark.slow
 @pytest.mark.skipif(not native.available(), reason="no working C compiler")
 def test_native_equals_diffrax_at_every_horizon(ref):
     _check(native.solve(SYS, params(), ICFG, VCFG, threads=1), ref)
