@@ -2,7 +2,7 @@
 
 The damped linear oscillator x'' + (c - k) x' + x = 0 from (x, x') = (1, 0): with d = c - k,
 d/dt (x^2 + x'^2) = -2 d x'^2, so the error e = |(x, x')| (distance to the equilibrium 0) decreases
-monotonically for k < c and grows for k > c. The thresholds below make the verdict change exactly
+monotonically for k < c and grows for k > c. The thresholds (refine_models.py) make the verdict change exactly
 there, up to a band set by the horizon: converged needs e < 0.999 over the late window [t1/2, t1],
 i.e. roughly exp(-d t1 / 4) < 0.999, d > 4 ln(1/0.999) / t1 = 8e-5; diverged needs the size e to pass
 1.001 by t1, d < -2 ln(1.001) / t1 = -4e-5 (e^2 grows like exp(|d| t) on average). So the empirical
@@ -13,61 +13,21 @@ from __future__ import annotations
 
 import json
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from refine_models import T1, DampedOscillator, EscapingOscillator, NamedOutcomes
 from stabjax.model import registry
 from stabjax.fold import verdict as V
 from stabjax.errors import ValidationError
-from stabjax.model.outcomes import Outcomes
-from stabjax.model.params import Param, ParamSet
-from stabjax.model.outcomes import VERDICTS
-from stabjax.model.system import Predicate, System, Theory, VerdictConfig
+from stabjax.model.system import VerdictConfig
 
-T1 = 50.0
 DELTA = 1e-3
-
-
-class DampedOscillator(System):
-    """x'' + (c - k) x' + x = 0; the theorem below claims stability for k < c - 0.1 (conservative by 0.1)."""
-
-    name = "test_oscillator"
-    outcomes = VERDICTS  # tests the attitude verdicts on a toy model
-    title = "damped linear oscillator with a gain threshold"
-    params = ParamSet((
-        Param("k", 0.0, "gain (negative damping)"),
-        Param("c", 0.5, "damping"),
-        Param("x0", 1.0, "initial position", kind="initial"),
-    ))
-    state = (("x", ()), ("v", ()))
-    observables = ("error", "size")
-    observable_doc = ("|(x, x')|", "|(x, x')|")
-    verdict = VerdictConfig(settle_tol=0.999, excursion_tol=1.2, flip_tol=1.5, converged_tol=0.999,
-                            diverge_size=1.001, growth_tol=0.5)
-    default_t1 = T1
-
-    def theory(self, p):
-        margin = np.asarray(p["c"] - 0.1 - p["k"], float)
-        return Theory(predicates={"bound": Predicate(margin > 0, margin, "k < c - 0.1")}, main="bound")
-
-    def initial_state(self, p):
-        return jnp.stack([p["x0"], jnp.zeros_like(p["x0"])])
-
-    def equilibrium(self, p):
-        return jnp.zeros(2)
-
-    def rhs(self, t, y, a):
-        return jnp.stack([y[1], -(a["c"] - a["k"]) * y[1] - y[0]])
-
-    def observe(self, t, y, a):
-        e = jnp.sqrt(y[0] ** 2 + y[1] ** 2)
-        return jnp.stack([e, e])
 
 
 @pytest.fixture
 def oscillator(monkeypatch):
-    monkeypatch.setitem(registry.SYSTEMS, "test_oscillator", f"{__name__}:DampedOscillator")
+    monkeypatch.setitem(registry.SYSTEMS, "test_oscillator", "refine_models:DampedOscillator")
     monkeypatch.setitem(registry._cache, "test_oscillator", DampedOscillator())
     return registry._cache["test_oscillator"]
 
@@ -455,19 +415,12 @@ def test_benchmark_against_full_lattice(oscillator, tmp_path):
         benchmark({**s, "params": {"c": 0.6}}, full_from=full_nc)
 
 
-class NamedOutcomes(DampedOscillator):
-    """The oscillator with named outcomes (the 'bring your own model' shape): refinement labels by ``outcome``."""
-
-    name = "test_named"
-    outcomes = Outcomes(rules={"decays": "max(error) < 1e-3", "rings": "max(error) < 1", "grows": "max(error) >= 1"})
-
-
 def test_named_outcomes_label_and_pair(monkeypatch):
     from stabjax.explore.refine import Refiner, assemble
     from stabjax.explore.refine_config import refine_config
     from stabjax.plan.spec import make_plan
 
-    monkeypatch.setitem(registry.SYSTEMS, "test_named", f"{__name__}:NamedOutcomes")
+    monkeypatch.setitem(registry.SYSTEMS, "test_named", "refine_models:NamedOutcomes")
     monkeypatch.setitem(registry._cache, "test_named", NamedOutcomes())
 
     def solve_points(p):  # outcome by closed form: decays below k = 0.3, rings up to 0.6, grows above
@@ -557,17 +510,6 @@ def test_refine_named_outcome_of_a_user_model_file(tmp_path):
     assert float(ds["width_k"][0]) <= 1e-3
 
 
-class EscapingOscillator(DampedOscillator):
-    """The oscillator stopped at max(|x|, |x'|) > 2, with the size threshold of *diverged* raised to 10: for
-    k > c + 0.03 the oscillation grows (e^2 ~ exp((k - c) t)) out of the ball before t1 = 50 (solver_status
-    ESCAPED) and no checkpoint reaches the size 10, so the classifier alone says failed."""
-
-    name = "test_escaping_oscillator"
-    escape_radius = 2.0
-    verdict = VerdictConfig(settle_tol=0.999, excursion_tol=1.2, flip_tol=1.5, converged_tol=0.999,
-                            diverge_size=10.0, growth_tol=0.5)
-
-
 def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
     """One rule for an escape (stabjax.fold.status): a point whose trajectory escapes is *diverged* in the
     refinement's labels exactly as in a sweep's verdicts at the same parameters. Fails if refine reads the
@@ -576,7 +518,7 @@ def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
     from stabjax.explore.refine import refine_spec
     from stabjax.run.sweep import run_spec
 
-    monkeypatch.setitem(registry.SYSTEMS, "test_escaping_oscillator", f"{__name__}:EscapingOscillator")
+    monkeypatch.setitem(registry.SYSTEMS, "test_escaping_oscillator", "refine_models:EscapingOscillator")
     monkeypatch.setitem(registry._cache, "test_escaping_oscillator", EscapingOscillator())
     s = spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"tol": {"k": 0.02}}, params={"c": C1},
              system="test_escaping_oscillator")
@@ -838,7 +780,8 @@ def test_the_shipped_pendulum_refinement_runs_through_the_store_with_the_recurre
     model = (root / "stabjax" / "examples" / "pendulum" / "model.py").as_posix()
     text = text.replace('"../examples/pendulum/model.py:Pendulum"', f'"{model}:Pendulum"')
     text = text.replace('rel_tol = "1/256"', 'rel_tol = "1/8"').replace("num = 17", "num = 5")  # 2 rounds
-    text = text.replace("t1 = 1000.0", "t1 = 200.0").replace("n_checkpoints = 4000", "n_checkpoints = 800")
+    # the shipped horizon and checkpoints: the compiled loops (with and without the clouds) are those of the
+    # example's runs in tests/fold (the same settings); the few points here cost little to integrate (CI time)
     spec = tmp_path / "refine_pendulum.toml"
     spec.write_text(text)
     code, out, err = captured(capsys, "sweep", spec, "--out", tmp_path / "r.nc", "--no-plot", "--no-progress")

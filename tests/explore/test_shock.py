@@ -79,10 +79,18 @@ def test_t2_circle_every_direction_and_excitability():
     assert ds4.attrs["outcome_names"].split()[int(ds4.shock_witness_outcome)] == "cycle4"
 
 
+def search_t3(shock, phi, **extra):
+    """A T3 search at the rotation ``phi``, given as a one-point grid axis rather than a fixed parameter (the
+    result is that point's): a fixed parameter is compiled into the native loop as a constant, so each angle
+    was a loop of its own (and its witness re-check's another); as an axis every angle runs the same one, and a
+    single grid point has no other to share a best direction with (CI time)."""
+    return search("test_shock_t3", shock, grid={"phi": [phi]}, **extra).sel(phi=phi)
+
+
 def test_t3_anisotropic_length_and_direction():
     """T3 (a = 1, b = 4, phi = 30 deg): delta* = 1 along 30 or 210 deg. Any shock of norm <= (1 + REL) that is
     fatal lies within acos(1 / (1 + REL)) of those directions (the exit radius is 1 / cos(theta - phi) there)."""
-    ds = search("test_shock_t3", {"components": ["x0", "y0"], "max_radius": 2.5, "directions": 16})
+    ds = search_t3({"components": ["x0", "y0"], "max_radius": 2.5, "directions": 16}, math.radians(30.0))
     assert_brackets(ds, 1.0)
     d = ds.shock_delta.values
     theta = math.atan2(d[1], d[0])
@@ -93,13 +101,12 @@ def test_t3_anisotropic_length_and_direction():
 
 def test_weighted_norm_flips_the_direction():
     """phi = 0: unweighted, delta* = 1 along z1 (x); in sqrt(dx^2 + (dy/4)^2) it is 0.5 along z2 (y)."""
-    plain = search("test_shock_t3", {"components": ["x0", "y0"], "max_radius": 2.5, "directions": 16},
-                   params={"phi": 0.0})
+    plain = search_t3({"components": ["x0", "y0"], "max_radius": 2.5, "directions": 16}, 0.0)
     assert_brackets(plain, 1.0)
     d = plain.shock_delta.values
     assert abs(d[0]) > abs(d[1])
-    weighted = search("test_shock_t3", {"components": ["x0", "y0"], "max_radius": 1.0, "directions": 16,
-                                        "weights": {"y0": 0.25}}, params={"phi": 0.0})
+    weighted = search_t3({"components": ["x0", "y0"], "max_radius": 1.0, "directions": 16, "weights": {"y0": 0.25}},
+                         0.0)
     assert_brackets(weighted, 0.5)
     d = weighted.shock_delta.values
     assert abs(d[1]) > 1.9 and abs(d[0]) < abs(d[1]) * math.tan(math.acos(1 / (1 + REL))) * 4

@@ -8,6 +8,7 @@ features are those of x* itself (to the chord-Newton convergence, CONVERGED tole
 is taken only when the trajectory is certain to stay within one tolerance unit of x* through the feature
 window (issue 29).
 """
+import functools
 from pathlib import Path
 
 import jax
@@ -137,14 +138,24 @@ def test_a_non_autonomous_model_never_stops(engine):
     assert (ds.outcome.values == 0).all()  # it does come to rest: only the stop is off
 
 
+@functools.lru_cache(maxsize=1)
+def _pendulum_stop():
+    """The pendulum example's parameters and its stop predicate at rtol 1e-8 with the window from t = 950,
+    ``stop(t, y, atol) -> (ok, x*)``: one compiled program for the two tests below that ask it (t, y and atol
+    traced, always as float64 arrays: one signature; each eager call compiled its own primitives; CI time)."""
+    s = make_plan(load_spec(EXAMPLES / "pendulum" / "spec.toml")).system
+    pv = s.params.resolve(None)
+    a = s.prepare({k: jnp.asarray(v) for k, v in pv.items()})
+    fun = jax.jit(lambda t, y, atol: stops.fixed_point_stop(s.rhs, t, y, a, 1e-8, atol, 950.0))
+    return pv, lambda t, y, atol: fun(jnp.float64(t), jnp.asarray(y, jnp.float64), jnp.float64(atol))
+
+
 def test_the_predicate_at_equilibria_of_the_pendulum():
-    plan = make_plan(load_spec(EXAMPLES / "pendulum" / "spec.toml"))
-    s = plan.system
-    a = s.prepare({k: jnp.asarray(v) for k, v in s.params.resolve(None).items()})
+    _, stop = _pendulum_stop()
     th = np.arcsin(0.5)
 
-    def ask(y, t=0.0, t_window=950.0, atol=1e-8):
-        ok, x = stops.fixed_point_stop(s.rhs, t, jnp.asarray(y), a, 1e-8, atol, t_window)
+    def ask(y, t=0.0, atol=1e-8):
+        ok, x = stop(t, y, atol)
         return bool(ok), np.asarray(x)
 
     yes, x = ask([th + 1e-7, 1e-7])
@@ -233,11 +244,7 @@ def test_a_stop_is_certain_on_the_pendulum_against_scipy():
     unit of the equilibrium the predicate returns, from the window's start to t1."""
     from scipy.integrate import solve_ivp
 
-    plan = make_plan(load_spec(EXAMPLES / "pendulum" / "spec.toml"))
-    s = plan.system
-    pv = s.params.resolve(None)
-    a = s.prepare({k: jnp.asarray(v) for k, v in pv.items()})
-    fun = jax.jit(lambda t, y, rtol, atol: stops.fixed_point_stop(s.rhs, t, y, a, 1e-8, atol, 950.0))
+    pv, fun = _pendulum_stop()
     rng = np.random.default_rng(2)
     fired = 0
     for atol in (1e-6, 1e-8):
@@ -246,7 +253,7 @@ def test_a_stop_is_certain_on_the_pendulum_against_scipy():
             sol = solve_ivp(lambda t, y: [y[1], -pv["alpha"] * y[1] + pv["T"] - pv["K"] * np.sin(y[0])],
                             (0.0, 1000.0), y0, method="DOP853", rtol=1e-12, atol=1e-13, dense_output=True)
             for t in np.arange(20.0, 950.0, 20.0):
-                ok, x = fun(t, jnp.asarray(sol.sol(t)), 1e-8, atol)
+                ok, x = fun(t, sol.sol(t), atol)
                 if not bool(ok):
                     continue
                 fired += 1
