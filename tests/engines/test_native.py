@@ -64,8 +64,8 @@ def test_verdicts_summaries_and_steps_match_diffrax_engine(nat):
         np.testing.assert_array_equal(nat[k], ref[k], err_msg=k)
     for k in ("error_t1", "error_max_late", "error_max_settled", "size_max", "peak_last", "decay_exponent"):
         np.testing.assert_allclose(nat[k], ref[k], atol=1e-6, rtol=1e-6, err_msg=k)
-    # test_verdict_engines.py's tolerances: trajectories agree to the solver tolerance (rtol 1e-10), not bitwise
-    for k in ("error_t1", "error_max_late", "peak_last", "peak_ratio", "decay_exponent", "decay_exponent_se"):
+    # the rest of test_verdict_engines.py's keys, at its tolerances (the keys above are held to 1e-6 already)
+    for k in ("peak_ratio", "decay_exponent_se"):
         np.testing.assert_allclose(nat[k], ref[k], rtol=1e-5, atol=1e-8, err_msg=k)
     # same method, controller and step sequence (checkpoints come from the dense output, as in
     # diffrax's SaveAt(ts)): accepted steps agree up to rounding-level differences of the controller
