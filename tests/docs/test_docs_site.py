@@ -14,7 +14,7 @@ README = ROOT / "README.md"
 
 
 def test_site_builds_strict(tmp_path):
-    """`mkdocs build --strict` (what .ci/run does): a broken link or anchor, a docstring mkdocstrings cannot
+    """`mkdocs build --strict` (CI's only build of the site): a broken link or anchor, a docstring mkdocstrings cannot
     render, a settings table whose code declaration gained a setting without a stated meaning, or a public name
     that does not resolve fails the build. The API pages then hold an entry for every name of stabjax._API."""
     import stabjax
