@@ -12,7 +12,8 @@ import typer
 
 from rich.console import Console
 
-from ..run.outputs import same_file_as_any
+from ..run import outputs as _outputs
+from ..run.outputs import same_file_as_any  # noqa: F401 - the commands import it from here
 
 class _Console(Console):
     """Rich's console without its 80 columns where the output is not a terminal (a pipe, a file, a CI log):
@@ -77,50 +78,8 @@ ForceOpt = typer.Option(False, "--force", help="replace an existing output file 
                                                  "the same command (a result of the same spec is replaced anyway)")
 
 
-RESULT_SUFFIXES = (".nc",)
-
-
-IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
-
-
-def check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: tuple[Path, ...] = (),
-                  force: bool = False, same=None, what: str = "a previous result of this command") -> bool:
-    """Refuse an output path that would lose something; True when an existing file will be replaced.
-
-    Never the command's input (a spec, a result being plotted), never a directory, only the
-    extensions the command writes. An existing file is replaced when ``same(out)`` says it is a
-    previous result of the same computation (re-running a command is normal) or with ``--force``;
-    anything else is refused with the way to allow it.
-    """
-    from ..errors import ValidationError
-
-    if out.is_dir():
-        raise ValidationError(field, f"{out} is a directory; give a file name ending in {suffixes[0]}")
-    if out.suffix.lower() not in suffixes:
-        raise ValidationError(field, f"{out}: this command writes {' or '.join(suffixes)} files; "
-                                     f"got {out.suffix or 'no extension'!r}")
-    if out.parent.exists() and not out.parent.is_dir():
-        raise ValidationError(field, f"{out.parent} is not a directory")
-    if out.exists() and same_file_as_any(out, inputs):
-        raise ValidationError(field, f"{out} is this command's input (the spec, the model or a module it imports, "
-                                     "or the file read); it is never overwritten")
-    if not out.exists():
-        return False
-    if force or (same is not None and same(out)):
-        return True
-    raise ValidationError(field, f"{out} exists and is not {what}; pass --force to replace it, "
-                                 "or choose another --out")
-
-
-def result_spec(path: Path):
-    """The spec (parsed ``spec_json``) stored in a stabjax sweep result, or None for any other file."""
-    try:
-        import xarray as xr
-
-        with xr.open_dataset(path, engine="netcdf4") as ds:
-            return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
-    except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
-        return None
+RESULT_SUFFIXES, IMAGE_SUFFIXES = _outputs.RESULT_SUFFIXES, _outputs.IMAGE_SUFFIXES
+check_output, result_spec = _outputs.check_output, _outputs.result_spec
 
 
 def trajectory_system(path: Path) -> str | None:

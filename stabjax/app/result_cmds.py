@@ -73,7 +73,7 @@ def report_cmd(
     out = out or _default_out(file, ".html")
     replacing = check_output(out, "--out", (".html",), inputs=input_files(file), force=force,
                               same=_ours(ds, file), what=f"a report stabjax wrote of {file} (or of a result of its spec)")
-    write_report(ds, out, source=str(file))
+    write_report(ds, out, source=str(file), force=True)  # --out checked above, with --force
     console.print(f"wrote {out}" + (" (replaced the previous file)" if replacing else ""), markup=False,
                   soft_wrap=True)
 
@@ -207,5 +207,5 @@ def print_result(ds, png: Optional[Path], replaced: bool = False, result: Option
         return
     from ..run.outputs import spec_digest_of
 
-    write_image(png, lambda tmp: plot(ds, tmp, stamp=False), result, spec=spec_digest_of(ds))
+    write_image(png, lambda tmp: plot(ds, tmp, stamp=False, force=True), result, spec=spec_digest_of(ds))  # png checked by the command
     console.print(f"wrote {png}" + (" (replaced the previous file)" if replaced else ""), markup=False)

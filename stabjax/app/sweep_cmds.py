@@ -99,7 +99,8 @@ def sweep(
                                      store=store, keep_store=keep_store, executor=executor, overrides={"t1": t1},
                                      on_open=say_replacing))
         ds = run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart, store=store,
-                      keep_partial=keep_store, executor=executor, overrides={"t1": t1}, on_open=say_replacing)
+                      keep_partial=keep_store, executor=executor, overrides={"t1": t1}, on_open=say_replacing,
+                      force=True)  # --out checked above, with the spec file and --force
     except KeyboardInterrupt as exc:
         status = getattr(exc, "status", 130)
         by = f" by {exc.name}" if hasattr(exc, "name") else ""
@@ -154,7 +155,7 @@ def _refine(plan, out: Path, plot: bool, **run) -> int:
     from ..explore.refine_config import refine_config
 
     refine_config(plan)  # every field checked before anything is integrated or written
-    ds = refine_plan(plan, out, **run)
+    ds = refine_plan(plan, out, force=True, **run)  # --out checked by the command, with the spec file and --force
     console.print(f"wrote {out}  ({ds.attrs['wall_time_s']:.1f} s)", markup=False)
     print_result(ds, out.with_suffix(".png") if plot else None, result=out)
     return run_status(ds, out)

@@ -54,13 +54,17 @@ def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t
     """One trajectory with the full state saved at ``ts`` (default: 1000 points on [t0, t1]; t1 always included).
 
     Runs on the engine that saves full states (:func:`stabjax.engines.trajectory_fn`; stops at once on a non-finite state, and at the system's escape
-    radius if it has one). Returns a Dataset with a variable per state component (3-vectors on
-    dim ``axis``) and per observable.
+    radius if it has one). ``params``: a mapping of parameter names (a start's components among them) to values,
+    the system's defaults for the others. ``ts`` is saved sorted, without repeats, with ``t1`` added.
+    Returns a Dataset with a variable per state component (3-vectors on dim ``axis``) and per observable.
     """
     setup_jax()
     import jax.numpy as jnp
     import xarray as xr
 
+    if params is not None and not isinstance(params, Mapping):
+        raise ValidationError("params", f"a mapping of parameter names to values (such as {{'x0': 0.3}}), "
+                                        f"got a {type(params).__name__}")
     system = _as_system(system)
     t1 = float(system.default_t1 if t1 is None else t1)
     icfg = IntegrateConfig(t1=t1, t0=t0, solver=solver, rtol=rtol, atol=atol,

@@ -463,8 +463,9 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
 def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path | None = None,
                 batch_size: int | None = None, progress: bool = False, restart: bool = False,
                 keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None,
-                on_open: Callable[[], None] | None = None) -> xr.Dataset:
-    """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given.
+                on_open: Callable[[], None] | None = None, force: bool = False) -> xr.Dataset:
+    """Run the refinement described by ``plan.spec["refine"]``; write ``out`` (netCDF) if given (never over an
+    input, an existing file only when a result of this spec or with ``force``: :func:`stabjax.run.outputs.guard_result`).
 
     Each round's points go through the sweep's runner (:func:`stabjax.run.sweep.run_points`): the plan's engine,
     chunks of ``batch_size``, the executor's Dask workers, and a chunk store per round,
@@ -476,9 +477,12 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
     """
     from ..mapping.classify import classify
     from ..run.store import discard_rounds
+    from ..run.outputs import guard_result
     from ..run.sweep import default_store, once, run_points, write
 
     cfg = refine_config(plan)
+    if out is not None:
+        guard_result(plan, out, force=force)
     base = Path(store) if store is not None else (default_store(out) if out is not None else None)
     # the default <out>.zarr is the sweep's own (also when named, as the command line names it: resumed, the
     # folder exists and stayed behind, empty); a --store folder elsewhere only if this run makes it
@@ -519,9 +523,15 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
 
 def refine_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, t1: float | None = None,
                 **kw) -> xr.Dataset:
-    """Load (if a path), plan and refine a spec with a ``[refine]`` section."""
-    if isinstance(spec, (str, Path)):
-        spec = load_spec(spec)
+    """Load (if a path), plan and refine a spec with a ``[refine]`` section (``out`` never the spec file read)."""
+    from ..run.outputs import guard_result
+
+    spec_file = spec if isinstance(spec, (str, Path)) else None
+    if spec_file is not None:
+        spec = load_spec(spec_file)
     if "refine" not in spec:
         raise ValidationError("refine", "the spec has no [refine] section")
-    return refine_plan(make_plan(spec, t1=t1), out, **kw)
+    plan = make_plan(spec, t1=t1)
+    if out is not None:
+        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
+    return refine_plan(plan, out, **kw)

@@ -236,7 +236,7 @@ def figures(ds: xr.Dataset) -> list[tuple[str, bytes]]:
     k = kind(ds)
     with tempfile.TemporaryDirectory() as tmp:
         p = Path(tmp) / "figure.png"
-        plot(ds, p)
+        plot(ds, p, force=True)  # a file of this page's own temporary folder
         out.append((captions.get(k, "The result (the figure of `stabjax plot`)."), p.read_bytes()))
         if k == "verdicts" and "basin_fraction" in ds:
             from .basins import plot_basin
@@ -333,15 +333,25 @@ def render(ds: xr.Dataset, source: str = "") -> str:
     return "\n".join(parts)
 
 
-def write_report(ds: xr.Dataset, out: str | Path, source: str = "") -> Path:
-    """Write the page atomically (a half-written page is never left behind), stamped with the result it shows
-    and the digest of its bytes (:func:`stabjax.run.outputs.stamp_output`: edited later, it is no longer a page
-    of ours to replace)."""
+def write_report(ds: xr.Dataset | str | Path, out: str | Path, source: str = "", *, force: bool = False) -> Path:
+    """Write the page of the result ``ds`` (a dataset, or the path of a result file or a finished sweep's store)
+    atomically (a half-written page is never left behind), stamped with the result it shows and the digest of
+    its bytes (:func:`stabjax.run.outputs.stamp_output`: edited later, it is no longer a page of ours to
+    replace). ``out`` (``.html``) is never the result's file or a module loaded, and an existing file there is
+    replaced only when it is a page stabjax wrote of this result or of one of its spec, or with ``force=True``
+    (what ``stabjax report`` checks of its ``--out``)."""
     import os
 
-    from ..run.outputs import spec_digest_of, stamp_output
+    from ..run.outputs import check_output, input_files, is_own_output, spec_digest_of, stamp_output
+    from .show import _dataset
 
+    ds, path = _dataset(ds)
+    source = source or (str(path) if path is not None else "")
     out = Path(out)
+    digest = spec_digest_of(ds)
+    check_output(out, "out", (".html",), inputs=input_files(source or None), force=force,
+                 same=lambda p: is_own_output(p, source or None, spec=digest),
+                 what="a page stabjax wrote of this result (or of a result of its spec)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")  # the suffix tells stamp_output the format
     try:

@@ -30,7 +30,7 @@ def _dataset(result) -> tuple[Any, Path | None]:
 
 
 def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, title: str | None = None,
-         source: str | Path | None = None, stamp: bool = True):
+         source: str | Path | None = None, stamp: bool = True, force: bool = False):
     """Draw any stabjax result -- the figure ``stabjax plot`` writes -- and return the matplotlib figure.
 
     ``result``: a dataset (:func:`stabjax.run_spec`, :func:`stabjax.open_result`) or the path of a result
@@ -42,9 +42,18 @@ def plot(result: xr.Dataset | str | Path, out: str | Path | None = None, *, titl
     made) and close it, stamped with the result it shows (:func:`stabjax.run.outputs.stamp_output`;
     ``source``: the result's file, when ``result`` is a dataset read from one; ``stamp=False``: the caller
     stamps). ``title``: what the figure shows, in words
-    (default: the spec's description).
+    (default: the spec's description). ``out`` is never the result's file or a module loaded, and an existing
+    file there is replaced only when it is a figure stabjax drew of this result or of one of its spec (its stamp
+    says so), or with ``force=True`` (what ``stabjax plot`` checks of its ``--out``).
     """
     ds, path = _dataset(result)
+    if out is not None:
+        from ..run.outputs import IMAGE_SUFFIXES, check_output, input_files, is_own_output, spec_digest_of
+
+        digest, src = spec_digest_of(ds), source or path
+        check_output(Path(out), "out", IMAGE_SUFFIXES, inputs=input_files(src), force=force,
+                     same=lambda p: is_own_output(p, src, spec=digest),
+                     what="a figure stabjax drew of this result (or of a result of its spec)")
     k = kit.kind_of(ds)
     if k is None:
         raise ValidationError("result", "not a stabjax result (no verdict, outcome, attractor or refinement points)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import xarray as xr
@@ -30,8 +31,18 @@ def horizon_check(ds: xr.Dataset, *, factor: float = 4.0, n: int = 64, seed: int
     with the old horizons kept (``verdict_horizons``: the re-run's verdicts at every horizon up to
     t1 * factor). The result has dim ``traj`` with the flat indices, ``verdict_short`` (the
     dataset's, at t1) / ``verdict_long`` (at t1 * factor), and attrs ``n_changed`` and a
-    confusion table.
+    confusion table. ``ds``: a sweep's result with attitude verdicts (a dataset, or the path of its file); any
+    other result is refused naming ``ds``.
     """
+    if isinstance(ds, (str, Path)):
+        from ..present.kit import open_result
+
+        ds = open_result(ds, field="ds", partial=False)
+    if not hasattr(ds, "data_vars") or "verdict" not in ds or "spec_json" not in ds.attrs:
+        what = ("named outcomes or discovered attractors" if hasattr(ds, "data_vars") and "outcome" in ds
+                else f"a {type(ds).__name__}" if not hasattr(ds, "data_vars") else "no sweep's verdicts")
+        raise ValidationError("ds", f"horizon_check compares a sweep's attitude verdicts; this holds {what} "
+                                    "(run the sweep again with a longer t1 to compare outcomes)")
     spec = json.loads(ds.attrs["spec_json"])
     plan = make_plan(spec)
     icfg = plan.icfg

@@ -249,6 +249,66 @@ def refuse_foreign(out_dir: Path, dests: list[Path], mine: dict, staging: Path |
                                            f"since); pass --force to replace it, or choose another --out-dir{kept}")
 
 
+RESULT_SUFFIXES = (".nc",)
+
+
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def check_output(out: Path, field: str, suffixes: tuple[str, ...], *, inputs: tuple[Path, ...] = (),
+                  force: bool = False, same=None, what: str = "a previous result of this command") -> bool:
+    """Refuse an output path that would lose something; True when an existing file will be replaced.
+
+    Never the command's input (a spec, a result being plotted), never a directory, only the
+    extensions the command writes. The command line's checks (``field`` an option, ``--out``) and the
+    Python API's (:func:`guard_result`; ``field`` a keyword, ``out``, and the way to allow it ``force=True``). An existing file is replaced when ``same(out)`` says it is a
+    previous result of the same computation (re-running a command is normal) or with ``--force``;
+    anything else is refused with the way to allow it.
+    """
+    out = Path(out)
+    hint = "--force" if field.startswith("--") else "force=True"
+    if out.is_dir():
+        raise ValidationError(field, f"{out} is a directory; give a file name ending in {suffixes[0]}")
+    if out.suffix.lower() not in suffixes:
+        raise ValidationError(field, f"{out}: this {'command' if field.startswith('--') else 'function'} writes "
+                                     f"{' or '.join(suffixes)} files; "
+                                     f"got {out.suffix or 'no extension'!r}")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ValidationError(field, f"{out.parent} is not a directory")
+    if out.exists() and same_file_as_any(out, inputs):
+        raise ValidationError(field, f"{out} is this command's input (the spec, the model or a module it imports, "
+                                     "or the file read); it is never overwritten")
+    if not out.exists():
+        return False
+    if force or (same is not None and same(out)):
+        return True
+    raise ValidationError(field, f"{out} exists and is not {what}; pass {hint} to replace it, "
+                                 f"or choose another {field}")
+
+
+def result_spec(path: Path):
+    """The spec (parsed ``spec_json``) stored in a stabjax sweep result, or None for any other file."""
+    try:
+        import xarray as xr
+
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            return json.loads(ds.attrs["spec_json"]) if "spec_json" in ds.attrs else None
+    except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
+        return None
+
+def guard_result(plan, out, *, force: bool = False, spec_file=None) -> bool:
+    """The Python API's check of a result path (``run_plan``, ``refine_plan``, ``shock_plan``): what
+    ``stabjax sweep`` checks of its ``--out``. Never the spec file read (``spec_file``), the starts file, the model
+    or a module loaded, even with ``force``; an existing file only when it is a result of this same spec (a
+    re-run) or with ``force=True``. True when an existing file will be replaced."""
+    from ..plan.spec import spec_json
+
+    this_spec = json.loads(spec_json(plan.spec))
+    return check_output(Path(out), "out", RESULT_SUFFIXES, force=force,
+                        inputs=input_files(spec_file, getattr(plan, "starts_file", None), system=plan.system),
+                        same=lambda p: result_spec(p) == this_spec, what="a result of this spec")
+
+
 # ---- stamps: "our own previous output of this result, unchanged since", from the file's content -------------
 
 STAMP = "stabjax-output"  # the stamp's keyword: a PNG text chunk's key, the word opening an HTML/SVG/PDF comment

@@ -183,7 +183,7 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
              restart: bool = False, keep_partial: bool = False, memory_limit: int | None = None,
              on_chunk: Callable[[int, int], None] | None = None, store: str | Path | None = None,
              overrides: Mapping[str, Any] | None = None, executor=None,
-             on_open: Callable[[], None] | None = None) -> xr.Dataset:
+             on_open: Callable[[], None] | None = None, force: bool = False) -> xr.Dataset:
     """Integrate every trajectory of ``plan``; write ``out`` (netCDF) if given and return the Dataset.
 
     With ``out`` (or ``store``), finished chunks go to a zarr store (:mod:`stabjax.run.store`; default
@@ -193,11 +193,17 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
     settings that are not in the spec (``t1``), recorded in the store's identity. ``executor``: a
     :class:`stabjax.run.distributed.DaskExecutor` to run the chunks on Dask workers (default: here).
     ``on_open``: called once the run goes ahead (the store accepted: every refusal is before it), for what
-    the caller says only then, such as which file will be replaced.
+    the caller says only then, such as which file will be replaced. ``out`` is never the starts file, the model
+    or a module loaded (even with ``force``), and an existing file there is replaced only when it is a result of
+    this same spec (a re-run) or with ``force=True`` (:func:`stabjax.run.outputs.guard_result`, as ``stabjax
+    sweep`` does).
     """
     from . import store as S
+    from .outputs import guard_result
 
     setup_jax()
+    if out is not None:
+        guard_result(plan, out, force=force)
     _refuse_before_compiling(plan, batch_size)
     plan = engines.resolve_plan(plan, static=static_params(plan))  # once: it sizes the chunks and runs them all
 
@@ -388,11 +394,17 @@ def _run_chunks(plan: Plan, sink, batch: int, *, progress: bool = False,
 
 def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, batch_size: int | None = None,
              progress: bool = False, restart: bool = False, t1: float | None = None, **kw) -> xr.Dataset:
-    """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.plan.spec` for the format."""
+    """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.plan.spec` for the format; ``out`` and
+    ``force``: :func:`run_plan` (``out`` is never the spec file read either)."""
+    from .outputs import guard_result
+
     setup_jax()
-    if isinstance(spec, (str, Path)):
-        spec = load_spec(spec)
+    spec_file = spec if isinstance(spec, (str, Path)) else None
+    if spec_file is not None:
+        spec = load_spec(spec_file)
     plan = make_plan(spec, t1=t1)
+    if out is not None:
+        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
     return run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart,
                     overrides={"t1": None if t1 is None else float(t1)}, **kw)
 

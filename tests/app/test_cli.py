@@ -117,8 +117,11 @@ def test_resume_after_interrupt(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         run_plan(plan, out, batch_size=4, on_chunk=boom)
-    with pytest.raises(StabjaxError, match="different computation"):
-        run_plan(make_plan({**load_spec(spec), "name": "other"}), out, batch_size=4)
+    other = make_plan({**load_spec(spec), "name": "other"})
+    with pytest.raises(StabjaxError, match="not a result of this spec"):  # the finished result is not replaced
+        run_plan(other, out, batch_size=4)
+    with pytest.raises(StabjaxError, match="different computation"):  # allowed to, it still meets the other store
+        run_plan(other, out, batch_size=4, force=True)
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,104 @@
+"""The Python API writes no more than the command line does: ``run_spec``/``run_plan``, ``refine_spec`` and
+``plot``/``write_report`` never write over the spec, the model or the starts file they read (even with
+``force=True``), replace an existing file only when it is their own previous output of the same spec, and
+otherwise refuse naming ``out`` and the way to allow it (``force=True``). Before, each of them wrote over any
+path it was given, its own inputs among them."""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import stabjax
+from stabjax import ValidationError
+
+MODEL = Path(__file__).parents[1] / "models" / "oscillator.py"
+SPEC = f"""system = "{MODEL}:Oscillator"
+name = "api_out"
+[grid]
+k = [0.0, 1.0]
+[integrate]
+t1 = 40.0
+n_checkpoints = 64
+"""
+
+
+def digest(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def folder(tmp_path):
+    (tmp_path / "s.toml").write_text(SPEC)
+    xr.Dataset({"x0": ("n", np.array([1.0, 0.5])), "v0": ("n", np.array([0.0, 0.1]))}).to_netcdf(tmp_path / "starts.nc")
+    (tmp_path / "starts.toml").write_text(SPEC.replace("[grid]\nk = [0.0, 1.0]", '[sample]\nfrom = "starts.nc"'))
+    return tmp_path
+
+
+def test_a_run_never_writes_over_its_spec_model_or_starts_even_with_force(folder):
+    before = {p: digest(p) for p in (folder / "s.toml", folder / "starts.nc", MODEL)}
+    for spec, out in (("s.toml", "s.toml"), ("s.toml", MODEL), ("starts.toml", "starts.nc")):
+        for force in (False, True):
+            with pytest.raises(ValidationError) as e:
+                stabjax.run_spec(folder / spec, folder / out, force=force)
+            assert e.value.field == "out"
+    # the spec file itself under a result's suffix: a link to it, named .nc
+    (folder / "link.nc").symlink_to(folder / "s.toml")
+    with pytest.raises(ValidationError, match="input"):
+        stabjax.run_spec(folder / "s.toml", folder / "link.nc", force=True)
+    assert before == {p: digest(p) for p in before}
+
+
+def test_an_existing_file_is_replaced_only_when_it_is_a_result_of_this_spec_or_with_force(folder):
+    foreign = folder / "r.nc"
+    foreign.write_text("a user's file")
+    with pytest.raises(ValidationError, match=r"force=True") as e:
+        stabjax.run_spec(folder / "s.toml", foreign)
+    assert e.value.field == "out" and foreign.read_text() == "a user's file"
+    ds = stabjax.run_spec(folder / "s.toml", foreign, force=True)
+    assert ds.sizes["k"] == 2 and stabjax.open_result(foreign).sizes["k"] == 2
+    again = stabjax.run_spec(folder / "s.toml", foreign)  # a re-run of the same spec replaces its own result
+    np.testing.assert_array_equal(again["outcome"].values, ds["outcome"].values)
+    other = stabjax.load_spec(folder / "s.toml")
+    other["grid"] = {"k": [0.0, 0.5]}
+    with pytest.raises(ValidationError, match="not a result of this spec"):
+        stabjax.run_spec(other, foreign)
+    with pytest.raises(ValidationError, match="not a result of this spec"):
+        stabjax.refine_spec({**other, "refine": {"tol": {"k": 0.1}}}, foreign)
+
+    # figures and pages: a user's file is refused, our own drawing of the same result is replaced
+    png, page = folder / "notes.png", folder / "notes.html"
+    png.write_text("a user's figure")
+    page.write_text("<p>a user's notes</p>")
+    for call in (lambda: stabjax.plot(ds, png), lambda: stabjax.write_report(ds, page),
+                 lambda: stabjax.write_report(foreign, page)):
+        with pytest.raises(ValidationError, match=r"force=True"):
+            call()
+    assert png.read_text() == "a user's figure" and page.read_text() == "<p>a user's notes</p>"
+    with pytest.raises(ValidationError, match=r"\.png or \.pdf or \.svg"):
+        stabjax.plot(ds, folder / "x.nc")
+    fig = folder / "fig.png"
+    stabjax.plot(foreign, fig)
+    stabjax.plot(foreign, fig)  # its own figure of this result: drawn again
+    stabjax.write_report(foreign, folder / "rep.html")  # a result's path is accepted as the dataset is
+    stabjax.write_report(ds, folder / "rep.html")
+    stabjax.plot(ds, png, force=True)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_api_calls_on_the_wrong_kind_of_argument_are_refused_by_name(folder):
+    """``horizon_check`` of a result without attitude verdicts and ``simulate`` with a list for its parameters were
+    a KeyError and an AttributeError; both are a ValidationError naming the argument."""
+    ds = stabjax.run_spec(folder / "s.toml")  # named outcomes
+    for arg in (ds, 3.0):
+        with pytest.raises(ValidationError) as e:
+            stabjax.horizon_check(arg)
+        assert e.value.field == "ds"
+    with pytest.raises(ValidationError, match="outcomes"):
+        stabjax.horizon_check(ds)
+    with pytest.raises(ValidationError) as e:
+        stabjax.simulate(f"{MODEL}:Oscillator", [0.3], t1=1.0)
+    assert e.value.field == "params"
