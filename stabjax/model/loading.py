@@ -282,6 +282,11 @@ def _load_file(path: Path, cls_name: str, ref: str):
             exec(compile(source, str(path), "exec"), module.__dict__)  # the bytes hashed are the bytes run
     except BaseException as exc:  # noqa: BLE001 - the user's code: any failure is reported, not raised
         sys.modules.pop(mod_name, None)
+        if isinstance(exc, ValidationError) and not str(exc.message).startswith(str(path)):
+            # a declaration stabjax refused while the file ran (a Param's kind misspelt): the file and line named
+            tb = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename == str(path)]
+            at = f" (line {tb[-1].lineno})" if tb else ""
+            raise ValidationError(exc.field, f"{path}{at}: {exc.message}") from None
         if not _is_model_error(exc):
             raise
         hint = ""

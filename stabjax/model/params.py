@@ -36,6 +36,14 @@ class Param:
     parse: Callable[[np.ndarray], np.ndarray] | None = None
     choices: tuple[Any, ...] | None = None  # for discrete (integer-coded) parameters
 
+    KINDS = ("model", "initial")
+
+    def __post_init__(self):
+        # a misspelt kind ran as a model constant, silently: what attractor_stop and the starts accept changed
+        if self.kind not in self.KINDS:
+            raise ValidationError(f"{self.name}.kind", f"{self.kind!r} is not a kind of parameter; choose one of "
+                                                       f"{', '.join(map(repr, self.KINDS))}")
+
     @property
     def size(self) -> int:
         return int(np.prod(self.shape)) if self.shape else 1

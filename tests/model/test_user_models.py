@@ -190,6 +190,7 @@ BAD = {
                                    "return y[0]"), "Oscillator.observe: returned shape ()"),
     "nan_default": (GOOD.replace('Param("c", 0.5, "damping")', 'Param("c", float("nan"), "damping")'),
                     "Oscillator.params.c"),
+    "kind_misspelt": (GOOD.replace('kind="initial"', 'kind="initail"'), "'initail' is not a kind of parameter; choose one of 'model', 'initial'"),
     "duplicate_param": (GOOD.replace('Param("k", 0.0,', 'Param("c", 0.0,'), "declared twice: c"),
     "reserved_param": (GOOD.replace('Param("k", 0.0,', 'Param("sample", 0.0,').replace('p["k"]', 'p["sample"]'),
                        "clash with dataset names"),
