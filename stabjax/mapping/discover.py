@@ -40,7 +40,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    exponent below ``-chaos_threshold`` in an autonomous model, or, without the exponent, ending its
    window at an extreme of every observable) joins the fixed point it ends at within ``eps``. Without
    the exponent, groups still in such a monotone approach join the fixed point they end at, or, where
-   none rests, each other when they end within ``eps`` of one another: one equilibrium, one name.
+   none rests, each other when they end within ``eps`` of one another: one equilibrium, one name. A
+   trajectory left ungrouped with a positive exponent joins the nearest chaotic group when it lies within
+   ``eps`` of that group's extent in window features (DBSCAN leaves a chaotic cloud's sparse edge out).
    Why DBSCAN and not HDBSCAN (pyBasin's default) or recurrences (Attractors.jl): a chaotic
    attractor's features scatter between finite windows but form one connected cloud, which
    density-connectivity keeps whole at any radius above the sampling gaps, while two attractors
@@ -55,7 +57,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    when that exponent is below ``-chaos_threshold`` and the model is autonomous (a bounded motion of an
    autonomous flow other than an equilibrium has a zero exponent) or most members end their window at
    an extreme of every observable (a monotone approach, no oscillation): a group still approaching a
-   stable equilibrium is never called a cycle; else ``attractor`` (untyped) when its negative exponent
+   stable equilibrium is never called a cycle (one so typed while its members still oscillate over the
+   window is said, a :class:`TransientWarning`: a relaxation cycle watched for a short window has a negative
+   finite-time exponent too, Van der Pol at mu = 1 over two periods -0.06); else ``attractor`` (untyped) when its negative exponent
    has not contracted a separation of the observables' range below ``eps`` by the window's start
    (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet); else
    ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
@@ -366,6 +370,7 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             j = int(np.argmax(there[i]))
             merged[j] = np.append(merged[j], left[i])
         left = left[~there.any(axis=1)]
+    left, others = _join_chaotic(left, others, f, cfg)
     left = left[_approaching(left, f, cfg)]
     for targets, tmeans, into in ((centres, means, merged), (ends, None, approach)):  # a fixed point first
         if left.size and targets:
@@ -395,6 +400,36 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     # every member rests at the point or approaches it (at rest, a negative exponent, a monotone approach)
     points = [(np.sort(g), *_describe(np.sort(g), f, cfg, kind="fixed_point")) for g in merged]
     return points + others, stats
+
+
+def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: DiscoveryConfig
+                  ) -> tuple[np.ndarray, list[tuple]]:
+    """Ungrouped trajectories on a chaotic attractor join it. A chaotic attractor's window features scatter
+    (finite windows of an ergodic motion), and DBSCAN leaves the sparse edge of the cloud out as noise: Lorenz-63
+    at rho = 28, 300 starts, 8 % unclassified, every one with the exponent of ``chaotic_1`` (0.88-0.94). A
+    trajectory whose exponent is above ``chaos_threshold`` joins the chaotic group nearest in window features
+    when it lies within ``eps`` (DBSCAN's own radius) of that group's extent (the largest distance of a member
+    from the group's median); anything else stays where it was. Two chaotic attractors closer than that would
+    have been one group to DBSCAN already."""
+    chaotic = [i for i, r in enumerate(others) if r[1] == "chaotic"]
+    if not left.size or not chaotic or f.lam is None:
+        return left, others
+    with np.errstate(invalid="ignore"):
+        cand = left[f.lam[left] > cfg.chaos_threshold]
+    if not cand.size:
+        return left, others
+    meds = np.stack([np.median(f.x[others[i][0]], axis=0) for i in chaotic])
+    reach = np.array([np.linalg.norm(f.x[others[i][0]] - m, axis=1).max() for i, m in zip(chaotic, meds)])
+    d = np.linalg.norm(f.x[cand][:, None, :] - meds[None], axis=-1)
+    j = np.argmin(d, axis=1)
+    joins = d[np.arange(cand.size), j] <= reach[j] + cfg.eps
+    if not joins.any():
+        return left, others
+    others = list(others)
+    for k in np.unique(j[joins]):
+        g = np.sort(np.concatenate([others[chaotic[k]][0], cand[joins & (j == k)]]))
+        others[chaotic[k]] = (g, *_describe(g, f, cfg, kind="chaotic"))
+    return np.setdiff1d(left, cand[joins]), others
 
 
 def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float
@@ -500,7 +535,12 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                             if t == "attractor" and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
-                 transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()))
+                 transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()),
+                 # fixed points typed by their negative exponent alone, their members still oscillating over the
+                 # window (neither at rest nor in a monotone approach): :func:`_warn_by_exponent`
+                 by_exponent=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                              if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
+                              and np.mean(_ends_at_extreme(g, f)) <= 0.5])
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
                       lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
@@ -603,6 +643,8 @@ class Discovery(Mapper):
         if disc.stats.get("transient") or disc.stats.get("transient_unclassified"):
             _warn_transient(disc.stats["transient"], dict(zip(disc.names, disc.counts.tolist())),
                             disc.stats["transient_unclassified"], "lyapunov" in results)
+        if disc.stats.get("by_exponent"):
+            _warn_by_exponent(disc.stats["by_exponent"])
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
@@ -636,6 +678,20 @@ def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int,
     warnings.warn(f"{n} trajectories ({', '.join(parts)}) end their feature window still approaching something "
                   f"({way}): a transient that t1 did not outlast, left untyped; {how}", TransientWarning,
                   stacklevel=3)
+
+
+def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
+    """Said, not only stored: a fixed point typed by its negative exponent while its members still oscillate over
+    the feature window is either a slowly decaying oscillation (an equilibrium approached, as typed) or a strongly
+    relaxational cycle whose finite-time exponent is off zero over a short window (Van der Pol at mu = 1 watched
+    for four periods: -0.06); only a longer window tells them apart."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g})" for name, n, lam in groups)
+    warnings.warn(f"{parts}: typed a fixed point by the negative exponent alone, the trajectories still oscillating "
+                  f"over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
+                  f"finite-time exponent is off zero over a short window; raise [integrate] t1 to tell them apart",
+                  TransientWarning, stacklevel=3)
 
 
 class RepresentativeWarning(UserWarning):

@@ -113,12 +113,18 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
     and the amplitude-2 limit cycle at m > 0 are two attractors of their own type (before: one
     'fixed_point_1' with fraction 1.0 at every m and no event), the rest point dying and the cycle born at
     m = 0.2; the attractor type of every fifth start (240 in all) is the one SciPy's integration reaches."""
+    import warnings
+
     from stabjax.run.sweep import run_spec
 
-    ds = run_spec({"system": _vdp(), "grid": {"m": M},
-                   "sample": {"n": N, "seed": 3, "x0": {"dist": "uniform", "low": -1.0, "high": 1.0},
-                              "v0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
-                   "integrate": {"t1": T1}})
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        ds = run_spec({"system": _vdp(), "grid": {"m": M},
+                       "sample": {"n": N, "seed": 3, "x0": {"dist": "uniform", "low": -1.0, "high": 1.0},
+                                  "v0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
+                       "integrate": {"t1": T1}})
+    # the rest point is typed by rest, the cycle by its exponent near 0: no type stands on the exponent alone
+    assert not [w for w in said if "negative exponent alone" in str(w.message)]
     names, types = list(ds["attractor"].values), list(ds["attractor_type"].values)
     assert sorted(types) == ["fixed_point", "limit_cycle"]
     fp, lc = names[types.index("fixed_point")], names[types.index("limit_cycle")]
@@ -136,6 +142,26 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
     for i, m in enumerate(M):
         got = [kind.get(flag[int(c)], "none") for c in ds["outcome"].values[i, ::5]]
         np.testing.assert_array_equal(got, ref[i], err_msg=f"m = {m}")
+
+
+def test_a_fixed_point_typed_by_its_exponent_alone_is_said():
+    """Van der Pol at m = 1 watched for four periods (t1 = 50, the window its last quarter): the cycle's
+    finite-time exponent is about -0.06 (a relaxation cycle's exponent over a short window is off zero by up to
+    ln(max|f| / min|f|) / window), below -chaos_threshold, so the group is typed a fixed point although every
+    member still swings over the window (x from -2 to 2). The typing stands as documented, but is said: a
+    TransientWarning names the group, its exponent and the remedy (a longer t1)."""
+    from stabjax.mapping.discover import TransientWarning
+    from stabjax.run.sweep import run_spec
+
+    with pytest.warns(TransientWarning, match=r"fixed_point_1 \(100 trajectories, exponent -0\.0\d+\): typed a fixed "
+                                              r"point by the negative exponent alone.*raise \[integrate\] t1"):
+        ds = run_spec({"system": _vdp(), "params": {"m": 1.0, "v0": 0.0},
+                       "sample": {"n": 100, "seed": 3, "x0": {"dist": "uniform", "low": 0.1, "high": 0.6}},
+                       "integrate": {"t1": 50.0, "n_checkpoints": 200}})
+    # the premise: one group, typed by the exponent, its members not at rest (the window's spread of x is the
+    # cycle's: about 1.4, nowhere near a rest point's)
+    assert list(ds["attractor_type"].values) == ["fixed_point"]
+    assert float(ds["feat_std"].values[:, 0].min()) > 1.0
 
 
 def test_van_der_pol_saved_output_rematches_to_the_same_events(tmp_path):
