@@ -291,7 +291,7 @@ def render(ds: xr.Dataset, source: str = "") -> str:
         parts.append("<details><summary>spec (as recorded in the result)</summary><pre>"
                      f"{e(json.dumps(spec, indent=2))}</pre></details>")
     vcfg = _json_attr(ds, "verdict_json")
-    if vcfg:
+    if vcfg and "verdict" in ds:  # the attitude classifier's settings: of a result it classified, not of outcomes
         parts.append("<details><summary>classifier settings</summary><pre>"
                      f"{e(json.dumps(vcfg, indent=2))}</pre></details>")
     if ds.attrs.get("kind") == "shock":  # a minimal-fatal-shock search: its own section (stabjax.present.shock)
@@ -312,6 +312,13 @@ def render(ds: xr.Dataset, source: str = "") -> str:
                      + "<p class=muted>where: the state at t1 of the trajectory nearest the group's median features "
                        "(a fixed point), or the range of each observable over the late window (an attractor that "
                        "moves).</p>")
+    if "attractor_events" in ds:  # a continuation along the grid axis: where each attractor is born and dies
+        ev = json.loads(str(ds["attractor_events"].values))
+        axis = next((k for e_ in ev for k in e_ if k not in ("attractor", "event", "index")), None)
+        rows = [[x["attractor"], x["event"], f"{x[axis]:g}" if axis else str(x["index"])] for x in ev]
+        parts.append("<h2>Births and deaths along the axis</h2>"
+                     + (_table(["attractor", "event", axis or "grid index"], rows, numeric=False) if rows
+                        else "<p>None: every attractor is present at every grid point.</p>"))
     th = theory_section(ds)
     parts.append("<h2>Theory agreement</h2>")
     if th is None:

@@ -142,6 +142,14 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
     for i, m in enumerate(M):
         got = [kind.get(flag[int(c)], "none") for c in ds["outcome"].values[i, ::5]]
         np.testing.assert_array_equal(got, ref[i], err_msg=f"m = {m}")
+    # the report says the births and deaths too (only the command line printed them), and no attitude
+    # classifier's settings (a discovery has none)
+    from stabjax.present.report import render
+
+    page = render(ds)
+    rows = page.split("Births and deaths along the axis", 1)[1].split("</table>", 1)[0]
+    assert f"<td>{lc}</td><td>birth</td><td>0.2</td>" in rows and f"<td>{fp}</td><td>death</td><td>0.2</td>" in rows
+    assert "classifier settings" not in page
 
 
 def test_a_fixed_point_typed_by_its_exponent_alone_is_said():
