@@ -207,6 +207,11 @@ def _extent(x, y):
     return (xe[0], xe[-1], ye[0], ye[-1])
 
 
+# one trajectory per grid point (no [sample]): S is the share of a lattice, not an estimate from random draws
+LATTICE_NOTE = ("; one trajectory per grid point, not random draws: S is the lattice's share, and SE and the "
+                "Wilson interval (computed as for random draws) bound no error")
+
+
 def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
     """The outcome table the CLI prints: pooled counts and fractions, and per grid point if few."""
     from ..mapping.basin import summary_rows
@@ -215,7 +220,7 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
     n = sum(r[1] for r in rows)
     lines = [f"{'outcome':<16}{'count':>9}{'S':>9}{'± SE':>9}   95% Wilson",
              *[f"{name:<16}{c:>9d}{s:>9.4f}{se:>9.4f}   [{lo:.4f}, {hi:.4f}]" for name, c, s, se, lo, hi in rows],
-             f"(all {n} trajectories pooled)"]
+             f"(all {n} trajectories pooled)" + LATTICE_NOTE * ("sample" not in ds["outcome"].dims)]
     grid = [d for d in ds["outcome"].dims if d != "sample"]
     if "basin_fraction" in ds and grid:
         npts = int(np.prod([ds.sizes[d] for d in grid]))

@@ -91,8 +91,11 @@ def outcome_table(ds: xr.Dataset) -> tuple[list[str], list[list[str]], str]:
     rows = [[n, f"{int(st['count'][0, i]):,}", f"{st['fraction'][0, i]:.4f} ± {st['se'][0, i]:.4f}",
              f"[{st['ci_low'][0, i]:.4f}, {st['ci_high'][0, i]:.4f}]"] for i, n in enumerate(names)]
     grid = grid_dims(ds)
+    from .basins import LATTICE_NOTE
+
     note = (f"all {codes.size:,} trajectories pooled" + (f" over the grid ({' x '.join(grid)}); per-point fractions "
-                                                         "are in the figures" if grid else ""))
+                                                         "are in the figures" if grid else "")
+            + (LATTICE_NOTE if "sample" not in ds["outcome" if "outcome" in ds else "verdict"].dims else ""))
     return [what, "count", "S ± SE", "95% Wilson interval"], rows, note
 
 

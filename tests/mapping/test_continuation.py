@@ -150,6 +150,7 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
     rows = page.split("Births and deaths along the axis", 1)[1].split("</table>", 1)[0]
     assert f"<td>{lc}</td><td>birth</td><td>0.2</td>" in rows and f"<td>{fp}</td><td>death</td><td>0.2</td>" in rows
     assert "classifier settings" not in page
+    assert "not random draws" not in page  # sampled starts: S ± SE and Wilson are what they say
 
 
 def test_a_fixed_point_typed_by_its_exponent_alone_is_said():

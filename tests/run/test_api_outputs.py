@@ -102,3 +102,14 @@ def test_api_calls_on_the_wrong_kind_of_argument_are_refused_by_name(folder):
     with pytest.raises(ValidationError) as e:
         stabjax.simulate(f"{MODEL}:Oscillator", [0.3], t1=1.0)
     assert e.value.field == "params"
+
+
+def test_a_lattice_of_trajectories_is_not_presented_as_random_draws(folder):
+    """One trajectory per grid point: the pooled S is the lattice's share; its SE and Wilson interval, computed
+    as for random draws, are said to bound no error (in the printed table and on the report's page)."""
+    from stabjax.present.basins import format_summary
+    from stabjax.present.report import render
+
+    ds = stabjax.run_spec(folder / "s.toml")
+    assert "sample" not in ds["outcome"].dims
+    assert "not random draws" in format_summary(ds) and "not random draws" in render(ds)
