@@ -118,15 +118,15 @@ class System:
 
     def initial_state(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
         """The state at t0 from one trajectory's parameters (flat, ``state_size`` entries). Traced."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} defines no initial_state(self, p): every model must")
 
     def rhs(self, t, y, args) -> jnp.ndarray:
         """dy/dt at time ``t`` and state ``y``; ``args`` is :meth:`prepare`'s result. Traced."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} defines no rhs(self, t, y, args): every model must")
 
     def observe(self, t, y, args) -> jnp.ndarray:
         """The observables at a checkpoint, one entry per name of ``observables``. Traced."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} defines no observe(self, t, y, args): every model must")
 
     def equilibrium(self, p: Mapping[str, jnp.ndarray]) -> jnp.ndarray:
         """The target motion's state at t = 0 (for equilibria: the equilibrium). Optional."""

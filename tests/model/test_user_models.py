@@ -191,6 +191,8 @@ BAD = {
     "nan_default": (GOOD.replace('Param("c", 0.5, "damping")', 'Param("c", float("nan"), "damping")'),
                     "Oscillator.params.c"),
     "kind_misspelt": (GOOD.replace('kind="initial"', 'kind="initail"'), "'initail' is not a kind of parameter; choose one of 'model', 'initial'"),
+    "no_rhs": (GOOD.replace("    def rhs(self, t, y, p):\n        return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])\n", ""),
+               "Oscillator defines no rhs(self, t, y, args): every model must"),
     "duplicate_param": (GOOD.replace('Param("k", 0.0,', 'Param("c", 0.0,'), "declared twice: c"),
     "reserved_param": (GOOD.replace('Param("k", 0.0,', 'Param("sample", 0.0,').replace('p["k"]', 'p["sample"]'),
                        "clash with dataset names"),
