@@ -158,11 +158,31 @@ def load(sample_spec: Mapping[str, Any], system, base_dir: str | Path | None, gr
         if v.dtype.kind in "bcV":
             raise ValidationError("sample.from", f"{path.name}: column {name!r} must hold real numbers")
         if v.dtype.kind != "f" or not np.all(np.isfinite(v)):
-            raise ValidationError("sample.from", f"{path.name}: column {name!r} must hold finite numbers")
+            bad = _first_bad(v)
+            raise ValidationError("sample.from", f"{path.name}: column {name!r} must hold finite numbers; "
+                                                 f"{where[bad]} holds {_shown(v[bad])}")
     n = len(next(iter(cols.values())))
     if "n" in sample_spec and sample_spec["n"] != n:
         raise ValidationError("sample.n", f"{path.name} holds {n} starts, not {sample_spec['n']}")
     return cols, labels, path
+
+
+def _first_bad(v: np.ndarray) -> int:
+    """The index of the first entry of a column that is not a finite number (text, blank, NaN or infinite)."""
+    if v.dtype.kind == "f":
+        return int(np.flatnonzero(~np.isfinite(v))[0])
+    for i, x in enumerate(v):
+        try:
+            if not np.isfinite(float(x)):
+                return i
+        except (TypeError, ValueError):
+            return i
+    return 0
+
+
+def _shown(x) -> str:
+    text = str(x)
+    return "a blank" if not text.strip() else repr(text) if not isinstance(x, (float, np.floating)) else text
 
 
 def _labels(values: np.ndarray, column: str, where: list[str], path: Path) -> np.ndarray:

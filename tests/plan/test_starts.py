@@ -69,8 +69,14 @@ def test_bad_starts_files(tmp_path):
     with pytest.raises(ValidationError, match="'nope' is not a parameter"):
         run_spec({**spec, "sample": {"from": str(bad)}})
     bad.write_text("theta0,omega0\n1,x\n")
-    with pytest.raises(ValidationError, match="finite numbers"):
+    with pytest.raises(ValidationError, match="finite numbers; line 2 holds 'x'"):
         run_spec({**spec, "sample": {"from": str(bad)}})
+    # the row and the value named: a blank, a NaN, an infinity (lines counted as in the file, blank lines too)
+    for body, said in (("1,0\n\n2,\n", "line 4 holds a blank"), ("1,0\n2,nan\n", "line 3 holds nan"),
+                       ("1,-inf\n", "line 2 holds -inf")):
+        bad.write_text("theta0,omega0\n" + body)
+        with pytest.raises(ValidationError, match=f"column 'omega0' must hold finite numbers; {said}"):
+            run_spec({**spec, "sample": {"from": str(bad)}})
     with pytest.raises(ValidationError, match="no distributions"):
         run_spec({**spec, "sample": {"from": str(bad), "omega0": {"dist": "uniform", "low": 0, "high": 1}}})
     with pytest.raises(ValidationError, match="file not found"):
