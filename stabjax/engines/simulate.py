@@ -34,11 +34,28 @@ def solve_batch(system: System | str, params: Mapping[str, np.ndarray], icfg: In
     """
     setup_jax()
     system = _as_system(system)
+    _check_batch(system, params)
     vcfg = vcfg or system.verdict
     choice = engines.resolve(system, icfg, vcfg, params, static)
     if choice.note:  # a sweep warns once per plan; a batch call may be one of many: not shown by default
         engines.log.info(choice.note)
     return engines.solve(choice.engine, system, params, icfg, vcfg, static=static, progress=progress)
+
+
+def _check_batch(system: System, params) -> None:
+    """What a batch needs before any engine sees it (a KeyError or JAX's 'vmap got inconsistent sizes' else):
+    every parameter of the system, each with the same leading dimension N."""
+    if not isinstance(params, Mapping):
+        raise ValidationError("params", f"a mapping of parameter names to arrays, got a {type(params).__name__}")
+    missing = [p.name for p in system.params if p.name not in params]
+    if missing:
+        raise ValidationError("params", f"no {', '.join(map(repr, missing))}: every parameter of {system.name}, "
+                                        "leading dim N (stabjax.engines.simulate.batch_params(system, overrides, n) "
+                                        "fills in the defaults)")
+    sizes = {k: (np.shape(v)[0] if np.ndim(v) else None) for k, v in params.items()}
+    if len(set(sizes.values())) > 1 or None in sizes.values():
+        raise ValidationError("params", "every parameter needs the same leading dimension N; got "
+                                        + ", ".join(f"{k}: {'a scalar' if n is None else n}" for k, n in sizes.items()))
 
 
 def batch_params(system: System, overrides: Mapping[str, Any] | None, n: int = 1) -> dict[str, np.ndarray]:

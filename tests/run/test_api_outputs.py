@@ -102,6 +102,16 @@ def test_api_calls_on_the_wrong_kind_of_argument_are_refused_by_name(folder):
     with pytest.raises(ValidationError) as e:
         stabjax.simulate(f"{MODEL}:Oscillator", [0.3], t1=1.0)
     assert e.value.field == "params"
+    # solve_batch: a parameter missing (was KeyError: 'x0'), lengths that differ (was JAX's vmap error)
+    from stabjax.config import IntegrateConfig
+
+    system = stabjax.get_system(f"{MODEL}:Oscillator")
+    full = {"c": np.full(2, 0.5), "k": np.zeros(2), "x0": np.ones(2), "v0": np.zeros(2)}
+    icfg = IntegrateConfig(t1=1.0)
+    for params, said in (({k: v for k, v in full.items() if k != "x0"}, "no 'x0'"),
+                         ({**full, "k": np.zeros(3)}, "k: 3"), ({**full, "c": 0.5}, "c: a scalar")):
+        with pytest.raises(ValidationError, match=said):
+            stabjax.solve_batch(system, params, icfg)
 
 
 def test_a_lattice_of_trajectories_is_not_presented_as_random_draws(folder):
