@@ -113,7 +113,10 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
         else:
             raise ValidationError("refine.tol", f"no tolerance for axis {ax.key!r}: give it here or set rel_tol")
         tols.append(float(t))
-        levels.append(_levels(ax.values, ax.log, t))
+        # the field the user set is the one named: rel_tol, or the axis's tol
+        field = (("refine.tol." + ax.name) if isinstance(tol_raw, Mapping) else "refine.tol") \
+            if ax.name in per_axis else "refine.rel_tol"
+        levels.append(_levels(ax.values, ax.log, t, field))
 
     label = raw.get("label")
     if label is None:
@@ -215,11 +218,12 @@ def _max_width(coarse: np.ndarray, log: bool, level: int) -> float:
     return float(np.max(b - b * (a / b) ** (1.0 / 2**level)))
 
 
-def _levels(coarse: np.ndarray, log: bool, tol: float) -> int:
+def _levels(coarse: np.ndarray, log: bool, tol: float, field: str = "refine.tol") -> int:
     for level in range(0, 31):
         if _max_width(coarse, log, level) <= tol * (1 + 1e-9):
             return level
-    raise ValidationError("refine.tol", f"{tol:g} needs more than 30 halvings of the coarse grid")
+    what = f"a tolerance of {tol:g} on this axis" if field == "refine.rel_tol" else f"{tol:g}"
+    raise ValidationError(field, f"{what} needs more than 30 halvings of the coarse grid")
 
 
 # ---- labels -------------------------------------------------------------------------------------

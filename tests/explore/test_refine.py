@@ -265,6 +265,8 @@ def test_dominant_label_and_horizon_column():
     ({"stable": "stable"}, "refine.stable"),
     ({"max_points": 0}, "refine.max_points"),
     ({"tol": 1e-12}, "refine.tol"),  # lattice too large
+    ({"tol": {"k": 1e-12}}, "refine.tol.k"),
+    ({"rel_tol": 1e-12}, "refine.rel_tol"),  # the field set is named (was refine.tol, which was not set)
     ("x", "refine"),
 ])
 def test_bad_refine_fields(oscillator, refine, field):
