@@ -67,6 +67,15 @@ LADDER_WIDTH = 0.1  # the rungs span +-10 % around the best fatal shock at first
 LADDER_SHRINK = 0.8
 
 
+def ladder_width(width: float, m: int) -> float:
+    """The CMA-ES ladder's half-width, a fraction of its centre: its ``m`` rungs lie at centre (1 + width frac),
+    frac in [-(m - 1)/m, (m - 1)/m], so a width of m/(m - 1) or more would put the lowest rung at or below 0 (a
+    coarse resolution asks for that: 0.5 m tol / centre grows with it), a negative "radius" whose shock is the
+    opposite one, recorded with a negative norm. Such a width is cut to 1: the lowest rung at centre / m, every rung
+    a positive radius. A width that keeps every rung positive is left as it is."""
+    return 1.0 if width * (m - 1) >= m else width
+
+
 # ---- the outcome of a shocked start: the one call into the outcome machinery ---------------------------
 
 
@@ -426,7 +435,8 @@ class Search:
                 stale[g] = 0 if improved else stale[g] + 1
                 # a best candidate fatal on the lowest rung may lie further down: keep the window; else narrow it
                 if first[i] > 0:
-                    width[g] = max(LADDER_SHRINK * width[g], 0.5 * m * tol / max(self.cma_best[g][0], 1e-300))
+                    width[g] = ladder_width(max(LADDER_SHRINK * width[g], 0.5 * m * tol / max(self.cma_best[g][0],
+                                                                                              1e-300)), m)
                 if stale[g] >= PATIENCE or e.stop() or self.cma_generations[g] >= cfg.generations:
                     done.append(g)
             for g in done:
@@ -439,9 +449,10 @@ class Search:
 def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path | None = None,
                batch_size: int | None = None, progress: bool = False, restart: bool = False,
                keep_store: bool = False, executor=None, overrides: Mapping[str, Any] | None = None,
-               on_open: Callable[[], None] | None = None) -> xr.Dataset:
+               on_open: Callable[[], None] | None = None, force: bool = False) -> xr.Dataset:
     """Search the minimal fatal shock described by ``plan.spec["shock"]`` at every grid point; write ``out``
-    (netCDF) if given.
+    (netCDF) if given (never over an input, an existing file only when a result of this spec or with ``force``:
+    :func:`stabjax.run.outputs.guard_result`).
 
     Each round's trajectories go through the sweep's runner (:func:`stabjax.run.sweep.run_points`) with a chunk
     store per round, ``<store>/round_NNNN`` (default store ``<out>.zarr``): a killed search re-run with the same
@@ -449,11 +460,14 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     discards them; the store is removed after ``out`` is written unless ``keep_store``. ``on_open``: called
     once, when the first round's store accepted the run (as for :func:`stabjax.run.sweep.run_plan`).
     """
+    from ..run.outputs import guard_result
     from ..run.store import discard_rounds
     from ..run.sweep import default_store, once, run_points, write
     from .shock_result import assemble
 
     cfg = shock_config(plan)
+    if out is not None:
+        guard_result(plan, out, force=force)
     base_dir = Path(store) if store is not None else (default_store(out) if out is not None else None)
     # the default <out>.zarr is the search's own; a --store folder only if this run makes it
     # the default <out>.zarr is the search's own, also when named as the command line names it (resumed, it
@@ -468,6 +482,7 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
     label = Labeller(rplan, base)
     engines: set[str] = set()
     resumed = [0]
+    steps: list[int | None] = [0]  # the rounds' accepted solver steps (None: a round's records carry none)
     base_status = np.zeros(plan.size, np.int32)  # round 0 opens with the unshocked starts: why one of them failed
 
     opened = once(on_open)  # the caller's word (which file will be replaced), at the first round's store
@@ -480,6 +495,8 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
                                batch_size=batch_size, progress=progress, restart=restart, keep_store=True,
                                executor=executor, overrides=overrides, on_open=opened)
         engines.update(info["engines"])
+        if steps[0] is not None:
+            steps[0] = steps[0] + int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else None
         resumed[0] += info["n_resumed"] == info["n_chunks"]
         if r == 0:
             base_status[:] = np.asarray(res["solver_status"])[: plan.size]
@@ -495,7 +512,8 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
             discard_rounds(base_dir, own_base)
         raise
     ds = assemble(plan, rplan, cfg, norm, search, label.names, base, wall=time.perf_counter() - t0,
-                  engines=engines, rounds_resumed=resumed[0], label=label, base_status=base_status)
+                  engines=engines, rounds_resumed=resumed[0], label=label, base_status=base_status,
+                  total_steps=steps[0])
     if out is not None:
         write(ds, out)
         if not keep_store and base_dir is not None:
@@ -505,12 +523,19 @@ def shock_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path |
 
 def shock_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, t1: float | None = None,
                **kw) -> xr.Dataset:
-    """Load (if a path), plan and search a spec with a ``[shock]`` section (see :func:`shock_plan`)."""
-    if isinstance(spec, (str, Path)):
-        spec = load_spec(spec)
+    """Load (if a path), plan and search a spec with a ``[shock]`` section (see :func:`shock_plan`; ``out`` never
+    the spec file read)."""
+    from ..run.outputs import guard_result
+
+    spec_file = spec if isinstance(spec, (str, Path)) else None
+    if spec_file is not None:
+        spec = load_spec(spec_file)
     if "shock" not in spec:
         raise ValidationError("shock", "the spec has no [shock] section")
-    return shock_plan(make_plan(spec, t1=t1), out, overrides={"t1": t1}, **kw)
+    plan = make_plan(spec, t1=t1)
+    if out is not None:
+        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
+    return shock_plan(plan, out, overrides={"t1": t1}, **kw)
 
 
 def minimal_fatal_shock(system, components, max_radius: float, *, params: Mapping[str, Any] | None = None,

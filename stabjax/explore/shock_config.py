@@ -30,7 +30,8 @@ documentation's settings table is generated from these rows):
 ``space``            ``"params"`` (default) or ``"state"``: what the norm measures
 ``norm``             ``"euclidean"`` (default) or ``"max"`` over ``blocks``
 ``weights``          name -> number or expression of the scalar parameters (``{w = "1/lam"}``)
-``blocks``           with ``norm = "max"``: lists of component (or state component) names (default: one per component)
+``blocks``           with ``norm = "max"``: lists of component (or state component) names (default: one per component;
+                     every shocked component in one)
 ``attractor``        the outcome the unshocked start must reach (default: whatever it reaches)
 ``target``           only these outcomes are fatal (the excitability threshold into their basins)
 ``excitability``     a condition over the whole run (``"max(error) > 0.3"``): fatal when it holds
@@ -43,7 +44,8 @@ documentation's settings table is generated from these rows):
 ``popsize``          CMA-ES's population per generation (pycma's default 4 + 3 ln d)
 ``generations``      CMA-ES's generations at most (40)
 ``seed``             of the directions and of CMA-ES (0)
-``theory``           the system's theorems to hold against the result: predicates or derived radii
+``theory``           the system's theorems to hold against the result: predicates or derived radii (not with
+                     ``target``)
 ===================  ===================================================================================
 
 Here too: the start to shock at each grid point (:func:`base_points`, :func:`settle`). Kept apart from the search so
@@ -231,6 +233,15 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
             if n in seen:
                 raise ValidationError(f"shock.blocks[{i}]", f"{n!r} is in two blocks")
             seen.add(n)
+    if norm == "max" and space == "params":
+        # a shocked component in no block would be moved for free: the norm would not see it
+        free = [c for c in comps if c not in seen]
+        if free:
+            raise ValidationError("shock.blocks", f"{', '.join(repr(c) for c in free)} "
+                                                  f"{'is' if len(free) == 1 else 'are'} shocked but in no block: the "
+                                                  "max norm would not measure "
+                                                  f"{'it' if len(free) == 1 else 'them'} (a shock of any size there "
+                                                  "would cost nothing); put every shocked component in a block")
     weights = V.table(raw.get("weights", {}), "shock.weights")
     scalars = tuple(p.name for p in plan.system.params if not p.shape)
     for k, w in weights.items():
@@ -291,6 +302,11 @@ def shock_config(plan, raw: Mapping[str, Any] | None = None) -> ShockConfig:
     seed = V.integer(raw.get("seed", 0), "shock.seed", lo=0, hi=2**63 - 1)
     theory = tuple(_names(raw["theory"], "shock.theory")) if "theory" in raw else ()
     if theory:
+        if target is not None:
+            raise ValidationError("shock.theory", "a theorem's region is held against the minimal fatal shock out of "
+                                                  "the attractor's basin, but with shock.target only shocks into "
+                                                  f"{', '.join(target)} count as fatal (a threshold into those "
+                                                  "basins, not the basin's edge): give either theory or target")
         _check_theory(plan, theory)
     settle_ = V.boolean(raw.get("settle", False), "shock.settle")
     cfg = ShockConfig(components=tuple(comps), entries=tuple(entries), unit=unit, settle=settle_, space=space,

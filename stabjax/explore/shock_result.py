@@ -7,14 +7,17 @@
   ``region118_radius`` = l of (1.18) in max(|w1|/lam, |delta|), where Theorem 1's hypotheses hold, else 0);
 * a **predicate** (``Theory.predicates[name]``): a margin over the initial-condition parameters, > 0 inside the
   region. Its radius in the shock's norm is the smallest zero of the margin along the directions searched
-  (a scan of ``THEORY_SCAN`` radii, then bisection): exact for a ball, an upper estimate otherwise.
+  (a scan of ``THEORY_SCAN`` radii, then bisection; followed beyond ``max_radius`` where the region reaches it, so
+  the radius stored is the theorem's, not capped by the search): exact for a ball, an upper estimate otherwise.
 
 Verdicts (per grid point): **refuted** where the witness -- a fatal start -- lies inside the guaranteed region
 (its norm below ``r_g``, or the predicate's margin positive at the witness): a red flag, certain up to the
 classification of that one trajectory, which is therefore re-integrated with tolerances a hundred times tighter
 (``shock_witness_recheck``); **consistent** where ``r_g`` lies within the resolution below the bracket or in it
 (the theorem is tight); **conservative** where ``r_g <= r_lo``, by a factor in [r_lo / r_g, |delta*| / r_g];
-**not applicable** where ``r_g = 0`` (the hypotheses fail there) or no attractor was searched.
+**not applicable** where ``r_g = 0`` (the hypotheses fail there) or no attractor was searched; **untested** where
+no fatal shock was found up to ``max_radius`` and ``r_g`` lies beyond it (the range between was never searched:
+the search neither confirms nor refutes the theorem there).
 """
 from __future__ import annotations
 
@@ -30,8 +33,9 @@ from .shock_config import Norm, ShockConfig, describe_norm, fraction_bound
 THEORY_SCAN = 32  # radii per direction at which a predicate's margin is evaluated before bisecting its first zero
 THEORY_DIRECTIONS = 32  # scan directions used for a predicate's radius (plus the witness's)
 THEORY_CHUNK = 512  # parameter rows per call of the system's theory
-VERDICTS = ("refuted", "consistent", "conservative", "not_applicable")
-REFUTED, CONSISTENT, CONSERVATIVE, NOT_APPLICABLE = range(4)
+THEORY_REACH = 2.0 ** 20  # a predicate's region is followed up to this many times max_radius (then: inf)
+VERDICTS = ("refuted", "consistent", "conservative", "not_applicable", "untested")
+REFUTED, CONSISTENT, CONSERVATIVE, NOT_APPLICABLE, UNTESTED = range(5)
 RECHECK_TIGHTER = 100.0  # the witness of a red flag is re-integrated with rtol and atol divided by this
 
 
@@ -50,26 +54,50 @@ def theory_values(plan, params: Mapping[str, np.ndarray], name: str) -> np.ndarr
 
 def predicate_radius(plan, norm: Norm, name: str, g: np.ndarray, U: np.ndarray, r_max: float) -> np.ndarray:
     """Radius in the shock's norm of a predicate's region at grid points ``g`` (P,), over directions ``U``
-    (P, D, d): the smallest first zero of the margin along them (0 where the margin is <= 0 unshocked, r_max where
-    it stays positive)."""
+    (P, D, d): the smallest first zero of the margin along them (0 where the margin is <= 0 unshocked).
+
+    A direction along which the margin stays positive up to ``r_max`` (the largest shock searched) is followed
+    further -- the theory only, nothing is integrated -- in windows (top, 2 top] of ``THEORY_SCAN`` radii each, up
+    to ``THEORY_REACH`` r_max: the radius is the theorem's, not the search's range. Where the margin stays positive
+    as far as every direction reaches (or goes), the region holds no edge along them: ``inf`` (a global claim)."""
     P, D, d = U.shape
     gg = np.repeat(g, D)
     uu = U.reshape(P * D, d)
     m0 = theory_values(plan, norm.params(g, np.zeros((P, d))), name)
+
+    def scan(rows, R):
+        """Margins (len(rows), len(R)) along rows ``rows`` at radii ``R`` (inf where the ray cannot reach one)."""
+        K = len(R)
+        g3, u3 = np.repeat(gg[rows], K), np.repeat(uu[rows], K, axis=0)
+        r3 = np.tile(R, len(rows))
+        dl = norm.shift(g3, u3, r3)
+        reach = np.all(np.isfinite(dl), axis=1)
+        m = np.full(len(r3), np.inf)
+        if reach.any():
+            m[reach] = theory_values(plan, norm.params(g3[reach], dl[reach]), name)
+        return m.reshape(len(rows), K), reach.reshape(len(rows), K)
+
     R = r_max * np.arange(1, THEORY_SCAN + 1) / THEORY_SCAN
-    g3, u3 = np.repeat(gg, THEORY_SCAN), np.repeat(uu, THEORY_SCAN, axis=0)
-    r3 = np.tile(R, P * D)
-    dl = norm.shift(g3, u3, r3)
-    reach = np.all(np.isfinite(dl), axis=1)
-    m = np.full(len(r3), np.inf)
-    if reach.any():
-        m[reach] = theory_values(plan, norm.params(g3[reach], dl[reach]), name)
-    m = m.reshape(P * D, THEORY_SCAN)
+    m, reach = scan(np.arange(P * D), R)
     neg = m <= 0
     first = np.where(neg.any(axis=1), neg.argmax(axis=1), -1)
     lo = np.where(first > 0, R[np.maximum(first - 1, 0)], 0.0)
     hi = np.where(first >= 0, R[np.maximum(first, 0)], np.inf)
-    cut = np.flatnonzero(first >= 0)
+    # beyond the search's range: the directions still inside at r_max, and reaching it (a ray whose norm saturates
+    # is inside as far as it goes)
+    go = np.flatnonzero((first < 0) & reach.all(axis=1))
+    top = r_max
+    while len(go) and top < THEORY_REACH * r_max:
+        R = top * (1 + np.arange(1, THEORY_SCAN + 1) / THEORY_SCAN)
+        m, reach = scan(go, R)
+        neg = m <= 0
+        f = np.where(neg.any(axis=1), neg.argmax(axis=1), -1)
+        hit = f >= 0
+        lo[go[hit]] = np.where(f[hit] > 0, R[np.maximum(f[hit] - 1, 0)], top)
+        hi[go[hit]] = R[f[hit]]
+        go = go[~hit & reach.all(axis=1)]
+        top = 2 * top
+    cut = np.flatnonzero(np.isfinite(hi))
     for _ in range(30):
         if not len(cut):
             break
@@ -82,7 +110,7 @@ def predicate_radius(plan, norm: Norm, name: str, g: np.ndarray, U: np.ndarray, 
         inside = mm > 0
         lo[cut] = np.where(inside, mid, lo[cut])
         hi[cut] = np.where(inside, hi[cut], mid)
-    r = np.where(np.isfinite(hi), 0.5 * (lo + hi), r_max).reshape(P, D).min(axis=1)
+    r = np.where(np.isfinite(hi), 0.5 * (lo + hi), np.inf).reshape(P, D).min(axis=1)
     return np.where(m0 > 0, r, 0.0)
 
 
@@ -117,9 +145,13 @@ def compare(plan, cfg: ShockConfig, norm: Norm, name: str, search, witness: np.n
     ok = valid & (rg > 0)  # NaN: no radius there; inf: a global claim
     tol = cfg.tol(np.where(found, hi, np.inf))
     verdict[ok] = np.where(rg[ok] < lo[ok] - tol[ok], CONSERVATIVE, CONSISTENT)  # beyond the resolution, or within it
+    # no fatal shock up to max_radius (= lo), and the theorem's region reaches beyond it: the range between was never
+    # searched, so the search neither confirms nor refutes it there
+    beyond = ok & ~found & (rg > lo * (1 + 1e-9))
+    verdict[beyond] = UNTESTED
     verdict[ok & inside] = REFUTED
     with np.errstate(divide="ignore", invalid="ignore"):
-        f_lo = np.where(ok, lo / rg, np.nan)
+        f_lo = np.where(ok & ~beyond, lo / rg, np.nan)
         f_hi = np.where(ok & found, hi / rg, np.nan)
     return {"radius": rg, "verdict": verdict, "factor_lo": f_lo, "factor_hi": f_hi, "doc": doc}
 
@@ -152,10 +184,11 @@ def _units(plan, cfg: ShockConfig) -> str:
 
 def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str, ...], base, *,
              wall: float = float("nan"), engines=frozenset(), rounds_resumed: int = 0, label=None,
-             base_status: np.ndarray | None = None) -> xr.Dataset:
+             base_status: np.ndarray | None = None, total_steps: int | None = None) -> xr.Dataset:
     """The result's dataset (see the module docstring and docs/guide/shock.md for its variables).
     ``base_status``: the unshocked starts' solver status (diffrax's codes), which says why a base start that
-    failed did (the solver stopped, or it reached t1 with observables not finite)."""
+    failed did (the solver stopped, or it reached t1 with observables not finite). ``total_steps``: the rounds'
+    accepted solver steps, stored as ``attrs["total_steps"]`` (None: unknown, no such attribute)."""
     from ..run.dataset import cf_attributes, status_flags
     from ..run.derive import provenance
 
@@ -250,10 +283,12 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
     for name in cfg.theory:
         c = compare(plan, cfg, norm, name, search, witness, found, np.where(np.isnan(lo), 0, lo), hi)
         data[f"theory_radius_{name}"] = (gdims, shp(c["radius"]), {
-            "long_name": f"radius of the region guaranteed by {name} in the shock's norm (0: its hypotheses fail)",
+            "long_name": f"radius of the region guaranteed by {name} in the shock's norm (0: its hypotheses fail; "
+                         "inf: no edge along the directions searched)",
             "theorem": str(c["doc"]), **nu})
         data[f"theory_verdict_{name}"] = (gdims, shp(c["verdict"]), {
-            "long_name": f"{name} against the minimal fatal shock", "flag_values": np.arange(4, dtype=np.int8),
+            "long_name": f"{name} against the minimal fatal shock",
+            "flag_values": np.arange(len(VERDICTS), dtype=np.int8),
             "flag_meanings": " ".join(VERDICTS)})
         data[f"theory_factor_lo_{name}"] = (gdims, shp(c["factor_lo"]), {
             "long_name": f"lower end of |delta*| / radius of {name} (> 1: the theorem is conservative by this factor)"})
@@ -281,35 +316,47 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
     ds.attrs.update(
         kind="shock", shock_json=json.dumps({**asdict(cfg), "entries": [e.key for e in cfg.entries]}),
         norm=describe_norm(cfg), outcome_names=" ".join(names), rounds=search.rounds,
-        round_sizes=list(search.round_sizes), n_directions=N, n_trajectories=n_traj, total_steps=0,
+        round_sizes=list(search.round_sizes), n_directions=N, n_trajectories=n_traj,
         wall_time_s=float(wall), engine=",".join(sorted(engines)) or "resumed", rounds_resumed=int(rounds_resumed),
-        statement=_statement(cfg, search.valid),
+        statement=_statement(cfg, search.valid, found),
         theory_json=json.dumps(theory_json), grid_keys_json=json.dumps({ax.name: ax.key for ax in plan.grid}),
     )
+    if total_steps is not None:  # the rounds' records carry no steps: none stored rather than a false 0
+        ds.attrs["total_steps"] = int(total_steps)
     cf_attributes(ds, plan, activity="shock search", trajectories=n_traj)
     return ds
 
 
-def _statement(cfg: ShockConfig, valid: np.ndarray) -> str:
+def _statement(cfg: ShockConfig, valid: np.ndarray, found: np.ndarray | None = None) -> str:
     """What the result promises, where a search ran: a grid point whose unshocked start failed or reached no
-    attractor to shock (``valid`` false) holds no bracket, so the statistical statement is not made of it."""
+    attractor to shock (``valid`` false) holds no bracket, so the statistical statement is not made of it; where no
+    fatal shock was found (``found`` false) there is no witness, so none is promised."""
     N = cfg.directions
     why = "the unshocked start failed or did not reach the attractor to shock; base_outcome says which"
     if not valid.any():
         return (f"no search ran{' at any grid point' if valid.size > 1 else ''} ({why}): shock_norm and "
                 "shock_norm_lo are NaN.")
+    found = valid if found is None else np.asarray(found, bool) & valid
     skipped = int((~valid).sum())
     where = f"at the {int(valid.sum())} of {valid.size} grid points searched: " if skipped else ""
     elsewhere = f" At the other {skipped} no search ran ({why})." if skipped else ""
     scan = (f"each scanned at {cfg.radii} radii up to {cfg.max_radius:g}, then bisected; a direction is assumed to "
             f"leave the basin once between two scan radii")
+    upper = "shock_norm is a fatal shock found (its witness start is stored): an upper bound."
+    n_found, n_valid = int(found.sum()), int(valid.sum())
+    if n_found == 0:
+        upper = (f"No fatal shock was found up to max_radius = {cfg.max_radius:g}: shock_norm is NaN, no witness, and "
+                 "shock_norm_lo is max_radius.")
+    elif n_found < n_valid:
+        upper = (f"Where one was found ({n_found} of the {n_valid} grid points searched), {upper[0].lower() + upper[1:]} "
+                 f"At the other {n_valid - n_found} no fatal shock was found up to max_radius = {cfg.max_radius:g} "
+                 "(shock_norm NaN, no witness).")
     if cfg.dim == 1 and N == 2:  # both directions of the one component: nothing is left to chance
         return (f"{where}no fatal shock in either direction of {cfg.components[0]} below shock_norm_lo ({scan}). "
-                f"shock_norm is a fatal shock found (its witness start is stored): an upper bound.{elsewhere}")
+                f"{upper}{elsewhere}")
     return (f"{where}no fatal shock among the {N} directions searched below shock_norm_lo ({scan}): the share of "
             f"directions that could hold a smaller one is below {fraction_bound(N):.2g} at 95 % confidence; a "
-            f"narrower cone can escape. shock_norm is a fatal shock found (its witness start is stored): an upper "
-            f"bound.{elsewhere}")
+            f"narrower cone can escape. {upper}{elsewhere}")
 
 
 # ---- replay ----------------------------------------------------------------------------------------------

@@ -59,7 +59,8 @@ def provenance_rows(ds: xr.Dataset) -> list[tuple[str, str]]:
                                   if k in integ) or "-"),
         ("engine", f"{a.get('engine', '?')}" + (f" ({a['engine_note']})" if a.get("engine_note") else "")
          + (f", executor {a['executor']}" if a.get("executor") else "")),
-        ("steps, wall time", f"{int(a.get('total_steps', 0)):,} steps, {float(a.get('wall_time_s', float('nan'))):.1f} s"),
+        ("steps, wall time", (f"{int(a['total_steps']):,} steps" if "total_steps" in a else "steps not recorded")
+         + f", {float(a.get('wall_time_s', float('nan'))):.1f} s"),
         ("device, machine", f"{a.get('device', '?')}; {a.get('machine', '?')}"),
         ("versions", ", ".join(f"{k} {v}" for k, v in (_json_attr(ds, "versions_json", {}) or {}).items()) or "-"),
         ("git commit", str(a.get("git_commit", "")) or "-"),

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-VERDICT_NAMES = ("refuted", "consistent", "conservative", "not_applicable")
+VERDICT_NAMES = ("refuted", "consistent", "conservative", "not_applicable", "untested")  # shock_result.VERDICTS
 
 
 def theories(ds: xr.Dataset) -> list[str]:
@@ -80,6 +80,8 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
                        f" (radius {r:.4g})"
             elif v == 1:
                 row += f"; {th}: consistent (radius {r:.4g} within the resolution)"
+            elif v == 4:
+                row += f"; {th}: untested (radius {r:.4g} beyond the largest shock searched, {lo:.4g})"
             else:
                 row += f"; {th}: not applicable"
         if shown < limit:
@@ -130,6 +132,13 @@ def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset 
     return save(fig, out, dpi=100)
 
 
+def _size_label(ds) -> str:
+    """The shock-size axis's label: the norm's words in full, wrapped (cut at 90 characters, it ended mid-word)."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(f"size of the shock, {ds.attrs.get('norm', '')}" + _unit(ds), 60))
+
+
 def _unit(ds):
     u = str(ds["shock_norm"].attrs.get("units", "1"))
     return "" if u in ("", "1") else f" [{u}]"
@@ -174,7 +183,7 @@ def _single(ax, ds):
     ax.set_xlim(-1, 1)
     tops = [v for v in [hi, lo] + [float(ds[f"theory_radius_{t}"]) for t in theories(ds)] if np.isfinite(v)]
     ax.set_ylim(0, 1.15 * max(tops) if tops else None)
-    ax.set_ylabel(f"size of the shock, {ds.attrs.get('norm', '')}"[:90] + _unit(ds))
+    ax.set_ylabel(_size_label(ds))
 
 
 def _curve(ax, ds, dim):
@@ -190,7 +199,7 @@ def _curve(ax, ds, dim):
     _theory_lines(ax, ds, x)
     _red_flags(ax, ds, x)
     ax.set_xlabel(axis_label(ds, dim))
-    ax.set_ylabel(f"size of the shock, {ds.attrs.get('norm', '')}"[:90] + _unit(ds), fontsize=8)
+    ax.set_ylabel(_size_label(ds), fontsize=8)
     ax.set_ylim(0, None)
     ax.grid(alpha=0.3)
 
@@ -522,7 +531,8 @@ def point_rows(ds: xr.Dataset, g: int) -> list[tuple[str, str]]:
         rows.append(("undecided", f"a shocked start of norm {und:.4g} was left undecided (counted as not fatal)"))
     rows.append(("effort", f"{int(p['shock_trajectories'].values):,} trajectories at this grid point"))
     words = {0: "RED FLAG: a fatal start inside the guaranteed region", 1: "consistent (within the resolution)",
-             2: "conservative", 3: "not applicable (its hypotheses fail here)"}
+             2: "conservative", 3: "not applicable (its hypotheses fail here)",
+             4: "untested (its radius lies beyond the largest shock searched, max_radius)"}
     for th in theories(ds):
         v = int(p[f"theory_verdict_{th}"].values)
         rg = float(p[f"theory_radius_{th}"].values)

@@ -63,7 +63,7 @@ def build_shock(doc, r: Result) -> None:
     status = Div(text=status_text(r), width=640, name="status")
     verdicts = SH.theories(ds)
     table = "".join(f"<tr><td>{esc(th)}</td>" + "".join(
-        f"<td>{int((np.asarray(ds[f'theory_verdict_{th}'].values) == k).sum())}</td>" for k in range(4)) + "</tr>"
+        f"<td>{int((np.asarray(ds[f'theory_verdict_{th}'].values) == k).sum())}</td>" for k in range(len(SH.VERDICT_NAMES))) + "</tr>"
         for th in verdicts)
     agree = Div(width=640, name="agreement", text=(
         "<b>Theorems against the minimal fatal shock</b> (grid points)<table style='font-size:12px'><tr><th></th>"
