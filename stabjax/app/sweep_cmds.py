@@ -169,7 +169,7 @@ def _shock(plan, out: Path, plot: bool, **run) -> int:
     from ..explore.shock_config import shock_config
 
     shock_config(plan)  # every field checked before anything is integrated or written
-    ds = shock_plan(plan, out, **run)
+    ds = shock_plan(plan, out, force=True, **run)  # --out checked by the command, with the spec file and --force
     console.print(f"wrote {out}  ({ds.attrs['n_trajectories']:,} trajectories, {ds.attrs['wall_time_s']:.1f} s)",
                   markup=False)
     print_result(ds, out.with_suffix(".png") if plot else None, result=out)

@@ -68,6 +68,8 @@ def test_an_existing_file_is_replaced_only_when_it_is_a_result_of_this_spec_or_w
         stabjax.run_spec(other, foreign)
     with pytest.raises(ValidationError, match="not a result of this spec"):
         stabjax.refine_spec({**other, "refine": {"tol": {"k": 0.1}}}, foreign)
+    with pytest.raises(ValidationError, match="not a result of this spec"):
+        stabjax.shock_spec({**other, "shock": {"components": ["x0"], "max_radius": 1.0}}, foreign)
 
     # figures and pages: a user's file is refused, our own drawing of the same result is replaced
     png, page = folder / "notes.png", folder / "notes.html"
