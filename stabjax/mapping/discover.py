@@ -58,8 +58,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    autonomous flow other than an equilibrium has a zero exponent) or most members end their window at
    an extreme of every observable (a monotone approach, no oscillation): a group still approaching a
    stable equilibrium is never called a cycle (one so typed while its members still oscillate over the
-   window is said, a :class:`TransientWarning`: a relaxation cycle watched for a short window has a negative
-   finite-time exponent too, Van der Pol at mu = 1 over two periods -0.06); else ``attractor`` (untyped) when its negative exponent
+   window, and contracted less than ``CYCLE_BIAS`` by its start, is said, a :class:`TransientWarning`: a
+   relaxation cycle watched for a short window has such a finite-time exponent too, Van der Pol at mu = 1 over
+   two periods -0.06); else ``attractor`` (untyped) when its negative exponent
    has not contracted a separation of the observables' range below ``eps`` by the window's start
    (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet); else
    ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
@@ -499,6 +500,17 @@ def _unsettled(lam: float, f: _Features, cfg: DiscoveryConfig) -> bool:
     return f.settle is not None and lam < -cfg.chaos_threshold and math.exp(lam * f.settle) > cfg.eps
 
 
+CYCLE_BIAS = 1e-3  # the least contraction by the window's start that a cycle's finite-time exponent can fake
+
+
+def _cycle_like(lam: float, f: _Features) -> bool:
+    """Whether a negative exponent could be a cycle's finite-time bias, off zero by up to ln(max|f| / min|f|) / T
+    over a time T: a contraction by the window's start of exp(lam * settle) > ``CYCLE_BIAS`` (a thousandfold; Van
+    der Pol at mu = 1 with t1 = 50: exp(-0.06 * 37.5) = 0.1). A focus at exponent -0.5 watched from t = 25 on
+    (e^-12.5) is no cycle: its typing is not said."""
+    return f.settle is None or not np.isfinite(lam) or math.exp(lam * f.settle) > CYCLE_BIAS
+
+
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
     """Per member: whether it ends its window at an extreme of every observable (a monotone approach, no
     oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
@@ -537,10 +549,11 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                             if t == "attractor" and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()),
                  # fixed points typed by their negative exponent alone, their members still oscillating over the
-                 # window (neither at rest nor in a monotone approach): :func:`_warn_by_exponent`
+                 # window (neither at rest nor in a monotone approach), where the exponent could be a cycle's
+                 # finite-time bias: :func:`_warn_by_exponent`
                  by_exponent=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                               if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
-                              and np.mean(_ends_at_extreme(g, f)) <= 0.5])
+                              and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _cycle_like(lam, f)])
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
                       lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
