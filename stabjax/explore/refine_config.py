@@ -18,7 +18,7 @@ from ..fold import verdict as V
 from ..errors import StabjaxError, ValidationError
 from ..plan.spec import Plan
 from ..fold.status import verdicts as status_verdicts
-from ..validate import number as _number
+from ..validate import integer as _integer, number as _number
 
 REFINE_KEYS = ("tol", "rel_tol", "pair", "stable", "label", "horizon", "horizons", "max_points")
 DEFAULT_REL_TOL = 1 / 64
@@ -150,9 +150,7 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
         stable = pair[0] if pair else ("converged" if "converged" in names else None)
 
     horizons = _horizons(plan, raw, label)
-    max_points = raw.get("max_points", 1_000_000)
-    if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 1:
-        raise ValidationError("refine.max_points", f"must be an integer >= 1, got {max_points!r}")
+    max_points = _integer(raw.get("max_points", 1_000_000), "refine.max_points", lo=1, hi=None)
     size = int(np.prod([(ax.size - 1) * 2**L + 1 for ax, L in zip(plan.grid, levels)]))
     if size * len(horizons) > MAX_LATTICE:  # one label per site and horizon
         raise ValidationError("refine.tol", f"the finest lattice would hold {size:,} points x {len(horizons)} "

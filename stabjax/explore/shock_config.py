@@ -488,6 +488,30 @@ class Norm:
             self._y0 = _state_fn(plan.system)
             self.y_base = self._states(np.arange(n), np.zeros((n, cfg.dim)))
         self.cols = cols
+        if cfg.space == "state" and cfg.norm == "max":
+            self._refuse_unmeasured(n)
+
+    def _refuse_unmeasured(self, n: int) -> None:
+        """A state component that the shocked entries move but no block measures would move for free (a shock of
+        any size there costs nothing): refused, as the parameter space's check refuses an unmeasured component.
+        Which state components move is seen from a finite shift of each entry at every grid point (the start
+        state is a function of the parameters only: an exact zero where it does not depend on them)."""
+        covered = {name for b in self.cfg.blocks for name in b}
+        free = [name for name, _ in self.plan.system.state if name not in covered]
+        if not free:
+            return
+        d = self.cfg.dim
+        g = np.repeat(np.arange(n), d)
+        deltas = np.tile(1e-3 * np.eye(d), (n, 1))
+        dev = np.abs(self._states(g, deltas) - self.y_base[g])
+        scale = 1.0 + np.abs(self.y_base[g])
+        moved = [name for name in free if np.any(dev[:, self.cols[name]] > 1e-9 * scale[:, self.cols[name]])]
+        if moved:
+            raise ValidationError("shock.blocks", f"state component{'s' if len(moved) > 1 else ''} "
+                                                  f"{', '.join(repr(c) for c in moved)} moved by the shocked "
+                                                  f"entries but in no block: the max norm would not measure the "
+                                                  "shift there (a shock of any size would cost nothing); put every "
+                                                  "state component the shock moves in a block")
 
     def params(self, g: np.ndarray, deltas: np.ndarray) -> dict[str, np.ndarray]:
         """Every parameter of the shocked starts (checked: normalised as the system does)."""

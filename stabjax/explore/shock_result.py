@@ -238,7 +238,8 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
         "shock_witness": ((*gdims, "component"), shp(wvals), {
             "long_name": "witness start: the shocked entries' values of the smallest fatal shock",
             "component_units": comp_units}),
-        "shock_witness_outcome": (gdims, shp(wcode), {"long_name": "outcome the witness start reaches", **flags}),
+        "shock_witness_outcome": (gdims, shp(wcode), {"long_name": "outcome the witness start reaches (-1: no "
+                                                                    "witness, no fatal shock found)", **flags}),
         "shock_undecided_norm": (gdims, shp(np.where(np.isfinite(search.undecided_min), search.undecided_min,
                                                      np.nan)),
                                  {"long_name": "smallest norm of a shocked start the classifier left undecided or "

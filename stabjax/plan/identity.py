@@ -237,6 +237,8 @@ def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], since: str 
     diff("spec", "spec ")
     for k in sorted(set(old.get("overrides", {})) | set(new.get("overrides", {}))):
         a, b = old.get("overrides", {}).get(k), new.get("overrides", {}).get(k)
+        if k == "batch_size" and old.get("size") != new.get("size"):
+            continue  # a chunk no larger than the run follows the size (listed below), not an option the user gave
         if a != b:
             flag = "--" + k.replace("_", "-")
             changes.append(f"command-line {flag}: {_short(a, 'not given')} -> {_short(b, 'not given')}")

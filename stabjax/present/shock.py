@@ -68,6 +68,9 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
             w = ", ".join(f"{c} = {v:.4g}" for c, v in zip(ds["component"].values, p["shock_witness"].values))
             row = (f"  {where or 'start'}: from {att}: |delta*| = {hi:.4g} (bracket [{lo:.4g}, {hi:.4g}]) "
                    f"-> {outcome_name(ds, p['shock_witness_outcome'].values)}; witness {w}")
+        und = float(p["shock_undecided_norm"].values) if "shock_undecided_norm" in p else np.nan
+        if np.isfinite(und) and not und >= hi:  # a smaller shock whose fate is unknown: the answer may be smaller
+            row += f"; a start shocked by {und:.4g} was left undecided (counted as not fatal)"
         for th in theories(ds):
             v = int(p[f"theory_verdict_{th}"].values)
             r = float(p[f"theory_radius_{th}"].values)

@@ -264,6 +264,8 @@ def test_dominant_label_and_horizon_column():
     ({"label": "outcome"}, "refine.label"),  # the oscillator declares no named outcomes
     ({"stable": "stable"}, "refine.stable"),
     ({"max_points": 0}, "refine.max_points"),
+    ({"max_points": 2.5}, "refine.max_points"),
+    ({"max_points": "1000"}, "refine.max_points"),
     ({"tol": 1e-12}, "refine.tol"),  # lattice too large
     ({"tol": {"k": 1e-12}}, "refine.tol.k"),
     ({"rel_tol": 1e-12}, "refine.rel_tol"),  # the field set is named (was refine.tol, which was not set)
@@ -277,6 +279,15 @@ def test_bad_refine_fields(oscillator, refine, field):
     with pytest.raises(ValidationError) as exc:
         refine_config(plan)
     assert exc.value.field == field
+
+
+def test_max_points_is_a_count_like_every_other(oscillator):
+    """An integral float (1e3) is the count every other integer field takes, not an error."""
+    from stabjax.explore.refine_config import refine_config
+    from stabjax.plan.spec import make_plan
+
+    cfg = refine_config(make_plan(spec({"k": {"start": 0.0, "stop": 1.0, "num": 5}}, {"max_points": 1e3})))
+    assert cfg.max_points == 1000 and isinstance(cfg.max_points, int)
 
 
 def test_bad_grids(oscillator):

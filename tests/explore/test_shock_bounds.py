@@ -53,6 +53,13 @@ def test_a_coarse_resolution_gives_positive_norms_and_no_false_red_flag():
     for name in ("disc", "disc_radius"):  # the claim 1 is true: never refuted
         assert int(ds[f"theory_verdict_{name}"]) != REFUTED
     assert ds.attrs["total_steps"] > ds.attrs["n_trajectories"]  # the rounds' solver steps, not a hard-coded 0
+    # a shocked start smaller than |delta*| whose fate is unknown is said beside the answer (it may be smaller)
+    from stabjax.present import shock as SH
+
+    assert ("left undecided" in SH.format_summary(ds)) == (und < hi)
+    ds2 = ds.copy(deep=True)
+    ds2["shock_undecided_norm"][...] = 0.5 * hi
+    assert f"a start shocked by {0.5 * hi:.4g} was left undecided" in SH.format_summary(ds2)
 
 
 def test_a_theorem_beyond_the_searched_range_is_untested():
@@ -93,11 +100,27 @@ def test_a_region_without_edge_has_an_infinite_radius():
     ({"target": ["cycle4"], "theory": ["disc"]}, "shock.theory", ("shock.target", "cycle4")),
     ({"norm": "max", "blocks": [["x0"]]}, "shock.blocks", ("'y0'", "no block")),
     ({"norm": "max", "blocks": [["x0"]], "weights": {"x0": 2.0}}, "shock.blocks", ("'y0'",)),
+    ({"space": "state", "norm": "max", "blocks": [["x"]]}, "shock.blocks", ("'y'", "no block")),
 ])
 def test_a_table_that_cannot_mean_what_it_says_is_refused(shock, field, words):
     with pytest.raises(ValidationError) as exc:
         circle({"max_radius": 5.0, **shock})
     assert exc.value.field == field and all(w in exc.value.message for w in words), exc.value.message
+
+
+def test_a_state_block_may_leave_out_what_the_shock_does_not_move():
+    """Shocking x0 alone moves the state's x only: a max norm measuring x alone is the whole shift, not refused."""
+    from stabjax.explore.shock import base_points
+    from stabjax.explore.shock_config import Norm, shock_config
+    from stabjax.plan.spec import make_plan
+
+    plan = make_plan({"system": "test_shock_t2", "name": "s", "integrate": INTEGRATE,
+                      "shock": {"components": ["x0"], "space": "state", "norm": "max", "blocks": [["x"]],
+                                "max_radius": 1.0}})
+    cfg = shock_config(plan)
+    base, _ = base_points(plan)
+    norm = Norm(plan, cfg, base)
+    assert float(norm(np.array([0]), np.array([[0.25]]))[0]) == pytest.approx(0.25)
 
 
 def test_refused_through_the_command_line_with_status_2(tmp_path, capsys):

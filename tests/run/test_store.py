@@ -87,6 +87,20 @@ def test_resume_is_bitwise_and_records_real_engine(spec, tmp_path, reference):
     assert not store.exists()  # removed once the netCDF file is written (default; --keep-store keeps it)
 
 
+def test_a_batch_that_follows_the_size_is_not_blamed_on_an_option():
+    """A chunk is never larger than the run: a spec change that shrinks the run (shock.directions 32 -> 12) shrinks
+    the batch with it, which the refusal must not call a --batch-size the user gave (they gave none)."""
+    from stabjax.plan.identity import describe_changes
+
+    old = {"spec": {"shock": {"directions": 32}}, "overrides": {"batch_size": 257}, "size": 257}
+    new = {"spec": {"shock": {"directions": 12}}, "overrides": {"batch_size": 97}, "size": 97}
+    changes = describe_changes(old, new)
+    assert changes == ["spec shock.directions: 32 -> 12", "size: 257 -> 97"]
+    # the same run size with another chunk: that is the option
+    same = describe_changes({**old, "spec": new["spec"], "size": 97}, new)
+    assert same == ["command-line --batch-size: 257 -> 97"]
+
+
 def test_changed_t1_batch_spec_model_refused(spec, tmp_path, capsys):
     out = tmp_path / "r.nc"
     with pytest.raises(KeyboardInterrupt):
