@@ -61,7 +61,7 @@ import xarray as xr
 
 from ..fold import stops
 from ..errors import StabjaxError, ValidationError
-from ..plan.spec import Plan, load_spec, make_plan
+from ..plan.spec import Plan
 
 from .refine_config import RefineConfig, _labels, classes, fine_values, refine_config
 
@@ -524,14 +524,6 @@ def refine_plan(plan: Plan, out: str | Path | None = None, *, store: str | Path 
 def refine_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None, *, t1: float | None = None,
                 **kw) -> xr.Dataset:
     """Load (if a path), plan and refine a spec with a ``[refine]`` section (``out`` never the spec file read)."""
-    from ..run.outputs import guard_result
+    from ..run.outputs import plan_result
 
-    spec_file = spec if isinstance(spec, (str, Path)) else None
-    if spec_file is not None:
-        spec = load_spec(spec_file)
-    if "refine" not in spec:
-        raise ValidationError("refine", "the spec has no [refine] section")
-    plan = make_plan(spec, t1=t1)
-    if out is not None:
-        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
-    return refine_plan(plan, out, **kw)
+    return refine_plan(plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="refine"), out, **kw)

@@ -57,7 +57,7 @@ import numpy as np
 import xarray as xr
 
 from ..errors import StabjaxError, ValidationError
-from ..plan.spec import Plan, load_spec, make_plan
+from ..plan.spec import Plan, make_plan
 from .shock_config import INCONCLUSIVE, LEFT, STAYED, Norm, ShockConfig, base_points, settle, shock_config
 
 FATAL, SAFE, UNDECIDED = 1, 0, 2
@@ -525,16 +525,9 @@ def shock_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = No
                **kw) -> xr.Dataset:
     """Load (if a path), plan and search a spec with a ``[shock]`` section (see :func:`shock_plan`; ``out`` never
     the spec file read)."""
-    from ..run.outputs import guard_result
+    from ..run.outputs import plan_result
 
-    spec_file = spec if isinstance(spec, (str, Path)) else None
-    if spec_file is not None:
-        spec = load_spec(spec_file)
-    if "shock" not in spec:
-        raise ValidationError("shock", "the spec has no [shock] section")
-    plan = make_plan(spec, t1=t1)
-    if out is not None:
-        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
+    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="shock")
     return shock_plan(plan, out, overrides={"t1": t1}, **kw)
 
 

@@ -309,6 +309,24 @@ def guard_result(plan, out, *, force: bool = False, spec_file=None) -> bool:
                         same=lambda p: result_spec(p) == this_spec, what="a result of this spec")
 
 
+def plan_result(spec, out, *, t1: float | None = None, force: bool = False, section: str | None = None):
+    """The plan of ``spec`` (a mapping, or a TOML file loaded here) for the ``*_spec`` functions, with ``out``
+    checked by :func:`guard_result` before anything runs (never the spec file itself). ``section``: the table
+    the spec must have (``"refine"``, ``"shock"``), refused by name when missing."""
+    from ..errors import ValidationError
+    from ..plan.spec import load_spec, make_plan
+
+    spec_file = spec if isinstance(spec, (str, Path)) else None
+    if spec_file is not None:
+        spec = load_spec(spec_file)
+    if section is not None and section not in spec:
+        raise ValidationError(section, f"the spec has no [{section}] section")
+    plan = make_plan(spec, t1=t1)
+    if out is not None:
+        guard_result(plan, out, force=force, spec_file=spec_file)
+    return plan
+
+
 # ---- stamps: "our own previous output of this result, unchanged since", from the file's content -------------
 
 STAMP = "stabjax-output"  # the stamp's keyword: a PNG text chunk's key, the word opening an HTML/SVG/PDF comment

@@ -36,7 +36,7 @@ from ..engines.base import N_SUMMARY_FIELDS
 from ..errors import OutputError, ValidationError
 from .outputs import clean_stale_temps, temp_beside, write_reason
 from .progress import progress_bar
-from ..plan.spec import Plan, check_plan, load_spec, make_plan, static_params
+from ..plan.spec import Plan, check_plan, static_params
 from .store import Chunking
 
 DEFAULT_MEMORY_FRACTION = 0.25
@@ -396,15 +396,10 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
              progress: bool = False, restart: bool = False, t1: float | None = None, **kw) -> xr.Dataset:
     """Load (if a path), plan and run a sweep spec. See :mod:`stabjax.plan.spec` for the format; ``out`` and
     ``force``: :func:`run_plan` (``out`` is never the spec file read either)."""
-    from .outputs import guard_result
+    from .outputs import plan_result
 
     setup_jax()
-    spec_file = spec if isinstance(spec, (str, Path)) else None
-    if spec_file is not None:
-        spec = load_spec(spec_file)
-    plan = make_plan(spec, t1=t1)
-    if out is not None:
-        guard_result(plan, out, force=bool(kw.get("force", False)), spec_file=spec_file)
+    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)))
     return run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart,
                     overrides={"t1": None if t1 is None else float(t1)}, **kw)
 

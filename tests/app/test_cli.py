@@ -90,7 +90,8 @@ def test_sweep_4x4_end_to_end(tmp_path, capsys):
 
 def test_resume_after_interrupt(tmp_path):
     from stabjax.plan.spec import make_plan
-    from stabjax.run.sweep import run_plan, load_spec
+    from stabjax.plan.spec import load_spec
+    from stabjax.run.sweep import run_plan
 
     spec = tmp_path / "tiny.toml"
     spec.write_text(SMALL)

@@ -141,7 +141,7 @@ def test_twobody_figures(saved, tmp_path):
 def test_gyrodyne_maps(saved, tmp_path):
     """The map of each shipped gyrodyne sweep, on a synthetic result of the same axes (no integration)."""
     from stabjax.reproduce import gyrodyne, load_shipped, shipped_specs
-    from stabjax.run.sweep import make_plan
+    from stabjax.plan.spec import make_plan
 
     assert set(gyrodyne.TITLES) == set(shipped_specs("gyrodyne_"))
     rng = np.random.default_rng(0)

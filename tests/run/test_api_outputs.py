@@ -125,3 +125,15 @@ def test_a_lattice_of_trajectories_is_not_presented_as_random_draws(folder):
     ds = stabjax.run_spec(folder / "s.toml")
     assert "sample" not in ds["outcome"].dims
     assert "not random draws" in format_summary(ds) and "not random draws" in render(ds)
+
+
+@pytest.mark.parametrize("fn, section", [("refine_spec", "refine"), ("shock_spec", "shock")])
+def test_a_spec_without_its_section_is_refused_before_anything_is_written(folder, fn, section):
+    from stabjax.explore.refine import refine_spec
+    from stabjax.explore.shock import shock_spec
+
+    before = sorted(p.name for p in folder.iterdir())
+    with pytest.raises(ValidationError) as exc:
+        {"refine_spec": refine_spec, "shock_spec": shock_spec}[fn](folder / "s.toml", folder / "r.nc")
+    assert exc.value.field == section and f"no [{section}] section" in exc.value.message
+    assert sorted(p.name for p in folder.iterdir()) == before
