@@ -53,7 +53,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
 4. **Types** per group (pyBasin's ``DynamicalSystemClusterer`` idea, thresholds stated):
    ``fixed_point`` when most members are at rest (above: the thresholds follow from the solver's
    tolerances, so the stop and the typing agree); else ``chaotic`` when the median largest Lyapunov
-   exponent (:mod:`stabjax.model.tangent`) is above ``chaos_threshold``; else ``fixed_point`` again
+   exponent (:mod:`stabjax.model.tangent`) is above ``chaos_threshold`` and the window lasted long enough for a
+   runaway at that rate to have been seen (exponent x window length >= ``CHAOS_SPAN``; else untyped and said,
+   :func:`_short_for_chaos`); else ``fixed_point`` again
    when that exponent is below ``-chaos_threshold`` and the model is autonomous (a bounded motion of an
    autonomous flow other than an equilibrium has a zero exponent) or most members end their window at
    an extreme of every observable (a monotone approach, no oscillation): a group still approaching a
@@ -62,7 +64,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    relaxation cycle watched for a short window has such a finite-time exponent too, Van der Pol at mu = 1 over
    two periods -0.06); else ``attractor`` (untyped) when its negative exponent
    has not contracted a separation of the observables' range below ``eps`` by the window's start
-   (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet); else
+   (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet) or most members
+   end their window at an extreme of every observable (a monotone approach or drift is no cycle); else
    ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
    negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
@@ -231,11 +234,12 @@ class _Features:
     autonomous: bool
     unbounded: np.ndarray  # (N,) runs away over its window (:func:`unbounded`); never in ``valid``
     settle: float | None = None  # time from t0 to the window's start (None: not known)
+    span: float | None = None  # the window's length in time (None: not known)
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None) -> _Features:
+             settle: float | None = None, span: float | None = None) -> _Features:
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     final = np.asarray(results["feat_final"], float)[:, :n_obs]
@@ -252,7 +256,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     if "stop_reason" in results:
         at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, lam, at_rest, bool(autonomous), away, settle)
+                     final, lam, at_rest, bool(autonomous), away, settle, span)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -305,12 +309,13 @@ def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None) -> Attractors:
+             settle: float | None = None, span: float | None = None) -> Attractors:
     """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
     ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales and the fixed
     points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring);
-    ``settle``: the time from t0 to the window's start (a contraction that has not settled is no cycle)."""
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle)
+    ``settle``: the time from t0 to the window's start (a contraction that has not settled is no cycle); ``span``:
+    the window's length (a growth too short to tell chaos from a runaway is not called chaotic)."""
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span)
     found, stats = _found(f, cfg, np.flatnonzero(f.valid))
     return _named(found, f, stats)
 
@@ -477,12 +482,14 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
     elif f.lam is None:
         kind = "attractor"
     elif lam > cfg.chaos_threshold:
-        kind = "chaotic"
+        kind = "attractor" if _short_for_chaos(lam, f) else "chaotic"
     elif lam < -cfg.chaos_threshold and (f.autonomous or np.mean(_ends_at_extreme(g, f)) > 0.5):
         # still approaching a stable equilibrium: a bounded motion of an autonomous flow other than an
         # equilibrium has a zero exponent, and a monotone approach is no cycle in any flow
         kind = "fixed_point"
-    elif _unsettled(lam, f, cfg):
+    elif _unsettled(lam, f, cfg) or np.mean(_ends_at_extreme(g, f)) > 0.5:
+        # a monotone approach or drift (every observable ends its window at an extreme) is no cycle whatever its
+        # exponent: x' = -x^3 from t = 1000 to 2000 contracts at -0.001, and a 1-D flow has no cycle at all
         kind = "attractor"
     else:
         kind = "limit_cycle"
@@ -500,6 +507,18 @@ def _unsettled(lam: float, f: _Features, cfg: DiscoveryConfig) -> bool:
     return f.settle is not None and lam < -cfg.chaos_threshold and math.exp(lam * f.settle) > cfg.eps
 
 
+CHAOS_SPAN = 2.0  # exponent x window length below which a runaway at that rate passes unbounded()'s GROWTH test
+
+
+def _short_for_chaos(lam: float, f: _Features) -> bool:
+    """Whether a positive exponent ``lam`` has had too short a window to tell a chaotic attractor from a slow
+    runaway: a magnitude growing as e^(lam t) passes :func:`unbounded`'s ``GROWTH`` test (2 r T / (1 - e^(-2 r T))
+    >= GROWTH^2) only once lam T > 1.97, so below ``CHAOS_SPAN`` the window cannot have shown the motion bounded
+    (the unstable focus x' = 0.1 x - y, y' = x + 0.1 y watched for 7.5 time units: five 'chaotic' attractors).
+    Such a group is left untyped, and said (:func:`_warn_short_window`). Lorenz-63 (0.9) needs a window of 2.2."""
+    return f.span is not None and lam * f.span < CHAOS_SPAN
+
+
 CYCLE_BIAS = 1e-3  # the least contraction by the window's start that a cycle's finite-time exponent can fake
 
 
@@ -509,6 +528,19 @@ def _cycle_like(lam: float, f: _Features) -> bool:
     der Pol at mu = 1 with t1 = 50: exp(-0.06 * 37.5) = 0.1). A focus at exponent -0.5 watched from t = 25 on
     (e^-12.5) is no cycle: its typing is not said."""
     return f.settle is None or not np.isfinite(lam) or math.exp(lam * f.settle) > CYCLE_BIAS
+
+
+def _left_to_go(g: np.ndarray, lam: float, f: _Features) -> float:
+    """How far a group in a monotone approach may still be from its equilibrium at t1 (scaled, the median member):
+    an approach at the exponent ``lam`` < 0 that travelled a distance D over the window (its range) has D e^(lam T)
+    / (1 - e^(lam T)) left to go. A lower estimate where the approach slows faster than exponentially (x' = -x^3:
+    algebraic, exponent -0.02 at t1 = 100, 0.56 D left by this, 0.07 in fact). NaN where unknown."""
+    if f.span is None or not np.isfinite(lam) or lam >= 0:
+        return math.nan
+    k = len(STATS)
+    travel = np.linalg.norm(f.x[g][:, 3::k] - f.x[g][:, 2::k], axis=1)  # the scaled window ranges
+    q = math.exp(lam * f.span)
+    return float(np.median(travel) * q / (1.0 - q)) if q < 1 else math.inf
 
 
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
@@ -546,14 +578,26 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # members end their window in a monotone approach, or (with the exponent, where an untyped
                  # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
-                            if t == "attractor" and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
+                            if t == "attractor" and not lam > 0
+                            and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
+                 # untyped groups growing at a positive exponent over a window too short to tell chaos from a
+                 # runaway (:func:`_short_for_chaos`, :func:`_warn_short_window`)
+                 short_window=[(n, int(g.size), float(lam)) for n, t, g, lam in
+                               zip(names, types, (r[3] for r in typed), lams) if t == "attractor" and lam > 0],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()),
                  # fixed points typed by their negative exponent alone, their members still oscillating over the
                  # window (neither at rest nor in a monotone approach), where the exponent could be a cycle's
                  # finite-time bias: :func:`_warn_by_exponent`
                  by_exponent=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                               if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
-                              and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _cycle_like(lam, f)])
+                              and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _cycle_like(lam, f)],
+                 # fixed points still approached monotonically, and how far they may have to go (:func:`_left_to_go`;
+                 # said where that is more than eps, :func:`_warn_still_far`)
+                 still_far=[(n, int(g.size), float(lam), d) for n, t, g, lam in
+                            zip(names, types, (r[3] for r in typed), lams)
+                            if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
+                            and np.mean(_ends_at_extreme(g, f)) > 0.5
+                            and np.isfinite(d := _left_to_go(g, lam, f))])
     return Attractors(labels=labels, names=names, types=types, counts=np.asarray(counts, np.int64),
                       features=np.asarray(fmed).reshape(len(names), len(f.names)), feature_names=f.names,
                       lyapunov=np.asarray(lams, float), representative=np.asarray(reps, np.int64), scale=f.scale,
@@ -561,8 +605,8 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
 
 
 def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
-               atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False, settle: float | None = None
-               ) -> tuple[Attractors, list[dict[str, Any]], float]:
+               atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False, settle: float | None = None,
+               span: float | None = None) -> tuple[Attractors, list[dict[str, Any]], float]:
     """Attractors followed along one grid axis: each point's attractors found on their own (:func:`_found`,
     features scaled by the whole sweep's ranges so distances compare between points), then matched from
     point to point by :func:`stabjax.mapping.continuation.match_sequentially` (a group matches only an
@@ -571,7 +615,7 @@ def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_
     (:func:`stabjax.mapping.continuation.events`) and the match threshold used."""
     from . import continuation as C
 
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle)
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span)
     per = len(f.feats) // n_points
     found: list[list[C.Found]] = []
     for k in range(n_points):
@@ -633,11 +677,12 @@ class Discovery(Mapper):
         events = None
         obs, auto = tuple(plan.system.observables), is_autonomous(plan.system)
         settle = (1.0 - float(decl.window)) * (plan.icfg.t1 - plan.icfg.t0)
+        span = float(decl.window) * (plan.icfg.t1 - plan.icfg.t0)
         if continues(plan, cfg):
             disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
-                                                 plan.icfg.rtol, auto, settle)
+                                                 plan.icfg.rtol, auto, settle, span)
         else:
-            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle)
+            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle, span)
         away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
         # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
         # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
@@ -658,6 +703,11 @@ class Discovery(Mapper):
                             disc.stats["transient_unclassified"], "lyapunov" in results)
         if disc.stats.get("by_exponent"):
             _warn_by_exponent(disc.stats["by_exponent"])
+        if disc.stats.get("short_window"):
+            _warn_short_window(disc.stats["short_window"], span)
+        far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
+        if far:
+            _warn_still_far(far, cfg.eps)
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
@@ -705,6 +755,36 @@ def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
                   f"over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
                   f"finite-time exponent is off zero over a short window; raise [integrate] t1 to tell them apart",
                   TransientWarning, stacklevel=3)
+
+
+def _warn_short_window(groups: list[tuple[str, int, float]], span: float) -> None:
+    """Said, not only stored: a group growing at a positive exponent over a window too short for the growth to
+    show (:func:`_short_for_chaos`) may be a chaotic attractor or trajectories running away slowly."""
+    import warnings
+
+    lams = [lam for _, _, lam in groups]
+    parts = (f"{', '.join(name for name, _, _ in groups)} ({sum(n for _, n, _ in groups)} trajectories, exponent "
+             f"{min(lams):.3g}{'' if f'{max(lams):.3g}' == f'{min(lams):.3g}' else f' to {max(lams):.3g}'}: a separation "
+             f"grows "
+             f"e^{max(lams) * span:.2g} over the window)")
+    need = CHAOS_SPAN / min(lams)
+    warnings.warn(f"{parts}: a positive exponent over a feature window of {span:.4g}, too short to tell a chaotic "
+                  f"attractor from a slow runaway; left untyped. Raise [integrate] t1 so that the feature window "
+                  f"lasts at least {need:.3g}", TransientWarning, stacklevel=3)
+
+
+def _warn_still_far(groups: list[tuple[str, int, float, float]], eps: float) -> None:
+    """Said, not only stored: a fixed point approached so slowly that its members may end farther than ``eps``
+    from the equilibrium is placed where t1 left them, and one equilibrium approached from two sides (x' = -x^3
+    from both signs) may then be two fixed points."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g}, at least {d:.2g} of the range to go)"
+                      for name, n, lam, d in groups)
+    warnings.warn(f"{parts}: typed a fixed point by the negative exponent while still approaching it monotonically "
+                  f"at t1, farther from it than eps = {eps:g} may allow: its position is where t1 left its "
+                  f"trajectories, and fixed points so found on two sides may be one equilibrium; raise [integrate] "
+                  f"t1", TransientWarning, stacklevel=3)
 
 
 class RepresentativeWarning(UserWarning):

@@ -806,3 +806,76 @@ def test_runaways_beside_an_attractor_leave_it_whole():
     y_t1 = y0 * np.exp(np.arcsinh(x0 * np.exp(20.0) / c) - np.arcsinh(x0 / c))
     up = x0 > 0
     np.testing.assert_allclose(ds["feat_final"].sel(observable="y").values.ravel()[up], y_t1[up], rtol=1e-5)
+
+
+def test_a_slow_runaway_over_a_short_window_is_not_called_chaotic():
+    """The unstable focus x' = 0.1 x - y, y' = x + 0.1 y watched to t1 = 15 (window 7.5: a separation grows e^0.75,
+    too little for unbounded() to see the runaway) was five 'chaotic' attractors. Its exponent is the closed form's
+    0.1 and its radius grows as e^(0.1 t); no group is typed chaotic, and the warning says why and how long a window
+    would tell."""
+    from stabjax.mapping.discover import TransientWarning
+
+    _, spiral, _ = _runaways()
+    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
+    with pytest.warns(TransientWarning, match=r"exponent 0\.1.*too short to tell a chaotic attractor from a slow "
+                                              r"runaway.*at least 20"):
+        ds = run_spec({"system": spiral, "sample": {"n": 60, "seed": 1, "x0": box, "y0": box},
+                       "integrate": {"t1": 15.0, "n_checkpoints": 60}})
+    assert "chaotic" not in set(ds["attractor_type"].values)
+    assert ds.sizes["attractor"] >= 1 and set(ds["attractor_type"].values) == {"attractor"}
+    np.testing.assert_allclose(ds["attractor_lyapunov"].values, 0.1, atol=1e-3)
+    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
+    fin = ds["feat_final"].values.reshape(-1, 2)
+    np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0 * np.exp(0.1 * 15.0), rtol=1e-5)
+
+
+def _cubic():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Cubic(System):
+        """x' = -x^3: a non-hyperbolic stable equilibrium at 0, approached algebraically, x(t) = x0 / sqrt(1 + 2 x0^2 t)
+        (exponent -> 0); a 1-D flow, so no cycle anywhere."""
+
+        name = "cubic_test"
+        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
+        state = (("x", ()),)
+        observables = ("x",)
+        observable_doc = ("x",)
+
+        def initial_state(self, p):
+            return jnp.reshape(p["x0"], (1,))
+
+        def rhs(self, t, y, p):
+            return -y ** 3
+
+        def observe(self, t, y, p):
+            return y
+
+    return _one(Cubic)
+
+
+@pytest.mark.parametrize("t1", [100.0, 2000.0])
+def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_said(t1):
+    """x' = -x^3 from [-2, 2]: at t1 = 2000 (exponent -0.001, within chaos_threshold of 0) both sides were typed
+    limit_cycle; a monotone approach is no cycle, so they are untyped transients, said. At t1 = 100 (exponent -0.02)
+    they are fixed points by the exponent, placed at +-0.07 where t1 left them: the warning says that they are still
+    approaching and may be one equilibrium. The trajectories themselves are the closed form's."""
+    from stabjax.mapping.discover import TransientWarning
+
+    x0 = np.linspace(-2.0, 2.0, 41)
+    x0 = x0[x0 != 0]
+    said = "still approaching it monotonically.*may be one equilibrium" if t1 == 100.0 else \
+        "still approaching something.*raise \\[integrate\\] t1"
+    with pytest.warns(TransientWarning, match=said):
+        ds = run_spec({"system": _cubic(), "grid": {"x0": x0.tolist()},
+                       "integrate": {"t1": t1, "n_checkpoints": 100}})
+    types = set(ds["attractor_type"].values)
+    assert "limit_cycle" not in types and "chaotic" not in types
+    assert types == ({"fixed_point"} if t1 == 100.0 else {"attractor"}), types
+    np.testing.assert_allclose(ds["feat_final"].values.ravel(), x0 / np.sqrt(1 + 2 * x0 ** 2 * t1), rtol=1e-5)
+    # each group lies on one side of the equilibrium: two approaches, not one attractor split by chance
+    lab = ds["outcome"].values.ravel()
+    for a in range(ds.sizes["attractor"]):
+        assert len(set(np.sign(x0[lab == a]))) == 1
