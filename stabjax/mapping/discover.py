@@ -66,6 +66,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    has not contracted a separation of the observables' range below ``eps`` by the window's start
    (exp(lambda * (window start - t0)) > eps: the window holds a forced transient, no cycle yet) or most members
    end their window at an extreme of every observable (a monotone approach or drift is no cycle); else
+   ``fixed_point`` in an autonomous model where the representative's oscillation dies out at the exponent's rate
+   (:func:`_decaying`: a weak focus, its exponent within ``chaos_threshold`` of a cycle's 0); else
    ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
    negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
@@ -235,11 +237,15 @@ class _Features:
     unbounded: np.ndarray  # (N,) runs away over its window (:func:`unbounded`); never in ``valid``
     settle: float | None = None  # time from t0 to the window's start (None: not known)
     span: float | None = None  # the window's length in time (None: not known)
+    # trajectory index -> (times, observables (M, n_obs)) densely over the window, integrated again on its own
+    # (None: not available); asked only of a representative whose type the features leave open (_decaying)
+    trace: Any = None
+    envelope: dict = field(default_factory=dict)  # representative -> its envelope's decay (cache of _decaying)
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None, span: float | None = None) -> _Features:
+             settle: float | None = None, span: float | None = None, trace=None) -> _Features:
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     final = np.asarray(results["feat_final"], float)[:, :n_obs]
@@ -256,7 +262,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     if "stop_reason" in results:
         at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, lam, at_rest, bool(autonomous), away, settle, span)
+                     final, lam, at_rest, bool(autonomous), away, settle, span, trace)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -309,13 +315,14 @@ def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None, span: float | None = None) -> Attractors:
+             settle: float | None = None, span: float | None = None, trace=None) -> Attractors:
     """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
     ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales and the fixed
     points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring);
     ``settle``: the time from t0 to the window's start (a contraction that has not settled is no cycle); ``span``:
-    the window's length (a growth too short to tell chaos from a runaway is not called chaotic)."""
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span)
+    the window's length (a growth too short to tell chaos from a runaway is not called chaotic); ``trace``: a
+    trajectory's observables over the window, integrated again (:func:`_decaying`)."""
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace)
     found, stats = _found(f, cfg, np.flatnonzero(f.valid))
     return _named(found, f, stats)
 
@@ -475,6 +482,8 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
     ``kind``: its type when already known (a fixed point and the trajectories found approaching it)."""
     med = np.median(f.feats[g], axis=0)
     lam = float(np.nanmedian(f.lam[g])) if f.lam is not None and np.isfinite(f.lam[g]).any() else math.nan
+    xm = np.median(f.x[g], axis=0)
+    rep = int(g[np.argmin(np.linalg.norm(f.x[g] - xm, axis=1))])
     if kind is not None:
         pass
     elif np.mean(f.at_rest[g]) > 0.5:  # most at rest (the stop froze them, or their spread is numerical)
@@ -491,10 +500,10 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         # a monotone approach or drift (every observable ends its window at an extreme) is no cycle whatever its
         # exponent: x' = -x^3 from t = 1000 to 2000 contracts at -0.001, and a 1-D flow has no cycle at all
         kind = "attractor"
+    elif f.autonomous and lam < 0 and _decaying(rep, lam, f):
+        kind = "fixed_point"  # an oscillation dying out at its exponent's rate: a weak focus, no cycle
     else:
         kind = "limit_cycle"
-    xm = np.median(f.x[g], axis=0)
-    rep = int(g[np.argmin(np.linalg.norm(f.x[g] - xm, axis=1))])
     return kind, med, lam, rep
 
 
@@ -505,6 +514,61 @@ def _unsettled(lam: float, f: _Features, cfg: DiscoveryConfig) -> bool:
     exponent -0.02, exp(-0.02 * 75) = 0.22 at t1 = 150, and its decaying oscillations were five 'limit
     cycles'). A forced model's periodic attractor, contracting faster or watched longer, passes."""
     return f.settle is not None and lam < -cfg.chaos_threshold and math.exp(lam * f.settle) > cfg.eps
+
+
+ENVELOPE_POINTS = 4001  # samples of a representative's window for its envelope (a period needs ~20 of them)
+ENVELOPE_DECAY = 0.9  # the envelope's last peak below this share of its first: decaying beyond the sampling's error
+
+
+def _decaying(rep: int, lam: float, f: _Features) -> bool:
+    """Whether a group with a small negative exponent (within ``chaos_threshold`` of 0, where a cycle's
+    finite-time exponent may lie too) is an oscillation dying out -- a weak focus -- rather than a cycle: its
+    representative, integrated again densely over the window (``f.trace``), oscillates with peaks (about the
+    window's mean, in the observable of largest spread) that fall at every peak, at least 3 of them, to below
+    ``ENVELOPE_DECAY`` of the first, at a rate (log-linear fit) within a factor 2 of the exponent. A cycle's peaks
+    are equal; one approached from outside falls toward its amplitude at its Floquet rate while its exponent is
+    that of the phase, ~0. (x'' + 0.01 x' + x = 0 watched to t1 = 100: exponent -0.005, peaks falling 22 % over the
+    window, was limit_cycle_1.)"""
+    if f.trace is None or not np.isfinite(lam):
+        return False
+    if rep not in f.envelope:
+        f.envelope[rep] = _envelope_rate(*f.trace(rep))
+    rate, drop = f.envelope[rep]
+    return bool(drop < ENVELOPE_DECAY and 0.5 * lam >= rate >= 2.0 * lam)
+
+
+def _envelope_rate(t: np.ndarray, obs: np.ndarray) -> tuple[float, float]:
+    """(decay rate of the peaks, last peak / first peak) of the observable of largest spread about its mean; the
+    peaks must fall at every one (else (nan, 1))."""
+    if not (np.all(np.isfinite(obs)) and len(t) > 3):
+        return math.nan, 1.0
+    y = obs[:, int(np.argmax(np.std(obs, axis=0)))]
+    c = y - np.mean(y)
+    i = np.flatnonzero((c[1:-1] > c[:-2]) & (c[1:-1] >= c[2:]) & (c[1:-1] > 0)) + 1
+    if len(i) < 3 or np.any(np.diff(c[i]) >= 0):
+        return math.nan, 1.0
+    return float(np.polyfit(t[i], np.log(c[i]), 1)[0]), float(c[i][-1] / c[i][0])
+
+
+def window_trace(plan, settle: float):
+    """``trace(index)`` for :func:`features`: trajectory ``index``'s observables at ``ENVELOPE_POINTS`` times over
+    the feature window, integrated again on its own (diffrax, the plan's solver and tolerances)."""
+    from ..engines.simulate import simulate
+
+    icfg = plan.icfg
+    ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
+
+    def trace(index: int):
+        p = {k: np.asarray(v)[0] for k, v in plan.params_at(np.array([index])).items()}
+        ds = simulate(plan.system, p, t1=icfg.t1, t0=icfg.t0, ts=ts, solver=icfg.solver, rtol=icfg.rtol,
+                      atol=icfg.atol, max_steps=icfg.max_steps)
+        if int(ds.attrs["solver_status"]) != 0:
+            return ts[:0], np.zeros((0, len(plan.system.observables)))
+        t = ds["t"].values
+        keep = t >= ts[0]
+        return t[keep], np.stack([ds[o].values[keep] for o in plan.system.observables], axis=1)
+
+    return trace
 
 
 CHAOS_SPAN = 2.0  # exponent x window length below which a runaway at that rate passes unbounded()'s GROWTH test
@@ -588,9 +652,11 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # fixed points typed by their negative exponent alone, their members still oscillating over the
                  # window (neither at rest nor in a monotone approach), where the exponent could be a cycle's
                  # finite-time bias: :func:`_warn_by_exponent`
-                 by_exponent=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                 by_exponent=[(n, int(g.size), float(lam)) for n, t, g, lam, rep in
+                              zip(names, types, (r[3] for r in typed), lams, reps)
                               if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
-                              and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _cycle_like(lam, f)],
+                              and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _cycle_like(lam, f)
+                              and not _decaying(rep, lam, f)],
                  # fixed points still approached monotonically, and how far they may have to go (:func:`_left_to_go`;
                  # said where that is more than eps, :func:`_warn_still_far`)
                  still_far=[(n, int(g.size), float(lam), d) for n, t, g, lam in
@@ -606,7 +672,7 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
 
 def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
                atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False, settle: float | None = None,
-               span: float | None = None) -> tuple[Attractors, list[dict[str, Any]], float]:
+               span: float | None = None, trace=None) -> tuple[Attractors, list[dict[str, Any]], float]:
     """Attractors followed along one grid axis: each point's attractors found on their own (:func:`_found`,
     features scaled by the whole sweep's ranges so distances compare between points), then matched from
     point to point by :func:`stabjax.mapping.continuation.match_sequentially` (a group matches only an
@@ -615,7 +681,7 @@ def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_
     (:func:`stabjax.mapping.continuation.events`) and the match threshold used."""
     from . import continuation as C
 
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span)
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace)
     per = len(f.feats) // n_points
     found: list[list[C.Found]] = []
     for k in range(n_points):
@@ -680,9 +746,10 @@ class Discovery(Mapper):
         span = float(decl.window) * (plan.icfg.t1 - plan.icfg.t0)
         if continues(plan, cfg):
             disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
-                                                 plan.icfg.rtol, auto, settle, span)
+                                                 plan.icfg.rtol, auto, settle, span, window_trace(plan, settle))
         else:
-            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle, span)
+            disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle, span,
+                            window_trace(plan, settle))
         away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
         # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
         # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
