@@ -151,6 +151,19 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
     assert f"<td>{lc}</td><td>birth</td><td>0.2</td>" in rows and f"<td>{fp}</td><td>death</td><td>0.2</td>" in rows
     assert "classifier settings" not in page
     assert "not random draws" not in page  # sampled starts: S ± SE and Wilson are what they say
+    # where each attractor is: one grid point's place (its representative's), said as such, and its exponent a
+    # median over the grid points it lives at (the printed table and the report)
+    from stabjax.present import kit
+    from stabjax.present.basins import format_summary
+
+    rep_m = {n: float(ds["attractor_start_m"].values[k]) for k, n in enumerate(names)}
+    for a in kit.attractors(ds):
+        assert a["where"].endswith(f"(at m = {rep_m[a['name']]:.4g}, its representative's grid point; it moves "
+                                   "along m)"), a["where"]
+        assert (rep_m[a["name"]] > 0) == (a["type"] == "limit_cycle")
+    text = format_summary(ds)
+    assert text.count("(median over its grid points)") == 2 and "its representative's grid point" in text
+    assert "largest Lyapunov exponent (median over its grid points)" in page
 
 
 def test_a_fixed_point_typed_by_its_exponent_alone_is_said():
