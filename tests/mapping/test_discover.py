@@ -400,13 +400,15 @@ def _line():
     Relax, _ = _relax()
 
     class Line(Relax):
-        """x' = (1 - s) (1 - x) + s (x - x^3) (y0 is not read). s = 0 (the default): x' = 1 - x, one stable node
-        at x = 1; s = 1 (Bistable): x' = x - x^3, stable nodes at x = +-1; either way the other term is multiplied
-        by an exact 0. One class, so that with s on a grid of one point (a parameter of the run, not a constant of
-        the compiled kernel) both share one kernel at the same settings (CI time)."""
+        """x' = (1 - s - q) (1 - x) + s (x - x^3) - q x^3 (y0 and c are not read). s = q = 0 (the default): x' =
+        1 - x, one stable node at x = 1; s = 1 (Bistable): x' = x - x^3, stable nodes at x = +-1; q = 1: x' = -x^3, a
+        non-hyperbolic stable equilibrium at 0 approached algebraically, x(t) = x0 / sqrt(1 + 2 x0^2 t); the other
+        terms are multiplied by an exact 0. One class, so that with s on a grid of one point (a parameter of the run,
+        not a constant of the compiled kernel) they share one kernel at the same settings (CI time)."""
 
         name = "line_test"
-        params = ParamSet((*Relax.params.params, Param("s", 0.0, "0: x' = 1 - x, 1: x' = x - x^3")))
+        params = ParamSet((*Relax.params.params, Param("s", 0.0, "0: x' = 1 - x, 1: x' = x - x^3"),
+                           Param("q", 0.0, "1: x' = -x^3")))
         state = (("x", ()),)
         observables = ("x",)
         observable_doc = ("x",)
@@ -415,7 +417,7 @@ def _line():
             return p["x0"][None]
 
         def rhs(self, t, y, p):
-            return (1.0 - p["s"]) * (1.0 - y) + p["s"] * (y - y**3)
+            return (1.0 - p["s"] - p["q"]) * (1.0 - y) + p["s"] * (y - y**3) - p["q"] * y**3
 
         def observe(self, t, y, p):
             return y
@@ -851,33 +853,6 @@ def test_a_slow_runaway_over_a_short_window_is_not_called_chaotic():
     np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0 * np.exp(0.1 * 15.0), rtol=1e-5)
 
 
-def _cubic():
-    import jax.numpy as jnp
-
-    from stabjax import Param, ParamSet, System
-
-    class Cubic(System):
-        """x' = -x^3: a non-hyperbolic stable equilibrium at 0, approached algebraically, x(t) = x0 / sqrt(1 + 2 x0^2 t)
-        (exponent -> 0); a 1-D flow, so no cycle anywhere."""
-
-        name = "cubic_test"
-        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
-        state = (("x", ()),)
-        observables = ("x",)
-        observable_doc = ("x",)
-
-        def initial_state(self, p):
-            return jnp.reshape(p["x0"], (1,))
-
-        def rhs(self, t, y, p):
-            return -y ** 3
-
-        def observe(self, t, y, p):
-            return y
-
-    return _one(Cubic)
-
-
 @pytest.mark.parametrize("t1", [100.0, 2000.0])
 def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_said(t1):
     """x' = -x^3 from [-2, 2]: at t1 = 2000 (exponent -0.001, within chaos_threshold of 0) both sides were typed
@@ -891,7 +866,7 @@ def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_
     said = "still approaching it monotonically.*may be one equilibrium" if t1 == 100.0 else \
         "still approaching something.*raise \\[integrate\\] t1"
     with pytest.warns(TransientWarning, match=said):
-        ds = run_spec({"system": _cubic(), "grid": {"x0": x0.tolist()},
+        ds = run_spec({"system": _line(), "grid": {"x0": x0.tolist(), "q": [1.0]},  # x' = -x^3
                        "integrate": {"t1": t1, "n_checkpoints": 100}})
     types = set(ds["attractor_type"].values)
     assert "limit_cycle" not in types and "chaotic" not in types
