@@ -51,7 +51,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    into noise; the recurrence finite-state machine needs a state-space grid and runs trajectories
    one after the other (a vmapped batch engine runs them all at once).
 4. **Types** per group (pyBasin's ``DynamicalSystemClusterer`` idea, thresholds stated):
-   ``fixed_point`` when most members are at rest (above: the thresholds follow from the solver's
+   ``fixed_point`` when most members are at rest (``attractor`` where the exponent says the state may still move
+   where the observables do not look, :func:`_hidden_motion`) (above: the thresholds follow from the solver's
    tolerances, so the stop and the typing agree); else ``chaotic`` when the median largest Lyapunov
    exponent (:mod:`stabjax.model.tangent`) is above ``chaos_threshold`` and the window lasted long enough for a
    runaway at that rate to have been seen (exponent x window length >= ``CHAOS_SPAN``; else untyped and said,
@@ -68,7 +69,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    end their window at an extreme of every observable (a monotone approach or drift is no cycle); else
    ``fixed_point`` in an autonomous model where the representative's oscillation dies out at the exponent's rate
    (:func:`_decaying`: a weak focus, its exponent within ``chaos_threshold`` of a cycle's 0); else
-   ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
+   ``attractor`` where the members' window features spread over more than ``eps`` (:func:`_continuum`: a family of
+   neutral orbits, a centre); else ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
    negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
@@ -241,6 +243,9 @@ class _Features:
     # (None: not available); asked only of a representative whose type the features leave open (_decaying)
     trace: Any = None
     envelope: dict = field(default_factory=dict)  # representative -> its envelope's decay (cache of _decaying)
+    eps: float = 0.05  # the grouping radius (DiscoveryConfig.eps)
+    chaos: float = 0.01  # DiscoveryConfig.chaos_threshold
+    stopped: np.ndarray | None = None  # (N,) frozen at an equilibrium by the fixed-point stop (Newton: f = 0)
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
@@ -259,10 +264,12 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     tol = tolerances(results, valid, n_obs, atol, rtol)
     std = feats[:, [k * len(STATS) + 1 for k in range(n_obs)]]
     at_rest = np.all(std <= rest_threshold(scale, tol, cfg), axis=1)
-    if "stop_reason" in results:
-        at_rest |= np.asarray(results["stop_reason"]) == STOP_FIXED_POINT
+    stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
+    if stopped is not None:
+        at_rest |= stopped
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, lam, at_rest, bool(autonomous), away, settle, span, trace)
+                     final, lam, at_rest, bool(autonomous), away, settle, span, trace, eps=cfg.eps,
+                     chaos=cfg.chaos_threshold, stopped=stopped)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -383,6 +390,7 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             j = int(np.argmax(there[i]))
             merged[j] = np.append(merged[j], left[i])
         left = left[~there.any(axis=1)]
+    others = _merge_chaotic(others, f)
     left, others = _join_chaotic(left, others, f, cfg)
     left = left[_approaching(left, f, cfg)]
     for targets, tmeans, into in ((centres, means, merged), (ends, None, approach)):  # a fixed point first
@@ -445,6 +453,35 @@ def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: Disc
     return np.setdiff1d(left, cand[joins]), others
 
 
+def _merge_chaotic(others: list[tuple], f: _Features) -> list[tuple]:
+    """Chaotic groups whose feature clouds overlap are one attractor: a group merges with another when its median
+    lies within the other's extent (the largest distance of a member from its median), as a single trajectory with a
+    positive exponent joins it (:func:`_join_chaotic`). DBSCAN cut one cloud
+    where its sampling left a gap: Lorenz-63 at r = 24.4 with 300 starts and 1000 checkpoints over t1 = 2000 gave
+    chaotic_1..3, every one with exponent 0.79 and the same ranges. Two attractors' clouds do not hold each other's
+    medians (the groups' own extents, not eps: DBSCAN already keeps clouds more than eps apart)."""
+    idx = [i for i, r in enumerate(others) if r[1] == "chaotic"]
+    if len(idx) < 2:
+        return others
+    groups = {i: others[i][0] for i in idx}
+    merged = True
+    while merged:
+        merged = False
+        keys = sorted(groups)
+        med = {i: np.median(f.x[groups[i]], axis=0) for i in keys}
+        reach = {i: float(np.linalg.norm(f.x[groups[i]] - med[i], axis=1).max()) for i in keys}
+        for a in keys:
+            for b in keys:
+                if a < b and np.linalg.norm(med[a] - med[b]) <= max(reach[a], reach[b]):
+                    groups[a] = np.sort(np.concatenate([groups[a], groups.pop(b)]))
+                    merged = True
+                    break
+            if merged:
+                break
+    out = [r for i, r in enumerate(others) if i not in idx]
+    return out + [(g, *_describe(g, f, None, kind="chaotic")) for g in groups.values()]
+
+
 def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float
                 ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, ...]]]:
     """Groups merged in order: one joins the first earlier group whose median in any of the positions ``by``
@@ -487,7 +524,7 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
     if kind is not None:
         pass
     elif np.mean(f.at_rest[g]) > 0.5:  # most at rest (the stop froze them, or their spread is numerical)
-        kind = "fixed_point"
+        kind = "attractor" if _hidden_motion(g, lam, f) else "fixed_point"
     elif f.lam is None:
         kind = "attractor"
     elif lam > cfg.chaos_threshold:
@@ -502,6 +539,8 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         kind = "attractor"
     elif f.autonomous and lam < 0 and _decaying(rep, lam, f):
         kind = "fixed_point"  # an oscillation dying out at its exponent's rate: a weak focus, no cycle
+    elif _continuum(g, f):
+        kind = "attractor"  # a family of neutral orbits (a centre), or a window shorter than a period: no one cycle
     else:
         kind = "limit_cycle"
     return kind, med, lam, rep
@@ -607,6 +646,39 @@ def _left_to_go(g: np.ndarray, lam: float, f: _Features) -> float:
     return float(np.median(travel) * q / (1.0 - q)) if q < 1 else math.inf
 
 
+def _hidden_motion(g: np.ndarray, lam: float, f: _Features) -> bool:
+    """Whether a group whose observables are at rest may still move where they do not look: an autonomous model,
+    most members not frozen by the fixed-point stop (which checked f = 0), and an exponent that has not contracted a
+    thousandfold by the window's start (exp(lam * settle) > ``CYCLE_BIAS``) -- an equilibrium reached from a start at
+    the observables' scale has; a cycle on which every observable is constant (a rotation watched through its radius
+    r: the cycles r = 2, 4, 6 of the shock example were fixed_point_2..4, exponent -2e-9) has not. Left untyped,
+    and said (:func:`_warn_hidden_motion`)."""
+    if not f.autonomous or not np.isfinite(lam) or lam > f.chaos:
+        return False
+    if f.stopped is not None and np.mean(f.stopped[g]) > 0.5:
+        return False
+    return f.settle is not None and math.exp(lam * f.settle) > CYCLE_BIAS
+
+
+def _neutral(g: np.ndarray, lam: float, f: _Features) -> bool:
+    """An untyped group that is a continuum of orbits (:func:`_continuum`) rather than a transient: its exponent
+    is no contraction that has not settled (:func:`_unsettled`) and it is no monotone approach."""
+    return bool(np.isfinite(lam) and not lam > f.chaos and not (f.settle is not None and lam < -f.chaos
+                                                                  and math.exp(lam * f.settle) > f.eps)
+                and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _continuum(g, f))
+
+
+def _continuum(g: np.ndarray, f: _Features) -> bool:
+    """Whether a group that would be a limit cycle spreads its members' window features over more than ``eps``
+    (median distance from the group's median, scaled): one isolated cycle gives every member the same window
+    features (its mean, spread and extremes over whole periods, whatever the phase), while a family of neutral
+    orbits -- a centre, x' = -y, y' = x, whose 300 circles of radius 0.09 to 2.8 were one limit_cycle_1 with S = 1
+    -- chains them along the family, DBSCAN's density connecting neighbours. (A window shorter than a period
+    spreads a cycle's features by its phase too: that is said alike, :func:`_warn_continuum`.)"""
+    xm = np.median(f.x[g], axis=0)
+    return bool(np.median(np.linalg.norm(f.x[g] - xm, axis=1)) > f.eps)
+
+
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
     """Per member: whether it ends its window at an extreme of every observable (a monotone approach, no
     oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
@@ -642,12 +714,19 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # members end their window in a monotone approach, or (with the exponent, where an untyped
                  # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
-                            if t == "attractor" and not lam > 0
+                            if t == "attractor" and not lam > f.chaos and not _neutral(g, lam, f)
+                            and not np.mean(f.at_rest[g]) > 0.5
                             and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
+                 # untyped groups whose observables rest while the exponent says the state may move
+                 hidden=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                         if t == "attractor" and np.mean(f.at_rest[g]) > 0.5],
+                 # untyped groups of neutral orbits spread over more than eps (:func:`_continuum`)
+                 continuum=[(n, int(g.size)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                            if t == "attractor" and _neutral(g, lam, f)],
                  # untyped groups growing at a positive exponent over a window too short to tell chaos from a
                  # runaway (:func:`_short_for_chaos`, :func:`_warn_short_window`)
                  short_window=[(n, int(g.size), float(lam)) for n, t, g, lam in
-                               zip(names, types, (r[3] for r in typed), lams) if t == "attractor" and lam > 0],
+                               zip(names, types, (r[3] for r in typed), lams) if t == "attractor" and lam > f.chaos],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()),
                  # fixed points typed by their negative exponent alone, their members still oscillating over the
                  # window (neither at rest nor in a monotone approach), where the exponent could be a cycle's
@@ -770,6 +849,10 @@ class Discovery(Mapper):
                             disc.stats["transient_unclassified"], "lyapunov" in results)
         if disc.stats.get("by_exponent"):
             _warn_by_exponent(disc.stats["by_exponent"])
+        if disc.stats.get("hidden"):
+            _warn_hidden_motion(disc.stats["hidden"])
+        if disc.stats.get("continuum"):
+            _warn_continuum(disc.stats["continuum"], cfg.eps)
         if disc.stats.get("short_window"):
             _warn_short_window(disc.stats["short_window"], span)
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
@@ -822,6 +905,30 @@ def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
                   f"over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
                   f"finite-time exponent is off zero over a short window; raise [integrate] t1 to tell them apart",
                   TransientWarning, stacklevel=3)
+
+
+def _warn_hidden_motion(groups: list[tuple[str, int, float]]) -> None:
+    """Said, not only stored: see :func:`_hidden_motion`."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g})" for name, n, lam in groups)
+    warnings.warn(f"{parts}: every observable at rest over the feature window, yet the exponent shows no contraction "
+                  f"toward an equilibrium: a motion the observables do not see (a cycle on which they are constant) or "
+                  f"a non-hyperbolic equilibrium; left untyped. Add an observable that moves along the state (or "
+                  f"raise [integrate] t1)", TransientWarning, stacklevel=3)
+
+
+def _warn_continuum(groups: list[tuple[str, int]], eps: float) -> None:
+    """Said, not only stored: a group of orbits neither contracting nor growing whose window features spread over
+    more than ``eps`` is a family of neutral orbits (a centre, a conservative system's tori) -- no attractor, its
+    basin stability meaningless -- or, where the window holds less than a period, one cycle seen at many phases."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories)" for name, n in groups)
+    warnings.warn(f"{parts}: orbits neither contracting nor growing (exponent ~0) whose window features spread over "
+                  f"more than eps = {eps:g}: a continuum of neutral orbits (a centre or a conservative system: no "
+                  f"attractor, no basin), not one limit cycle, left untyped; if the feature window holds less than "
+                  f"one period, raise [integrate] t1 instead", TransientWarning, stacklevel=3)
 
 
 def _warn_short_window(groups: list[tuple[str, int, float]], span: float) -> None:

@@ -876,3 +876,81 @@ def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_
     lab = ds["outcome"].values.ravel()
     for a in range(ds.sizes["attractor"]):
         assert len(set(np.sign(x0[lab == a]))) == 1
+
+
+def test_a_centre_is_no_limit_cycle():
+    """x' = -y, y' = x (the spiral model at a = 0): every orbit a circle of its own radius, none attracting. Its 300
+    starts were one limit_cycle_1 with S = 1 +- 0; the family spreads its window features over far more than eps,
+    so it is left untyped and said to be a continuum of neutral orbits. The orbits are the closed form's circles."""
+    from stabjax.mapping.discover import TransientWarning
+
+    _, spiral, _ = _runaways()
+    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
+    with pytest.warns(TransientWarning, match="continuum of neutral orbits"):
+        ds = run_spec({"system": spiral, "params": {"a": 0.0}, "sample": {"n": 300, "seed": 1, "x0": box, "y0": box},
+                       "integrate": {"t1": 50.0, "n_checkpoints": 200}})
+    assert "limit_cycle" not in set(ds["attractor_type"].values)
+    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
+    fin = ds["feat_final"].values.reshape(-1, 2)
+    np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0, rtol=1e-5)
+    # a circle each: the window's sampled max of x lies within r (1 - cos(dt / 2)) of r, checkpoints dt = 0.25 apart
+    mx = ds["feat_max"].values.reshape(-1, 2)[:, 0]
+    assert np.all(mx <= r0 * (1 + 1e-6)) and np.all(mx >= r0 * np.cos(0.125) * (1 - 1e-6))
+
+
+def _synthetic(x):
+    """A _Features holding scaled window features ``x`` (N, 4) only, for the grouping helpers."""
+    from stabjax.mapping.discover import _Features
+
+    n = len(x)
+    return _Features(feats=x, names=["mean(x)", "std(x)", "min(x)", "max(x)"], x=x, xf=x[:, :1], scale=np.ones(1),
+                     tol=np.zeros(1), valid=np.ones(n, bool), final=x[:, :1], lam=np.full(n, 0.8),
+                     at_rest=np.zeros(n, bool), autonomous=True, unbounded=np.zeros(n, bool))
+
+
+def test_pieces_of_one_chaotic_cloud_are_one_attractor_and_two_clouds_stay_two():
+    """DBSCAN cut Lorenz-63's one chaotic cloud (r = 24.4, 300 starts, 1000 checkpoints over t1 = 2000) into
+    chaotic_1..3 of 203, 33 and 21 starts, medians 0.06-0.09 apart inside a cloud of extent 0.12 (the reliability
+    pass). Pieces whose median lies within another's extent are one attractor; a cloud whose median lies outside
+    every other's stays its own."""
+    from stabjax.mapping.discover import _merge_chaotic
+
+    rng = np.random.default_rng(0)
+    big = rng.normal(0.0, 0.04, (200, 4))
+    pieces = [big, rng.normal(0.06, 0.02, (30, 4)), rng.normal(-0.05, 0.02, (20, 4)),
+              rng.normal(0.6, 0.04, (50, 4))]  # the last: another attractor, 0.6 x 2 away
+    x = np.concatenate(pieces)
+    bounds = np.cumsum([0] + [len(p) for p in pieces])
+    groups = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    f = _synthetic(x)
+    others = [(g, "chaotic", np.median(x[g], axis=0), 0.8, int(g[0])) for g in groups]
+    out = sorted(sorted(r[0].tolist()) for r in _merge_chaotic(others, f))
+    assert out == [list(range(250)), list(range(250, 300))]
+    assert all(r[1] == "chaotic" for r in _merge_chaotic(others, f))
+
+
+def test_a_cycle_its_observables_cannot_see_is_no_fixed_point():
+    """The shock example's rotating field watched through r alone: its cycles r = 2, 4, 6 keep r constant, so every
+    observable rests, and they were fixed_point_2..4 (exponent -2e-9; the reliability pass). An equilibrium reached
+    from a start at the observables' scale has contracted by the window's start; these have not: untyped and said.
+    The origin (exponent -1) stays a fixed point. Each start's radius class is the closed form's (r0 < 1: origin,
+    1-3: r = 2, 3-5: r = 4, beyond: r = 6)."""
+    from stabjax.mapping.discover import TransientWarning
+
+    box = {"dist": "uniform", "low": -4.5, "high": 4.5}
+    with pytest.warns(TransientWarning, match="a motion the observables do not see"):
+        ds = run_spec({"system": "examples/shock_circle/model.py:Circle", "sample": {"n": 200, "seed": 2, "x0": box,
+                                                                                     "y0": box},
+                       "integrate": {"t1": 60.0, "rtol": 1e-8, "atol": 1e-10}, "outcomes": {"discover": True}})
+    types = dict(zip(ds["attractor"].values, ds["attractor_type"].values))
+    assert sorted(types.values()) == ["attractor", "attractor", "attractor", "fixed_point"], types
+    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
+    rf = ds["feat_final"].values.ravel()
+    expect = np.select([r0 < 1, r0 < 3, r0 < 5], [0.0, 2.0, 4.0], 6.0)
+    np.testing.assert_allclose(rf, expect, atol=1e-4)
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    lab = np.array([names[c] for c in ds["outcome"].values.ravel()])
+    for r in (0.0, 2.0, 4.0, 6.0):
+        assert len(set(lab[expect == r])) == 1  # one name per attractor
+        if r:
+            assert types[lab[expect == r][0]] == "attractor"
