@@ -299,11 +299,27 @@ def env_int(name: str, lo: int = 1, hi: int = 4096) -> int | None:
     return n
 
 
+def env_seconds(name: str, default: float) -> float:
+    """A time in seconds from an environment variable (``default`` when unset or empty): a finite number >= 0,
+    refused naming it otherwise (``STABJAX_PROGRESS_INTERVAL=abc`` was a traceback after the store was made)."""
+    raw = os.environ.get(name, "").strip()
+    if not raw:
+        return default
+    try:
+        v = float(raw)
+    except ValueError:
+        raise ValidationError(name, f"must be a number of seconds >= 0, got {raw!r}") from None
+    if not (v >= 0 and v < float("inf")):
+        raise ValidationError(name, f"must be a finite number of seconds >= 0, got {raw!r}")
+    return v
+
+
 def check_environment() -> None:
     """Validate every environment variable stabjax reads, each error naming the variable.
 
     ``STABJAX_X64`` (float64 only: 1/true/yes/on or unset; float32 is refused, see :func:`x64_wanted`),
     ``STABJAX_THREADS`` and ``STABJAX_CPU_DEVICES`` (positive integers; empty: unset),
+    ``STABJAX_PROGRESS_INTERVAL`` (seconds between progress lines, a finite number >= 0; empty: 5),
     ``STABJAX_CACHE_DIR`` (not an existing file; empty: the default), ``CC`` (a program on PATH),
     ``EQX_ON_ERROR`` (``nan``: a solver error must become a status code, not an exception). Variables read by JAX, XLA and CUDA
     themselves (``XLA_FLAGS``, ``CUDA_VISIBLE_DEVICES``, ``JAX_*``) are theirs to check.
@@ -313,6 +329,7 @@ def check_environment() -> None:
     x64_wanted()
     env_int("STABJAX_THREADS")
     env_int("STABJAX_CPU_DEVICES", hi=64)
+    env_seconds("STABJAX_PROGRESS_INTERVAL", 5.0)
     cache = os.environ.get("STABJAX_CACHE_DIR", "").strip()
     if cache:  # empty: the default, as the native engine and the Dask cache read it
         from pathlib import Path

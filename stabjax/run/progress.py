@@ -2,8 +2,9 @@
 trajectories done, chunks done (resumed ones counted apart), rates, elapsed time and ETA."""
 from __future__ import annotations
 
-import os
 import time
+
+from ..config import env_seconds
 
 
 class Bar:
@@ -58,7 +59,7 @@ class Lines:
         import sys
 
         self.total, self.name, self.chunks = max(int(total), 1), name, chunks
-        self.interval = float(os.environ.get("STABJAX_PROGRESS_INTERVAL", "5")) if interval is None else interval
+        self.interval = env_seconds("STABJAX_PROGRESS_INTERVAL", 5.0) if interval is None else interval
         self.stream = stream if stream is not None else sys.stderr
         self.done = self.run = self.chunks_done = 0
         self.t0 = self.last = time.perf_counter()

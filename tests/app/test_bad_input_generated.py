@@ -283,6 +283,8 @@ def test_parameter_fixed_and_varied(capsys, pname, where):
     st.tuples(st.just("STABJAX_X64"), st.one_of(st.sampled_from(["0", "false", "no", "off", "OFF", "2"]), bad_words)),
     st.tuples(st.just("EQX_ON_ERROR"), st.one_of(st.sampled_from(["raise", "breakpoint", "NaN "]), bad_words)),
     st.tuples(st.just("CC"), bad_words.map(lambda w: "no-such-cc-" + w)),
+    st.tuples(st.just("STABJAX_PROGRESS_INTERVAL"), st.one_of(bad_words, st.sampled_from(["-1", "nan", "inf", "-inf",
+                                                                                         "5 s"]))),
 ))
 @settings(SETTINGS, max_examples=40)
 def test_bad_environment_variable(capsys, var_value):
