@@ -566,6 +566,9 @@ def _validate(system):
             raise ValidationError(f"{where}.{member}", f"returned shape {tuple(arr.shape)}, expected {shape}")
         if not jnp.issubdtype(arr.dtype, jnp.floating):
             raise ValidationError(f"{where}.{member}", f"returned dtype {arr.dtype}, expected a float array")
+        if arr.dtype != jnp.float64:  # the engines' arithmetic mixes it with float64 state: a traceback there
+            raise ValidationError(f"{where}.{member}", f"returned dtype {arr.dtype}; stabjax integrates in float64: "
+                                                       "compute in float64 (no astype(float32), no float32 arrays)")
 
     args = call("prepare", system.prepare, pj)
     y0 = call("initial_state", system.initial_state, pj)
