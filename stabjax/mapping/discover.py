@@ -342,11 +342,15 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     equilibrium (:func:`_approaching`) joins the fixed point it ends at."""
     rest, moving = idx[f.at_rest[idx]], idx[~f.at_rest[idx]]
     groups, stats = [], {"rounds": 0}
+    fine = REST_GAP * float(np.linalg.norm(rest_threshold(f.scale, f.tol, cfg) / f.scale))
     for members, x in ((rest, f.xf), (moving, f.x)):
         if members.size:
             lab, st = group(x[members], cfg)
             stats["rounds"] += st["rounds"]
-            groups += [members[lab == g] for g in range(int(lab.max()) + 1 if lab.size else 0)]
+            found_here = [members[lab == g] for g in range(int(lab.max()) + 1 if lab.size else 0)]
+            if x is f.xf:  # points at rest: where they rest is known to the rest threshold, not to eps
+                found_here = [h for g in found_here for h in _split_rest(g, f.xf, fine, cfg.min_samples)]
+            groups += found_here
     found = [(g, *_describe(g, f, cfg)) for g in groups if g.size]
     points = [r for r in found if r[1] == "fixed_point"]
     others = [r for r in found if r[1] != "fixed_point"]
@@ -354,7 +358,8 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     # one fixed point found by both groupings, or split by its transient: one attractor, placed by where its
     # members end or by their window means (a decaying oscillation, x'' + 0.04 x' + x = 0 at t1 = 150, still
     # ends up to 0.1 of its range from the focus, while its window mean is within 0.01)
-    merged, placed = _merge_near([g for g, *_ in points], (f.xf, xm), cfg.eps)
+    merged, placed = _merge_near([g for g, *_ in points], (f.xf, xm), cfg.eps,
+                                 rest=(lambda g: np.mean(f.at_rest[g]) > 0.5, fine))
     centres, means = [c for c, _ in placed], [m for _, m in placed]
     ends: list[np.ndarray] = []  # where each group still in a monotone approach ends (scaled observables)
     approach: list[np.ndarray] = []
@@ -482,16 +487,44 @@ def _merge_chaotic(others: list[tuple], f: _Features) -> list[tuple]:
     return out + [(g, *_describe(g, f, None, kind="chaotic")) for g in groups.values()]
 
 
-def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float
+REST_GAP = 10.0  # rest thresholds between two equilibria's resting points that make them two
+
+
+def _split_rest(g: np.ndarray, xf: np.ndarray, fine: float, min_samples: int) -> list[np.ndarray]:
+    """A group of trajectories at rest, split where their resting points (scaled) fall apart by more than ``fine``
+    (``REST_GAP`` rest thresholds) into parts of at least ``min_samples`` (smaller parts stay with the nearest
+    part): two equilibria closer than eps are still two (x' = -x (x - 0.1)(x - 0.2)(x - 5)(x - 10) / 10 rests at
+    0, 0.2 and 10: the first two, 0.018 of the range apart, were one fixed point)."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    if g.size < 2 * min_samples or fine <= 0:
+        return [g]
+    lab = fcluster(linkage(xf[g], method="single"), t=fine, criterion="distance")
+    parts = [g[lab == k] for k in np.unique(lab)]
+    big = [p for p in parts if p.size >= min_samples]
+    if len(big) < 2:
+        return [g]
+    centres = np.stack([np.median(xf[p], axis=0) for p in big])
+    for p in parts:
+        if p.size < min_samples:
+            j = int(np.argmin(np.linalg.norm(centres - np.median(xf[p], axis=0), axis=1)))
+            big[j] = np.sort(np.concatenate([big[j], p]))
+    return big
+
+
+def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float, rest=None
                 ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, ...]]]:
     """Groups merged in order: one joins the first earlier group whose median in any of the positions ``by``
-    (scaled, one row per trajectory) lies within ``eps`` of its own. The merged groups and their medians."""
+    (scaled, one row per trajectory) lies within ``eps`` of its own; ``rest``: (is a group at rest, radius): two
+    groups both at rest merge only within that radius too (where they rest is known that well). The merged groups and
+    their medians."""
     merged: list[np.ndarray] = []
     placed: list[tuple[np.ndarray, ...]] = []
     for g in groups:
         here = tuple(np.median(p[g], axis=0) for p in by)
         near = [i for i, there in enumerate(placed)
-                if min(np.linalg.norm(a - b) for a, b in zip(here, there)) <= eps]
+                if min(np.linalg.norm(a - b) for a, b in zip(here, there))
+                <= (min(eps, rest[1]) if rest is not None and rest[0](g) and rest[0](merged[i]) else eps)]
         if near:
             merged[near[0]] = np.concatenate([merged[near[0]], g])
             placed[near[0]] = tuple(np.median(p[merged[near[0]]], axis=0) for p in by)

@@ -954,3 +954,41 @@ def test_a_cycle_its_observables_cannot_see_is_no_fixed_point():
         assert len(set(lab[expect == r])) == 1  # one name per attractor
         if r:
             assert types[lab[expect == r][0]] == "attractor"
+
+
+def test_two_equilibria_closer_than_eps_are_two():
+    """x' = -x (x - 0.1)(x - 0.2)(x - 5)(x - 10) / 10 rests at 0, 0.2 and 10 (stable), with 0.1 and 5 unstable
+    between: the rest points 0 and 0.2 lie 0.018 of the range apart, within eps, and were one fixed point (the
+    reliability pass). Where a trajectory rests is known to its rest threshold: three fixed points, each start at the
+    one its interval of x0 flows to (the closed form's phase line), placed there."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Three(System):
+        name = "three_test"
+        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
+        state = (("x", ()),)
+        observables = ("x",)
+        observable_doc = ("x",)
+
+        def initial_state(self, p):
+            return p["x0"][None]
+
+        def rhs(self, t, y, p):
+            return -y * (y - 0.1) * (y - 0.2) * (y - 5.0) * (y - 10.0) / 10.0
+
+        def observe(self, t, y, p):
+            return y
+
+    x0 = np.concatenate([np.linspace(-1.0, 0.05, 12), np.linspace(0.15, 4.8, 20), np.linspace(5.3, 12.0, 20)])
+    ds = run_spec({"system": _one(Three), "grid": {"x0": x0.tolist()},
+                   "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-10, "n_checkpoints": 100}})
+    assert list(ds["attractor_type"].values) == ["fixed_point"] * 3
+    rest = np.select([x0 < 0.1, x0 < 5.0], [0.0, 0.2], 10.0)
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    lab = np.array([names[c] for c in ds["outcome"].values.ravel()])
+    at = dict(zip(ds["attractor"].values, ds["attractor_state"].values[:, 0]))
+    for r in (0.0, 0.2, 10.0):
+        assert len(set(lab[rest == r])) == 1, (r, set(lab[rest == r]))
+        assert at[lab[rest == r][0]] == pytest.approx(r, abs=1e-6)
