@@ -69,8 +69,7 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    end their window at an extreme of every observable (a monotone approach or drift is no cycle); else
    ``fixed_point`` in an autonomous model where the representative's oscillation dies out at the exponent's rate
    (:func:`_decaying`: a weak focus, its exponent within ``chaos_threshold`` of a cycle's 0); else
-   ``attractor`` where the members' window features spread over more than ``eps`` (:func:`_continuum`: a family of
-   neutral orbits, a centre); else ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
+   ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
    negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
@@ -243,7 +242,6 @@ class _Features:
     # (None: not available); asked only of a representative whose type the features leave open (_decaying)
     trace: Any = None
     envelope: dict = field(default_factory=dict)  # representative -> its envelope's decay (cache of _decaying)
-    eps: float = 0.05  # the grouping radius (DiscoveryConfig.eps)
     chaos: float = 0.01  # DiscoveryConfig.chaos_threshold
     stopped: np.ndarray | None = None  # (N,) frozen at an equilibrium by the fixed-point stop (Newton: f = 0)
 
@@ -268,7 +266,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
     if stopped is not None:
         at_rest |= stopped
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
-                     final, lam, at_rest, bool(autonomous), away, settle, span, trace, eps=cfg.eps,
+                     final, lam, at_rest, bool(autonomous), away, settle, span, trace,
                      chaos=cfg.chaos_threshold, stopped=stopped)
 
 
@@ -572,8 +570,6 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         kind = "attractor"
     elif f.autonomous and lam < 0 and _decaying(rep, lam, f):
         kind = "fixed_point"  # an oscillation dying out at its exponent's rate: a weak focus, no cycle
-    elif _continuum(g, f):
-        kind = "attractor"  # a family of neutral orbits (a centre), or a window shorter than a period: no one cycle
     else:
         kind = "limit_cycle"
     return kind, med, lam, rep
@@ -693,25 +689,6 @@ def _hidden_motion(g: np.ndarray, lam: float, f: _Features) -> bool:
     return f.settle is not None and math.exp(lam * f.settle) > CYCLE_BIAS
 
 
-def _neutral(g: np.ndarray, lam: float, f: _Features) -> bool:
-    """An untyped group that is a continuum of orbits (:func:`_continuum`) rather than a transient: its exponent
-    is no contraction that has not settled (:func:`_unsettled`) and it is no monotone approach."""
-    return bool(np.isfinite(lam) and not lam > f.chaos and not (f.settle is not None and lam < -f.chaos
-                                                                  and math.exp(lam * f.settle) > f.eps)
-                and np.mean(_ends_at_extreme(g, f)) <= 0.5 and _continuum(g, f))
-
-
-def _continuum(g: np.ndarray, f: _Features) -> bool:
-    """Whether a group that would be a limit cycle spreads its members' window features over more than ``eps``
-    (median distance from the group's median, scaled): one isolated cycle gives every member the same window
-    features (its mean, spread and extremes over whole periods, whatever the phase), while a family of neutral
-    orbits -- a centre, x' = -y, y' = x, whose 300 circles of radius 0.09 to 2.8 were one limit_cycle_1 with S = 1
-    -- chains them along the family, DBSCAN's density connecting neighbours. (A window shorter than a period
-    spreads a cycle's features by its phase too: that is said alike, :func:`_warn_continuum`.)"""
-    xm = np.median(f.x[g], axis=0)
-    return bool(np.median(np.linalg.norm(f.x[g] - xm, axis=1)) > f.eps)
-
-
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
     """Per member: whether it ends its window at an extreme of every observable (a monotone approach, no
     oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
@@ -747,15 +724,11 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # members end their window in a monotone approach, or (with the exponent, where an untyped
                  # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
-                            if t == "attractor" and not lam > f.chaos and not _neutral(g, lam, f)
-                            and not np.mean(f.at_rest[g]) > 0.5
+                            if t == "attractor" and not lam > f.chaos and not np.mean(f.at_rest[g]) > 0.5
                             and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
                  # untyped groups whose observables rest while the exponent says the state may move
                  hidden=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                          if t == "attractor" and np.mean(f.at_rest[g]) > 0.5],
-                 # untyped groups of neutral orbits spread over more than eps (:func:`_continuum`)
-                 continuum=[(n, int(g.size)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
-                            if t == "attractor" and _neutral(g, lam, f)],
                  # untyped groups growing at a positive exponent over a window too short to tell chaos from a
                  # runaway (:func:`_short_for_chaos`, :func:`_warn_short_window`)
                  short_window=[(n, int(g.size), float(lam)) for n, t, g, lam in
@@ -884,8 +857,6 @@ class Discovery(Mapper):
             _warn_by_exponent(disc.stats["by_exponent"])
         if disc.stats.get("hidden"):
             _warn_hidden_motion(disc.stats["hidden"])
-        if disc.stats.get("continuum"):
-            _warn_continuum(disc.stats["continuum"], cfg.eps)
         if disc.stats.get("short_window"):
             _warn_short_window(disc.stats["short_window"], span)
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
@@ -949,19 +920,6 @@ def _warn_hidden_motion(groups: list[tuple[str, int, float]]) -> None:
                   f"toward an equilibrium: a motion the observables do not see (a cycle on which they are constant) or "
                   f"a non-hyperbolic equilibrium; left untyped. Add an observable that moves along the state (or "
                   f"raise [integrate] t1)", TransientWarning, stacklevel=3)
-
-
-def _warn_continuum(groups: list[tuple[str, int]], eps: float) -> None:
-    """Said, not only stored: a group of orbits neither contracting nor growing whose window features spread over
-    more than ``eps`` is a family of neutral orbits (a centre, a conservative system's tori) -- no attractor, its
-    basin stability meaningless -- or, where the window holds less than a period, one cycle seen at many phases."""
-    import warnings
-
-    parts = ", ".join(f"{name} ({n} trajectories)" for name, n in groups)
-    warnings.warn(f"{parts}: orbits neither contracting nor growing (exponent ~0) whose window features spread over "
-                  f"more than eps = {eps:g}: a continuum of neutral orbits (a centre or a conservative system: no "
-                  f"attractor, no basin), not one limit cycle, left untyped; if the feature window holds less than "
-                  f"one period, raise [integrate] t1 instead", TransientWarning, stacklevel=3)
 
 
 def _warn_short_window(groups: list[tuple[str, int, float]], span: float) -> None:

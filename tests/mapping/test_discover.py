@@ -878,26 +878,6 @@ def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_
         assert len(set(np.sign(x0[lab == a]))) == 1
 
 
-def test_a_centre_is_no_limit_cycle():
-    """x' = -y, y' = x (the spiral model at a = 0): every orbit a circle of its own radius, none attracting. Its 300
-    starts were one limit_cycle_1 with S = 1 +- 0; the family spreads its window features over far more than eps,
-    so it is left untyped and said to be a continuum of neutral orbits. The orbits are the closed form's circles."""
-    from stabjax.mapping.discover import TransientWarning
-
-    _, spiral, _ = _runaways()
-    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
-    with pytest.warns(TransientWarning, match="continuum of neutral orbits"):
-        ds = run_spec({"system": spiral, "params": {"a": 0.0}, "sample": {"n": 300, "seed": 1, "x0": box, "y0": box},
-                       "integrate": {"t1": 50.0, "n_checkpoints": 200}})
-    assert "limit_cycle" not in set(ds["attractor_type"].values)
-    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
-    fin = ds["feat_final"].values.reshape(-1, 2)
-    np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0, rtol=1e-5)
-    # a circle each: the window's sampled max of x lies within r (1 - cos(dt / 2)) of r, checkpoints dt = 0.25 apart
-    mx = ds["feat_max"].values.reshape(-1, 2)[:, 0]
-    assert np.all(mx <= r0 * (1 + 1e-6)) and np.all(mx >= r0 * np.cos(0.125) * (1 - 1e-6))
-
-
 def _synthetic(x):
     """A _Features holding scaled window features ``x`` (N, 4) only, for the grouping helpers."""
     from stabjax.mapping.discover import _Features
