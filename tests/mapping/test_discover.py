@@ -680,28 +680,37 @@ def test_a_discovery_that_groups_nothing_says_so_in_its_own_words(capsys):
 # ---- runaways are no attractor: the escape outcome, whether or not a radius is set ---------------------
 
 
-def _runaways():
-    import jax.numpy as jnp
-
+def _phase_line(model_name: str, doc: str, f):
+    """A 1-D model x' = f(x), observed through x, started at x0."""
     from stabjax import Param, ParamSet, System
 
-    class Grow(System):
-        """x' = x: every start but 0 runs off to +-infinity, |x(t)| = |x0| e^t."""
-
-        name = "grow_test"
+    class PhaseLine(System):
+        __doc__ = doc
+        name = model_name
         params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
         state = (("x", ()),)
         observables = ("x",)
         observable_doc = ("x",)
 
         def initial_state(self, p):
-            return jnp.reshape(p["x0"], (1,))
+            return p["x0"][None]
 
         def rhs(self, t, y, p):
-            return y
+            return f(y)
 
         def observe(self, t, y, p):
             return y
+
+    return PhaseLine
+
+
+def _runaways():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    Grow = _phase_line("grow_test", "x' = x: every start but 0 runs off to +-infinity, |x(t)| = |x0| e^t.",
+                       lambda y: y)
 
     class Spiral(System):
         """x' = -a x - y, y' = x - a y with a < 0: an unstable focus, |(x, y)|(t) = |(x0, y0)| e^(-a t)."""
@@ -941,26 +950,8 @@ def test_two_equilibria_closer_than_eps_are_two():
     between: the rest points 0 and 0.2 lie 0.018 of the range apart, within eps, and were one fixed point (the
     reliability pass). Where a trajectory rests is known to its rest threshold: three fixed points, each start at the
     one its interval of x0 flows to (the closed form's phase line), placed there."""
-    import jax.numpy as jnp
-
-    from stabjax import Param, ParamSet, System
-
-    class Three(System):
-        name = "three_test"
-        params = ParamSet((Param("x0", 0.5, "initial x", kind="initial"),))
-        state = (("x", ()),)
-        observables = ("x",)
-        observable_doc = ("x",)
-
-        def initial_state(self, p):
-            return p["x0"][None]
-
-        def rhs(self, t, y, p):
-            return -y * (y - 0.1) * (y - 0.2) * (y - 5.0) * (y - 10.0) / 10.0
-
-        def observe(self, t, y, p):
-            return y
-
+    Three = _phase_line("three_test", "x' = -x (x - 0.1)(x - 0.2)(x - 5)(x - 10) / 10",
+                        lambda y: -y * (y - 0.1) * (y - 0.2) * (y - 5.0) * (y - 10.0) / 10.0)
     x0 = np.concatenate([np.linspace(-1.0, 0.05, 12), np.linspace(0.15, 4.8, 20), np.linspace(5.3, 12.0, 20)])
     ds = run_spec({"system": _one(Three), "grid": {"x0": x0.tolist()},
                    "integrate": {"t1": 300.0, "rtol": 1e-8, "atol": 1e-10, "n_checkpoints": 100}})
