@@ -393,7 +393,7 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             j = int(np.argmax(there[i]))
             merged[j] = np.append(merged[j], left[i])
         left = left[~there.any(axis=1)]
-    others = _merge_chaotic(others, f)
+    others = _merge_chaotic(others, f, cfg)
     left, others = _join_chaotic(left, others, f, cfg)
     left = left[_approaching(left, f, cfg)]
     for targets, tmeans, into in ((centres, means, merged), (ends, None, approach)):  # a fixed point first
@@ -442,8 +442,7 @@ def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: Disc
         cand = left[f.lam[left] > cfg.chaos_threshold]
     if not cand.size:
         return left, others
-    meds = np.stack([np.median(f.x[others[i][0]], axis=0) for i in chaotic])
-    reach = np.array([np.linalg.norm(f.x[others[i][0]] - m, axis=1).max() for i, m in zip(chaotic, meds)])
+    meds, reach = (np.array(v) for v in zip(*(_extent(others[i][0], f) for i in chaotic)))
     d = np.linalg.norm(f.x[cand][:, None, :] - meds[None], axis=-1)
     j = np.argmin(d, axis=1)
     joins = d[np.arange(cand.size), j] <= reach[j] + cfg.eps
@@ -456,7 +455,14 @@ def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: Disc
     return np.setdiff1d(left, cand[joins]), others
 
 
-def _merge_chaotic(others: list[tuple], f: _Features) -> list[tuple]:
+def _extent(g: np.ndarray, f: _Features) -> tuple[np.ndarray, float]:
+    """(median, extent) of a group in scaled window features: the extent is the largest distance of a member from
+    the median."""
+    med = np.median(f.x[g], axis=0)
+    return med, float(np.linalg.norm(f.x[g] - med, axis=1).max())
+
+
+def _merge_chaotic(others: list[tuple], f: _Features, cfg: DiscoveryConfig) -> list[tuple]:
     """Chaotic groups whose feature clouds overlap are one attractor: a group merges with another when its median
     lies within the other's extent (the largest distance of a member from its median), as a single trajectory with a
     positive exponent joins it (:func:`_join_chaotic`). DBSCAN cut one cloud
@@ -466,23 +472,20 @@ def _merge_chaotic(others: list[tuple], f: _Features) -> list[tuple]:
     idx = [i for i, r in enumerate(others) if r[1] == "chaotic"]
     if len(idx) < 2:
         return others
-    groups = {i: others[i][0] for i in idx}
-    merged = True
-    while merged:
-        merged = False
-        keys = sorted(groups)
-        med = {i: np.median(f.x[groups[i]], axis=0) for i in keys}
-        reach = {i: float(np.linalg.norm(f.x[groups[i]] - med[i], axis=1).max()) for i in keys}
-        for a in keys:
-            for b in keys:
-                if a < b and np.linalg.norm(med[a] - med[b]) <= max(reach[a], reach[b]):
-                    groups[a] = np.sort(np.concatenate([groups[a], groups.pop(b)]))
-                    merged = True
-                    break
-            if merged:
-                break
-    out = [r for i, r in enumerate(others) if i not in idx]
-    return out + [(g, *_describe(g, f, None, kind="chaotic")) for g in groups.values()]
+    groups = [others[i][0] for i in idx]
+    i = 0
+    while i < len(groups):  # each group absorbs every later one that overlaps it, then the next is taken
+        (ma, ra), j = _extent(groups[i], f), i + 1
+        while j < len(groups):
+            mb, rb = _extent(groups[j], f)
+            if np.linalg.norm(ma - mb) <= max(ra, rb):
+                groups[i] = np.sort(np.concatenate([groups[i], groups.pop(j)]))
+                (ma, ra), j = _extent(groups[i], f), i + 1
+            else:
+                j += 1
+        i += 1
+    out = [r for k, r in enumerate(others) if k not in idx]
+    return out + [(g, *_describe(g, f, cfg, kind="chaotic")) for g in groups]
 
 
 REST_GAP = 10.0  # rest thresholds between two equilibria's resting points that make them two
@@ -621,15 +624,11 @@ def _envelope_rate(t: np.ndarray, obs: np.ndarray) -> tuple[float, float]:
 def window_trace(plan, settle: float):
     """``trace(index)`` for :func:`features`: trajectory ``index``'s observables at ``ENVELOPE_POINTS`` times over
     the feature window, integrated again on its own (diffrax, the plan's solver and tolerances)."""
-    from ..engines.simulate import simulate
-
     icfg = plan.icfg
     ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
 
     def trace(index: int):
-        p = {k: np.asarray(v)[0] for k, v in plan.params_at(np.array([index])).items()}
-        ds = simulate(plan.system, p, t1=icfg.t1, t0=icfg.t0, ts=ts, solver=icfg.solver, rtol=icfg.rtol,
-                      atol=icfg.atol, max_steps=icfg.max_steps)
+        ds = _again(plan, index, ts)
         if int(ds.attrs["solver_status"]) != 0:
             return ts[:0], np.zeros((0, len(plan.system.observables)))
         t = ds["t"].values
@@ -686,7 +685,7 @@ def _hidden_motion(g: np.ndarray, lam: float, f: _Features) -> bool:
         return False
     if f.stopped is not None and np.mean(f.stopped[g]) > 0.5:
         return False
-    return f.settle is not None and math.exp(lam * f.settle) > CYCLE_BIAS
+    return f.settle is not None and _cycle_like(lam, f)
 
 
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
@@ -897,6 +896,11 @@ def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int,
                   stacklevel=3)
 
 
+def _listed(groups: list[tuple[str, int, float]]) -> str:
+    """``name (n trajectories, exponent lam), ...`` of the groups a warning is about."""
+    return ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g})" for name, n, lam in groups)
+
+
 def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
     """Said, not only stored: a fixed point typed by its negative exponent while its members still oscillate over
     the feature window is either a slowly decaying oscillation (an equilibrium approached, as typed) or a strongly
@@ -904,8 +908,7 @@ def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
     for four periods: -0.06); only a longer window tells them apart."""
     import warnings
 
-    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g})" for name, n, lam in groups)
-    warnings.warn(f"{parts}: typed a fixed point by the negative exponent alone, the trajectories still oscillating "
+    warnings.warn(f"{_listed(groups)}: typed a fixed point by the negative exponent alone, the trajectories still oscillating "
                   f"over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
                   f"finite-time exponent is off zero over a short window; raise [integrate] t1 to tell them apart",
                   TransientWarning, stacklevel=3)
@@ -915,8 +918,7 @@ def _warn_hidden_motion(groups: list[tuple[str, int, float]]) -> None:
     """Said, not only stored: see :func:`_hidden_motion`."""
     import warnings
 
-    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g})" for name, n, lam in groups)
-    warnings.warn(f"{parts}: every observable at rest over the feature window, yet the exponent shows no contraction "
+    warnings.warn(f"{_listed(groups)}: every observable at rest over the feature window, yet the exponent shows no contraction "
                   f"toward an equilibrium: a motion the observables do not see (a cycle on which they are constant) or "
                   f"a non-hyperbolic equilibrium; left untyped. Add an observable that moves along the state (or "
                   f"raise [integrate] t1)", TransientWarning, stacklevel=3)
@@ -1025,13 +1027,19 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
     return data, coords
 
 
-def representative_state(plan, index: int) -> np.ndarray:
-    """The state at t1 of trajectory ``index`` of ``plan``, integrated on its own (diffrax, the plan's
-    solver and tolerances)."""
+def _again(plan, index: int, ts):
+    """Trajectory ``index`` of ``plan`` integrated again on its own, saved at ``ts`` (diffrax, the plan's solver
+    and tolerances: :func:`stabjax.engines.simulate.simulate`)."""
     from ..engines.simulate import simulate
 
     p = {k: np.asarray(v)[0] for k, v in plan.params_at(np.array([index])).items()}
     icfg = plan.icfg
-    ds = simulate(plan.system, p, t1=icfg.t1, t0=icfg.t0, ts=[icfg.t1], solver=icfg.solver, rtol=icfg.rtol,
-                  atol=icfg.atol, max_steps=icfg.max_steps)
+    return simulate(plan.system, p, t1=icfg.t1, t0=icfg.t0, ts=ts, solver=icfg.solver, rtol=icfg.rtol,
+                    atol=icfg.atol, max_steps=icfg.max_steps)
+
+
+def representative_state(plan, index: int) -> np.ndarray:
+    """The state at t1 of trajectory ``index`` of ``plan``, integrated on its own (diffrax, the plan's
+    solver and tolerances)."""
+    ds = _again(plan, index, [plan.icfg.t1])
     return np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in plan.system.state])

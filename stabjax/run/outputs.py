@@ -296,6 +296,7 @@ def result_spec(path: Path):
     except Exception:  # noqa: BLE001 - not a readable netCDF file: not a result
         return None
 
+
 def guard_result(plan, out, *, force: bool = False, spec_file=None) -> bool:
     """The Python API's check of a result path (``run_plan``, ``refine_plan``, ``shock_plan``): what
     ``stabjax sweep`` checks of its ``--out``. Never the spec file read (``spec_file``), the starts file, the model
@@ -313,7 +314,6 @@ def plan_result(spec, out, *, t1: float | None = None, force: bool = False, sect
     """The plan of ``spec`` (a mapping, or a TOML file loaded here) for the ``*_spec`` functions, with ``out``
     checked by :func:`guard_result` before anything runs (never the spec file itself). ``section``: the table
     the spec must have (``"refine"``, ``"shock"``), refused by name when missing."""
-    from ..errors import ValidationError
     from ..plan.spec import load_spec, make_plan
 
     spec_file = spec if isinstance(spec, (str, Path)) else None

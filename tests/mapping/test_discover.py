@@ -902,7 +902,7 @@ def test_pieces_of_one_chaotic_cloud_are_one_attractor_and_two_clouds_stay_two()
     chaotic_1..3 of 203, 33 and 21 starts, medians 0.06-0.09 apart inside a cloud of extent 0.12 (the reliability
     pass). Pieces whose median lies within another's extent are one attractor; a cloud whose median lies outside
     every other's stays its own."""
-    from stabjax.mapping.discover import _merge_chaotic
+    from stabjax.mapping.discover import DiscoveryConfig, _merge_chaotic
 
     rng = np.random.default_rng(0)
     big = rng.normal(0.0, 0.04, (200, 4))
@@ -913,9 +913,10 @@ def test_pieces_of_one_chaotic_cloud_are_one_attractor_and_two_clouds_stay_two()
     groups = [np.arange(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
     f = _synthetic(x)
     others = [(g, "chaotic", np.median(x[g], axis=0), 0.8, int(g[0])) for g in groups]
-    out = sorted(sorted(r[0].tolist()) for r in _merge_chaotic(others, f))
+    cfg = DiscoveryConfig()
+    out = sorted(sorted(r[0].tolist()) for r in _merge_chaotic(others, f, cfg))
     assert out == [list(range(250)), list(range(250, 300))]
-    assert all(r[1] == "chaotic" for r in _merge_chaotic(others, f))
+    assert all(r[1] == "chaotic" for r in _merge_chaotic(others, f, cfg))
 
 
 def test_a_cycle_its_observables_cannot_see_is_no_fixed_point():
