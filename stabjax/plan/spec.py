@@ -452,6 +452,12 @@ def make_plan(spec: Mapping[str, Any], *, t1: float | None = None, base_dir: str
     if decl is not None:
         decl.check(system, where="outcomes", escape=escape)
     mapper = mapper_for(system, decl, escape)  # chosen once: nothing downstream asks which kind of outcome
+    if not mapper.uses_verdicts and spec.get("verdict"):
+        # a threshold nothing reads would be recorded in the result as if it had shaped it
+        key = next(iter(spec["verdict"]))
+        raise ValidationError(f"verdict.{key}", f"{system.name}'s outcomes are named ([outcomes]); the [verdict] "
+                                                "thresholds judge the attitude verdicts and nothing here reads "
+                                                "them (the window is outcomes.window)")
     if decl is not None:
         # the fold also keeps late-window statistics of every observable, for the outcome rules
         # (named outcomes need nothing else: the attitude classifier's state is left out of the fold)

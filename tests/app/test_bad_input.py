@@ -232,6 +232,8 @@ BAD_SPECS = [
     ({**M, "verdict": {"settle_tol": -1}}, "verdict.settle_tol"),
     ({**M, "verdict": {"diverge_size": "big"}}, "verdict.diverge_size"),
     ({**M, "verdict": {"bogus": 1}}, "verdict.bogus"),
+    # a system judged by named outcomes reads no [verdict] threshold: refused, not recorded as if it counted
+    ({**M, "outcomes": {"discover": True}, "verdict": {"converged_tol": 1e-4}}, "verdict.converged_tol"),
 ]
 
 
