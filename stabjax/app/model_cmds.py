@@ -133,17 +133,26 @@ def simulate(
         from ..run.sweep import write
 
         write(ds, out)
-    final = {"t": float(ds.t[-1])}
+    ok = bool(ds.attrs["solver_ok"])
+    k = len(ds.t) - 1
+    if not ok:
+        # past the failure the saved states are inf (the solver's fill): show the last state that is a state
+        finite = np.ones(len(ds.t), bool)
+        for name, _ in sysm.state:
+            finite &= np.isfinite(ds[name].values.reshape(len(ds.t), -1)).all(axis=1)
+        k = int(np.flatnonzero(finite)[-1]) if finite.any() else 0
+    final = {"t": float(ds.t[k])}
     for name, _ in sysm.state:
-        final[name] = ds[name].isel(t=-1).values
+        final[name] = ds[name].isel(t=k).values
     for name in sysm.observables:
-        final[name] = float(ds[name].isel(t=-1))
+        final[name] = float(ds[name].isel(t=k))
     final["solver_ok"] = bool(ds.attrs["solver_ok"])
     final["n_steps"] = int(ds.attrs["n_steps"])
     if as_json:
         console.print_json(json.dumps(jsonable(final)))
     else:
-        t = Table(title=f"{escape(system)}: final state at t = {final['t']:g}")
+        what = "final state" if ok else f"last finite saved state (t1 = {ds.attrs['t1']:g} not reached)"
+        t = Table(title=f"{escape(system)}: {what} at t = {final['t']:g}")
         t.add_column("quantity")
         t.add_column("value")
         for k, v in final.items():
@@ -154,7 +163,9 @@ def simulate(
     if not final["solver_ok"]:
         from ..fold.status import describe
 
-        err_console.print(f"did not reach t1 = {final['t']:g}: {describe(ds.attrs['solver_status'])}", markup=False)
+        err_console.print(f"did not reach t1 = {ds.attrs['t1']:g}: {describe(ds.attrs['solver_status'])}; the "
+                          f"last saved state that is finite is at t = {final['t']:g} (--ts saves more times)",
+                          markup=False)
         raise typer.Exit(1)
 
 
@@ -180,6 +191,11 @@ def theory(
     }
     if as_json:
         console.print_json(json.dumps(jsonable(res)))
+        return
+    if not res["predicates"] and not res["derived"]:
+        # an empty table reads as "evaluated, nothing holds"; say that there is nothing to evaluate
+        console.print(f"{sysm.name} states no theorem: its model defines no theory() (a Theory of predicates is "
+                      "what a sweep draws its empirical region against)", markup=False)
         return
     t = Table(title=f"{escape(system)}: theorems at the given parameters")
     for col in ("predicate", "holds", "margin", "statement"):

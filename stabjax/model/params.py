@@ -82,6 +82,8 @@ def _to_array(value: Any, name: str) -> np.ndarray:
 
     try:
         return np.asarray(conv(value), dtype=float)
+    except ValidationError:  # conv's own message (a ValueError too), not "ragged"
+        raise
     except ValueError:  # ragged nesting
         raise ValidationError(name, f"cannot parse {value!r} as numbers (ragged list)") from None
 

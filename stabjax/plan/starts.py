@@ -44,6 +44,8 @@ def _read(path: str | Path, field: str = "sample.from") -> tuple[dict[str, np.nd
     """:func:`read`, and where each start sits in the file, for messages: "line N" of a CSV (blank lines
     and quoted line breaks counted, as an editor shows them), "start I" (from 0) of the others."""
     path = Path(path)
+    if path.is_dir():  # "." has no suffix: "unknown format" would send the user after the wrong mistake
+        raise ValidationError(field, f"{path} is a folder; give a starts file ({', '.join(FORMATS)})")
     if path.suffix not in FORMATS:
         raise ValidationError(field, f"{path.name}: unknown format; use one of {', '.join(FORMATS)}")
     if not path.is_file():

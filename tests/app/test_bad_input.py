@@ -445,6 +445,45 @@ def test_solver_failure_exits_1(capsys, monkeypatch):
     assert describe(9) == "the solver failed (nonfinite, code 9)" and "unknown, code 77" in describe(77)
 
 
+BLOWUP = """
+import jax.numpy as jnp
+from stabjax import Outcomes, Param, ParamSet, System
+
+
+class Blow(System):
+    params = ParamSet((Param("x0", 1.0, "initial x", kind="initial"),))
+    state = (("x", ()),)
+    observables = ("x",)
+    observable_doc = ("x",)
+    default_t1 = 10.0
+    outcomes = Outcomes(rules={"small": "max(x) < 1"}, window=0.5)
+
+    def initial_state(self, p):
+        return jnp.stack([p["x0"]])
+
+    def rhs(self, t, y, p):
+        return y ** 2
+
+    def observe(self, t, y, p):
+        return y
+"""
+
+
+def test_failed_trajectory_shows_its_last_finite_state(tmp_path, capsys):
+    """x' = x^2 from x0 = 1 leaves every float at t = 1: the table and the JSON show the last saved state that
+    is one (x(0.9) = 1/(1 - 0.9) = 10), not the solver's inf fill under the title "final state at t = 10"."""
+    model = tmp_path / "blow.py"
+    model.write_text(BLOWUP)
+    code, out, err = cli(capsys, "simulate", f"{model}:Blow", "--ts", "0.5,0.9", "--json")
+    assert code == 1
+    final = json.loads(out)
+    assert final["t"] == 0.9 and final["solver_ok"] is False
+    assert final["x"] == pytest.approx(10.0, rel=1e-8)  # rtol 1e-10 on a growth of 10x: well inside 1e-8
+    assert "did not reach t1 = 10" in err and "finite is at t = 0.9" in err
+    code, out, err = cli(capsys, "simulate", f"{model}:Blow", "--ts", "0.5")
+    assert code == 1 and "last finite saved state (t1 = 10 not reached) at t = 0.5" in out and "inf" not in out
+
+
 def test_interrupt_exits_130(tmp_path, capsys, monkeypatch):
     from stabjax.run import sweep
 
@@ -512,3 +551,20 @@ def test_bad_spec_through_the_cli(tmp_path, capsys, spec, field):
     assert code == 2 and f"error: {field}:" in err, (body, err)
     assert_clean(out, err)
     assert path.read_text() == body and sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
+
+
+def test_messages_name_the_mistake_made(tmp_path, capsys):
+    """A boolean parameter is called a boolean (it was "ragged list"), a folder as starts file a folder (it was
+    "unknown format"), and a model without theorems says so instead of printing an empty table."""
+    with pytest.raises(ValidationError, match="got a boolean") as info:
+        make_plan({**M, "params": {"alpha": True}})
+    assert info.value.field == "params.alpha"
+    with pytest.raises(ValidationError, match="ragged"):
+        make_plan({**M, "params": {"J": [[4, 5], [4]]}})
+    with pytest.raises(ValidationError, match="is a folder") as info:
+        make_plan({**M, "sample": {"n": 4, "from": str(tmp_path)}})
+    assert info.value.field == "sample.from"
+    model = tmp_path / "blow.py"
+    model.write_text(BLOWUP)
+    code, out, err = cli(capsys, "theory", f"{model}:Blow")
+    assert code == 0 and "Blow states no theorem" in out and "┃" not in out  # no empty table
