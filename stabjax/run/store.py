@@ -57,7 +57,6 @@ import errno
 import hashlib
 import json
 import os
-import shutil
 import socket
 import time
 import warnings
@@ -245,11 +244,38 @@ def remove_listed(path: Path, m: Mapping[str, Any], *, manifest: bool = True) ->
             continue
         p = path / e
         if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p)
+            _remove_array(p)
         elif p.exists() or p.is_symlink():
             p.unlink()
     if manifest:
         (path / MANIFEST).unlink(missing_ok=True)
+
+
+def _zarr_file(rel: tuple[str, ...]) -> bool:
+    """A file zarr writes inside an array's folder: its metadata, or a chunk (``c/0/1`` in zarr 3, ``0.1`` or
+    ``0/1`` in zarr 2's keys): names of digits, nothing else."""
+    if len(rel) == 1 and rel[0] in ("zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"):
+        return True
+    keys = rel[1:] if rel[0] == "c" else rel
+    return bool(keys) and all(k.replace(".", "").isdigit() for k in keys)
+
+
+def _remove_array(folder: Path) -> None:
+    """An array's folder, file by file: what zarr wrote goes, a file a user put there stays (with the folders
+    that hold it); a whole-tree delete took the user's file with it."""
+    for root, dirs, files in os.walk(folder, topdown=False):
+        here = Path(root)
+        for f in files:
+            if _zarr_file((here / f).relative_to(folder).parts):
+                (here / f).unlink()
+        for d in dirs:
+            q = here / d
+            if q.is_symlink():
+                continue  # a link is the user's; zarr never writes one
+            with contextlib.suppress(OSError):
+                q.rmdir()  # only when emptied
+    with contextlib.suppress(OSError):
+        folder.rmdir()
 
 
 def rounds_note(folder: str | Path) -> str:

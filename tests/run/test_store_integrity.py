@@ -148,7 +148,8 @@ def test_a_refused_sweep_does_not_say_it_replaces_the_result(spec, tmp_path, cap
 
 def test_restart_and_cleanup_remove_only_what_the_store_wrote(spec, tmp_path, reference):
     """A user's file put into a kept store survives --restart and the store's removal; only the
-    entries the manifest lists are deleted."""
+    entries the manifest lists are deleted, and of an array's folder only what zarr wrote there (a file put
+    inside an array's folder was deleted with the array)."""
     out, store = tmp_path / "r.nc", tmp_path / "r.nc.zarr"
     assert sweep(spec, out, "--keep-store") == 0
     written = set(S.read_manifest(store)["entries"])
@@ -157,11 +158,18 @@ def test_restart_and_cleanup_remove_only_what_the_store_wrote(spec, tmp_path, re
     (store / "my_notes.txt").write_text("keep me")
     (store / "plots").mkdir()
     (store / "plots" / "a.png").write_bytes(b"png")
+    (store / "verdict" / "mine").mkdir()
+    (store / "verdict" / "mine" / "f.txt").write_text("mine")
+    (store / "outcome" / "c" / "README").write_text("also mine")
     assert sweep(spec, out, "--keep-store", "--restart", "--t1", 50, "--force") == 0
     assert (store / "my_notes.txt").read_text() == "keep me" and (store / "plots" / "a.png").read_bytes() == b"png"
+    assert (store / "verdict" / "mine" / "f.txt").read_text() == "mine"
+    assert (store / "outcome" / "c" / "README").read_text() == "also mine"
     assert json.loads(xr.open_zarr(store).attrs["integrate_json"])["t1"] == 50.0
     assert sweep(spec, out, "--t1", 50) == 0  # finished: the store's own entries go, the user's stay
-    assert sorted(p.name for p in store.iterdir()) == ["my_notes.txt", "plots"]
+    assert sorted(p.name for p in store.iterdir()) == ["my_notes.txt", "outcome", "plots", "verdict"]
+    assert sorted(str(p.relative_to(store)) for p in store.rglob("*") if p.is_file()) == [
+        "my_notes.txt", "outcome/c/README", "plots/a.png", "verdict/mine/f.txt"]
 
 
 # ---- item 5: a missing or damaged chunk is recomputed, or named by export ---------------------------
