@@ -674,6 +674,22 @@ def _left_to_go(g: np.ndarray, lam: float, f: _Features) -> float:
     return float(np.median(travel) * q / (1.0 - q)) if q < 1 else math.inf
 
 
+def _nearest_fixed(g: np.ndarray, name: str, names, types, typed, f: _Features) -> tuple[str, float]:
+    """The other fixed point nearest to a group's members at t1 (scaled final states of the observables, median
+    member to median member), and how far: ("", nan) where there is none. A group still on its way may be that
+    one's equilibrium approached from elsewhere (the unforced Duffing oscillator at t1 = 60: a third small
+    fixed point beside the first), and the user is told which to compare."""
+    here = np.median(f.xf[g], axis=0)
+    best, dist = "", math.nan
+    for n, t, r in zip(names, types, typed):
+        if t != "fixed_point" or n == name:
+            continue
+        d = float(np.linalg.norm(np.median(f.xf[r[3]], axis=0) - here))
+        if not dist <= d:
+            best, dist = n, d
+    return best, dist
+
+
 def _hidden_motion(g: np.ndarray, lam: float, f: _Features) -> bool:
     """Whether a group whose observables are at rest may still move where they do not look: an autonomous model,
     most members not frozen by the fixed-point stop (which checked f = 0), and an exponent that has not contracted a
@@ -743,8 +759,8 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                               and not _decaying(rep, lam, f)],
                  # fixed points still approached monotonically, and how far they may have to go (:func:`_left_to_go`;
                  # said where that is more than eps, :func:`_warn_still_far`)
-                 still_far=[(n, int(g.size), float(lam), d) for n, t, g, lam in
-                            zip(names, types, (r[3] for r in typed), lams)
+                 still_far=[(n, int(g.size), float(lam), d, *_nearest_fixed(g, n, names, types, typed, f))
+                            for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                             if t == "fixed_point" and np.mean(f.at_rest[g]) <= 0.5
                             and np.mean(_ends_at_extreme(g, f)) > 0.5
                             and np.isfinite(d := _left_to_go(g, lam, f))])
@@ -940,14 +956,15 @@ def _warn_short_window(groups: list[tuple[str, int, float]], span: float) -> Non
                   f"lasts at least {need:.3g}", TransientWarning, stacklevel=3)
 
 
-def _warn_still_far(groups: list[tuple[str, int, float, float]], eps: float) -> None:
+def _warn_still_far(groups: list[tuple[str, int, float, float, str, float]], eps: float) -> None:
     """Said, not only stored: a fixed point approached so slowly that its members may end farther than ``eps``
     from the equilibrium is placed where t1 left them, and one equilibrium approached from two sides (x' = -x^3
     from both signs) may then be two fixed points."""
     import warnings
 
-    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g}, at least {d:.2g} of the range to go)"
-                      for name, n, lam, d in groups)
+    parts = ", ".join(f"{name} ({n} trajectories, exponent {lam:.3g}, at least {d:.2g} of the range to go"
+                      + (f"; nearest fixed point {near}, {dn:.2g} of the range away" if near else "") + ")"
+                      for name, n, lam, d, near, dn in groups)
     warnings.warn(f"{parts}: typed a fixed point by the negative exponent while still approaching it monotonically "
                   f"at t1, farther from it than eps = {eps:g} may allow: its position is where t1 left its "
                   f"trajectories, and fixed points so found on two sides may be one equilibrium; raise [integrate] "
