@@ -69,7 +69,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    end their window at an extreme of every observable (a monotone approach or drift is no cycle); else
    ``fixed_point`` in an autonomous model where the representative's oscillation dies out at the exponent's rate
    (:func:`_decaying`: a weak focus, its exponent within ``chaos_threshold`` of a cycle's 0); else
-   ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
+   ``attractor`` in an autonomous model where its members trace closed orbits farther than ``eps`` apart
+   (:func:`_continuum`: a centre's family of neutral orbits, said); else ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
    negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
@@ -244,6 +245,9 @@ class _Features:
     envelope: dict = field(default_factory=dict)  # representative -> its envelope's decay (cache of _decaying)
     chaos: float = 0.01  # DiscoveryConfig.chaos_threshold
     stopped: np.ndarray | None = None  # (N,) frozen at an equilibrium by the fixed-point stop (Newton: f = 0)
+    eps: float = 0.05  # DiscoveryConfig.eps
+    orbits: dict = field(default_factory=dict)  # (member, member) -> their orbits' distance (cache of _continuum)
+    continua: set = field(default_factory=set)  # representatives of the groups _continuum untyped
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
@@ -267,7 +271,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
         at_rest |= stopped
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
                      final, lam, at_rest, bool(autonomous), away, settle, span, trace,
-                     chaos=cfg.chaos_threshold, stopped=stopped)
+                     chaos=cfg.chaos_threshold, stopped=stopped, eps=cfg.eps)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -573,6 +577,9 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         kind = "attractor"
     elif f.autonomous and lam < 0 and _decaying(rep, lam, f):
         kind = "fixed_point"  # an oscillation dying out at its exponent's rate: a weak focus, no cycle
+    elif f.autonomous and _continuum(g, f):
+        kind = "attractor"  # closed orbits of many sizes, none attracting the others: a centre, no one cycle
+        f.continua.add(rep)
     else:
         kind = "limit_cycle"
     return kind, med, lam, rep
@@ -606,6 +613,53 @@ def _decaying(rep: int, lam: float, f: _Features) -> bool:
         f.envelope[rep] = _envelope_rate(*f.trace(rep))
     rate, drop = f.envelope[rep]
     return bool(drop < ENVELOPE_DECAY and 0.5 * lam >= rate >= 2.0 * lam)
+
+
+def _continuum(g: np.ndarray, f: _Features) -> bool:
+    """Whether a group that would be a limit cycle is a family of closed orbits instead -- a centre, or a
+    conservative system's periodic orbits (x' = -y, y' = x: circles of every radius, one limit_cycle_1 with S = 1).
+    Its members' window ranges (max - min of each observable, scaled: independent of the phase over whole periods)
+    differ by more than ``eps`` between the smallest and the largest member, and those two, integrated again
+    densely over the window (``f.trace``), each close on themselves there (an orbit, not an arc of a longer
+    period) and lie farther than ``eps`` apart (the larger of the two directed distances between the point sets).
+    One cycle gives every member the same orbit whatever its phase (the pendulum's running cycle, whose drifting
+    final values spread its window features); a window shorter than a period decides nothing (the orbits do not
+    close) and leaves the cycle typed."""
+    if f.trace is None or g.size < 2:
+        return False
+    k = len(STATS)
+    size = (f.x[g][:, 3::k] - f.x[g][:, 2::k]).sum(axis=1)
+    a, b = int(g[np.argmin(size)]), int(g[np.argmax(size)])
+    ranges = f.x[[a, b]][:, 3::k] - f.x[[a, b]][:, 2::k]
+    if not np.linalg.norm(ranges[1] - ranges[0]) > f.eps:
+        return False
+    if (a, b) not in f.orbits:
+        orbits = [f.trace(i)[1] / f.scale for i in (a, b)]
+        f.orbits[(a, b)] = _orbit_distance(*orbits) if all(_closes(o, f.eps) for o in orbits) \
+            else math.nan
+    return bool(f.orbits[(a, b)] > f.eps)
+
+
+def _closes(orbit: np.ndarray, eps: float) -> bool:
+    """Whether a densely sampled (scaled) orbit closes on itself: it never leaves ``eps`` of its first point (an
+    orbit smaller than the grouping radius), or, after going halfway to its farthest point, comes back to within
+    a quarter of that distance (and of eps / 2); an arc of a longer period does not."""
+    if len(orbit) < 3 or not np.all(np.isfinite(orbit)):
+        return False
+    d = np.linalg.norm(orbit - orbit[0], axis=1)
+    far = float(d.max())
+    if far <= eps:
+        return True
+    away = int(np.flatnonzero(d > far / 2)[0])
+    return bool(np.any(d[away:] < min(eps / 2, far / 4)))
+
+
+def _orbit_distance(p: np.ndarray, q: np.ndarray) -> float:
+    """The Hausdorff distance of two point sets (the larger directed distance), in blocks of rows."""
+    def directed(u, v):
+        return max(float(np.sqrt(((u[i:i + 256, None, :] - v[None]) ** 2).sum(-1)).min(axis=1).max())
+                   for i in range(0, len(u), 256))
+    return max(directed(p, q), directed(q, p))
 
 
 def _envelope_rate(t: np.ndarray, obs: np.ndarray) -> tuple[float, float]:
@@ -738,9 +792,13 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # untyped groups still in a transient that t1 did not outlast (:func:`_warn_transient`): most
                  # members end their window in a monotone approach, or (with the exponent, where an untyped
                  # group is one still contracting, :func:`_unsettled`) any
-                 transient=[n for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
+                 transient=[n for n, t, g, lam, rep in zip(names, types, (r[3] for r in typed), lams, reps)
                             if t == "attractor" and not lam > f.chaos and not np.mean(f.at_rest[g]) > 0.5
+                            and rep not in f.continua
                             and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
+                 # untyped groups of closed orbits of many sizes (:func:`_continuum`, :func:`_warn_continuum`)
+                 continuum=[(n, int(g.size)) for n, t, g, rep in zip(names, types, (r[3] for r in typed), reps)
+                            if t == "attractor" and rep in f.continua],
                  # untyped groups whose observables rest while the exponent says the state may move
                  hidden=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                          if t == "attractor" and np.mean(f.at_rest[g]) > 0.5],
@@ -872,6 +930,8 @@ class Discovery(Mapper):
             _warn_by_exponent(disc.stats["by_exponent"])
         if disc.stats.get("hidden"):
             _warn_hidden_motion(disc.stats["hidden"])
+        if disc.stats.get("continuum"):
+            _warn_continuum(disc.stats["continuum"], cfg.eps)
         if disc.stats.get("short_window"):
             _warn_short_window(disc.stats["short_window"], span)
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
@@ -969,6 +1029,17 @@ def _warn_still_far(groups: list[tuple[str, int, float, float, str, float]], eps
                   f"at t1, farther from it than eps = {eps:g} may allow: its position is where t1 left its "
                   f"trajectories, and fixed points so found on two sides may be one equilibrium; raise [integrate] "
                   f"t1", TransientWarning, stacklevel=3)
+
+
+def _warn_continuum(groups: list[tuple[str, int]], eps: float) -> None:
+    """Said, not only stored: a family of closed orbits is no attractor, and its basin stability means nothing."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories)" for name, n in groups)
+    warnings.warn(f"{parts}: closed orbits of many sizes, their members' orbits farther than eps = {eps:g} apart "
+                  f"and none contracting onto another (exponent ~0): a family of neutral orbits (a centre, or a "
+                  f"conservative system), not one limit cycle; left untyped, and its basin fraction is that of the "
+                  f"family, not of an attractor", TransientWarning, stacklevel=3)
 
 
 class RepresentativeWarning(UserWarning):

@@ -890,6 +890,42 @@ def test_a_non_hyperbolic_equilibrium_is_never_a_cycle_and_its_slow_approach_is_
         assert len(set(np.sign(x0[lab == a]))) == 1
 
 
+def test_a_centre_is_no_limit_cycle():
+    """x' = -y, y' = x (the spiral model at a = 0): every orbit a circle of its own radius, none attracting. Its 300
+    starts were one limit_cycle_1 with S = 1 +- 0. The smallest and the largest member's orbits, integrated again,
+    close on themselves and lie |r_max - r_min| apart (scaled: far more than eps), so the group is a family of
+    neutral orbits, left untyped and said. The orbits are the closed form's circles."""
+    from stabjax.mapping.discover import TransientWarning
+
+    _, spiral, _ = _runaways()
+    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
+    with pytest.warns(TransientWarning, match="family of neutral orbits"):
+        ds = run_spec({"system": spiral, "params": {"a": 0.0}, "sample": {"n": 300, "seed": 1, "x0": box, "y0": box},
+                       "integrate": {"t1": 50.0, "n_checkpoints": 200}})
+    assert "limit_cycle" not in set(ds["attractor_type"].values)
+    r0 = np.hypot(ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel())
+    fin = ds["feat_final"].values.reshape(-1, 2)
+    np.testing.assert_allclose(np.hypot(fin[:, 0], fin[:, 1]), r0, rtol=1e-5)
+    # a circle each: the window's sampled max of x lies within r (1 - cos(dt / 2)) of r, checkpoints dt = 0.25 apart
+    mx = ds["feat_max"].values.reshape(-1, 2)[:, 0]
+    assert np.all(mx <= r0 * (1 + 1e-6)) and np.all(mx >= r0 * np.cos(0.125) * (1 - 1e-6))
+
+
+def test_orbits_of_one_cycle_at_other_phases_are_one_orbit():
+    """The centre test's pieces: one circle sampled from two phases is one orbit (distance below the sampling's
+    chord), two circles of radii 1 and 1.2 are 0.2 apart; an arc shorter than a period does not close, a circle
+    smaller than eps does."""
+    from stabjax.mapping.discover import _closes, _orbit_distance
+
+    t = np.linspace(0.0, 20.0, 4001)
+    circle = lambda r, phase: r * np.stack([np.cos(t + phase), np.sin(t + phase)], axis=1)  # noqa: E731
+    chord = 2 * np.sin((t[1] - t[0]) / 2)
+    assert _orbit_distance(circle(1.0, 0.0), circle(1.0, 2.0)) <= chord
+    assert _orbit_distance(circle(1.0, 0.0), circle(1.2, 1.0)) == pytest.approx(0.2, abs=1.2 * chord)
+    assert _closes(circle(1.0, 0.0), 0.05) and not _closes(circle(1.0, 0.0)[t < 5.0], 0.05)
+    assert _closes(circle(0.01, 0.0)[t < 1.0], 0.05)  # an orbit within eps of a point is closed as far as eps sees
+
+
 def _synthetic(x):
     """A _Features holding scaled window features ``x`` (N, 4) only, for the grouping helpers."""
     from stabjax.mapping.discover import _Features
