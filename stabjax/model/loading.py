@@ -502,6 +502,31 @@ def validate_system(system):
     return system
 
 
+def _same_name_same_value(system, where: str, obs_names, y0: np.ndarray, ob: np.ndarray, observe) -> None:
+    """An observable may share a state component's name only by observing that component (the pendulum's
+    omega): a trajectory's dataset (``stabjax simulate``, the viewer's replay) holds one variable per name, and
+    the observable silently replaced the state (x observed as 2x read back as the state x). Checked at the
+    default initial state and at a second state, so that an observable equal to its component at one point
+    only (x**2 at x = 1) is caught too."""
+    at, i = {}, 0
+    for name, shape in system.state:
+        k = int(np.prod(shape)) if shape else 1
+        at[name] = i if not shape else None  # a vector component is never one observable
+        i += k
+    clash = [o for o in obs_names if o in at]
+    if not clash:
+        return
+    y1 = y0 * 1.37 + 0.29
+    ob1 = observe(y1)
+    for o in clash:
+        j, c = obs_names.index(o), at[o]
+        if c is None or ob[j] != y0[c] or ob1[j] != y1[c]:
+            state = f"{y0[c]:g}" if c is not None else "a vector"
+            raise ValidationError(f"{where}.observables", f"observable {o!r} has the name of a state component but "
+                                                          f"observes something else ({o} = {state} in the state, "
+                                                          f"{ob[j]:g} observed at the defaults): rename it")
+
+
 def _validate(system):
     import jax
     import jax.numpy as jnp
@@ -581,6 +606,8 @@ def _validate(system):
     for member, val in (("initial_state", y0), ("rhs", dy), ("observe", ob)):
         if not np.all(np.isfinite(np.asarray(val))):
             raise ValidationError(f"{where}.{member}", f"not finite at the default parameters: {np.asarray(val)}")
+    _same_name_same_value(system, where, obs_names, np.asarray(y0), np.asarray(ob),
+                          lambda y: np.asarray(call("observe", system.observe, t0, jnp.asarray(y), args)))
     # the engines trace these functions: a Python branch on a traced value fails only under jit
     try:
         jax.eval_shape(lambda q: system.rhs(t0, system.initial_state(q), system.prepare(q)), pj)

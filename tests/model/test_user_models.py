@@ -203,6 +203,10 @@ BAD = {
     "python_if": (GOOD.replace("return jnp.stack([y[1], -(p[\"c\"] - p[\"k\"]) * y[1] - y[0]])",
                                "return jnp.stack([y[1], -y[0]]) if y[0] > 0 else jnp.stack([y[1], y[0]])"),
                   "cannot be traced by JAX"),
+    # the observable x replaced the state x in a trajectory's dataset (one variable per name)
+    "observable_named_as_state": (GOOD.replace("return jnp.stack([jnp.sqrt(y[0] ** 2 + y[1] ** 2), y[0]])",
+                                               "return jnp.stack([jnp.sqrt(y[0] ** 2 + y[1] ** 2), y[0] ** 2])"),
+                                  "observable 'x' has the name of a state component but observes something else"),
 }
 
 
