@@ -108,7 +108,8 @@ def build(plan, records: Mapping[str, Any], derived) -> xr.Dataset:
         for k, v in plan.sample.items():
             prm = plan.system.params[k]
             extra = ("axis",) if v.shape[1:] == (3,) else tuple(f"{k}_c{i}" for i in range(v.ndim - 1))
-            data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}"})
+            data[f"{k}_sample"] = (("sample", *extra), v, {"long_name": f"sampled {prm.doc}",
+                                                            **({"units": prm.unit} if prm.unit else {})})
     for k, v in records.items():
         if k == "outcome":
             continue

@@ -101,3 +101,19 @@ def test_refinement_dataset_is_cf(tmp_path):
         check_cf(written.load(), REFINE_CATEGORICAL, theory_flags=False)
         for k in REFINE_CATEGORICAL:
             np.testing.assert_array_equal(written[k].values, ds[k].values, err_msg=k)
+
+
+def test_sampled_parameters_keep_their_units():
+    """A sampled start is in its parameter's declared units (the pendulum's theta0 in rad, omega0 in rad/s), as a
+    grid axis is; the sampled variables were all "1"."""
+    from pathlib import Path
+
+    import stabjax
+
+    model = Path(stabjax.__file__).parent / "examples" / "pendulum" / "model.py"
+    spec = {"system": f"{model}:Pendulum", "sample": {"n": 4, "seed": 0, "theta0": {"dist": "uniform", "low": -1.0, "high": 1.0},
+                                                             "omega0": {"dist": "uniform", "low": -1.0, "high": 1.0}},
+            "integrate": {"t1": 1.0, "n_checkpoints": 8}}
+    plan = make_plan(spec)
+    ds = run_plan(plan, None, batch_size=4)
+    assert {k: ds[f"{k}_sample"].attrs["units"] for k in plan.sample} == {"theta0": "rad", "omega0": "rad/s"}
