@@ -358,6 +358,7 @@ def write_report(ds: xr.Dataset | str | Path, out: str | Path, source: str = "",
     from .show import _dataset
 
     ds, path = _dataset(ds)
+    kind(ds)  # anything but a stabjax result is refused by name here, not by an AttributeError deep in render
     source = source or (str(path) if path is not None else "")
     out = Path(out)
     digest = spec_digest_of(ds)

@@ -7,6 +7,7 @@ from html.parser import HTMLParser
 
 import numpy as np
 import pytest
+import xarray as xr
 
 from clirun import status  # noqa: E402
 from stabjax.mapping.basin import basin_stats
@@ -139,6 +140,13 @@ def test_report_refuses_what_it_must_not_overwrite(results, tmp_path, capsys):
     capsys.readouterr()
     assert run_cli("report", str(foreign)) == 2
     assert capsys.readouterr().err.startswith("error: file:")
+    # through the API: a dataset that is no result is refused by name (it was an AttributeError in render)
+    from stabjax import write_report
+    from stabjax.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="not a stabjax result") as info:
+        write_report(xr.Dataset(), tmp_path / "e.html")
+    assert info.value.field == "result" and not (tmp_path / "e.html").exists()
 
 
 def _with_unclassified(ds, per_point: dict[float, int]):
