@@ -366,10 +366,21 @@ def _statement(cfg: ShockConfig, valid: np.ndarray, found: np.ndarray | None = N
 def witness_replay(ds: xr.Dataset, **sel) -> dict[str, Any]:
     """Parameters and the one command (``stabjax simulate ...``) that replay the witness start at a grid point
     (``sel``: one value per grid axis; none without a grid), for a person, a test, or the explorer's click."""
+    from ..errors import ValidationError
+
+    if not hasattr(ds, "data_vars") or "shock_norm" not in ds or "shock_witness" not in ds:
+        raise ValidationError("ds", "not a minimal-fatal-shock result (no shock_norm, shock_witness): "
+                                    "witness_replay replays what stabjax.minimal_fatal_shock found")
+    axes = ds["shock_norm"].dims
+    for k, v in sel.items():
+        if k not in axes:
+            raise ValidationError(k, f"is not a grid axis of this result ({', '.join(axes) or 'it has no grid'})")
+        if np.ndim(v) or not np.isin(v, ds[k].values):
+            raise ValidationError(k, f"{v!r} is not one of its grid values ({', '.join(f'{x:g}' for x in ds[k].values)})")
+    if set(sel) != set(axes):
+        raise ValidationError("sel", f"select one grid point: give a value of each of {', '.join(axes)}")
     fixed = json.loads(ds.attrs["fixed_params_json"])
     point = ds.sel(**sel) if sel else ds
-    if point["shock_norm"].ndim:
-        raise ValueError(f"select one grid point: {', '.join(point['shock_norm'].dims)}")
     p = {k: np.asarray(v, float) for k, v in fixed.items()}
     keys = json.loads(ds.attrs.get("grid_keys_json", "{}"))
     vals = np.asarray(point["shock_witness"].values, float)

@@ -190,6 +190,27 @@ def test_the_report_names_every_witness_and_its_replay_command(shock_nc):
         assert f"{float(p['shock_witness'].values[0]):.10g}" in page_html
 
 
+def test_witness_replay_refuses_a_wrong_selection_by_name(shock_nc, tmp_path):
+    """A grid value that is not one, an axis that is not one, a point not fully selected, a result that is no
+    shock search: each a ValidationError naming what is wrong (they were xarray KeyErrors)."""
+    from stabjax.errors import ValidationError
+
+    ds = open_result(shock_nc)
+    sel, _ = next(iter(SH._points(ds)))
+    ax = next(iter(sel))
+    cases = [({**sel, "bogus": 1.0}, "bogus"), ({**sel, ax: 1e9}, ax)]
+    if len(sel) > 1:
+        cases.append(({ax: sel[ax]}, "sel"))
+    for bad, field in cases:
+        with pytest.raises(ValidationError) as info:
+            witness_replay(ds, **bad)
+        assert info.value.field == field, info.value
+    with pytest.raises(ValidationError, match="not a minimal-fatal-shock result") as info:
+        witness_replay(ds.drop_vars("shock_norm"), **sel)
+    assert info.value.field == "ds"
+    assert witness_replay(ds, **sel)["found"]
+
+
 @pytest.mark.slow  # the page's model is proved in-process above; this is the page in a real browser
 def test_the_shock_page_in_a_real_browser(shock_nc, tmp_path):
     import os
