@@ -230,6 +230,10 @@ def test_python_entry_point_and_cf_attributes():
     assert ds.attrs["Conventions"].startswith("CF") and ds.attrs["kind"] == "shock"
     assert "no fatal shock in either direction of x0" in ds.attrs["statement"]  # one component: no statistics
     assert "confidence" not in ds.attrs["statement"] and ds.attrs["n_directions"] == 2
+    # one name is one component, not its letters (list("x0") was the components x and 0)
+    one = minimal_fatal_shock("test_shock_t1", "x0", 2.0, directions=2, integrate=T1_INTEGRATE)
+    assert list(one["component"].values) == ["x0"]
+    np.testing.assert_array_equal(one["shock_norm"].values, ds["shock_norm"].values)
 
 
 @pytest.mark.parametrize("shock, field", [
