@@ -202,7 +202,11 @@ def provenance(plan) -> dict[str, Any]:
         "sweep_name": plan.name,
         "paper": plan.system.paper,
         "spec_json": json.dumps(jsonable(plan.spec)),
-        "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()}),
+        # the parameters the run held fixed: one swept or sampled as a whole is none of them (one entry swept,
+        # "J[0]", leaves the vector's other entries fixed: it stays, the axis overriding that entry)
+        "fixed_params_json": json.dumps({k: np.asarray(v).tolist() for k, v in plan.fixed.items()
+                                         if k not in plan.sample
+                                         and not any(ax.param.name == k and ax.index is None for ax in plan.grid)}),
         # the known attractors are the runner's state (found by the run itself, a refinement's earlier rounds):
         # their count here, their identity in the fingerprint
         "integrate_json": json.dumps({**{k: v for k, v in plan.icfg.__dict__.items() if k != "known_attractors"},

@@ -117,3 +117,12 @@ def test_sampled_parameters_keep_their_units():
     plan = make_plan(spec)
     ds = run_plan(plan, None, batch_size=4)
     assert {k: ds[f"{k}_sample"].attrs["units"] for k in plan.sample} == {"theta0": "rad", "omega0": "rad/s"}
+
+
+def test_fixed_parameters_are_those_held_fixed(in_memory):
+    """fixed_params_json listed the swept alpha and the sampled s0 beside mu, as if fixed (the API pass)."""
+    import json
+
+    fixed = json.loads(in_memory.attrs["fixed_params_json"])
+    assert "alpha" not in fixed and "s0" not in fixed
+    assert fixed["mu"] == 1.5 and fixed["sigma"] == pytest.approx(4 / 3, rel=1e-15)
