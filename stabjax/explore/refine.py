@@ -526,4 +526,6 @@ def refine_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = N
     """Load (if a path), plan and refine a spec with a ``[refine]`` section (``out`` never the spec file read)."""
     from ..run.outputs import plan_result
 
-    return refine_plan(plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="refine"), out, **kw)
+    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="refine", caller="refine_spec",
+                       kw=kw, runner=refine_plan)
+    return refine_plan(plan, out, **kw)

@@ -527,7 +527,8 @@ def shock_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = No
     the spec file read)."""
     from ..run.outputs import plan_result
 
-    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="shock")
+    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), section="shock", caller="shock_spec",
+                       kw=kw, runner=shock_plan)
     return shock_plan(plan, out, overrides={"t1": t1}, **kw)
 
 

@@ -310,18 +310,35 @@ def guard_result(plan, out, *, force: bool = False, spec_file=None) -> bool:
                         same=lambda p: result_spec(p) == this_spec, what="a result of this spec")
 
 
-def plan_result(spec, out, *, t1: float | None = None, force: bool = False, section: str | None = None):
+def plan_result(spec, out, *, t1: float | None = None, force: bool = False, section: str | None = None,
+                caller: str = "", kw=None, runner=None):
     """The plan of ``spec`` (a mapping, or a TOML file loaded here) for the ``*_spec`` functions, with ``out``
     checked by :func:`guard_result` before anything runs (never the spec file itself). ``section``: the table
-    the spec must have (``"refine"``, ``"shock"``), refused by name when missing."""
+    the spec must have (``"refine"``, ``"shock"``), refused by name when missing. ``kw``: the keywords
+    ``caller`` passes on to ``runner``, refused in ``caller``'s name when ``runner`` takes none such (a
+    TypeError naming an internal function otherwise, and only after the plan was made)."""
+    import inspect
+
     from ..plan.spec import load_spec, make_plan
 
+    if kw and runner is not None:
+        takes = [k for k, v in inspect.signature(runner).parameters.items() if v.kind == v.KEYWORD_ONLY
+                 and k != "overrides"]
+        bad = [k for k in kw if k not in takes]
+        if bad:
+            raise TypeError(f"{caller}() got an unexpected keyword argument {bad[0]!r} (it takes t1, "
+                            f"{', '.join(takes)})")
     spec_file = spec if isinstance(spec, (str, Path)) else None
     if spec_file is not None:
         spec = load_spec(spec_file)
     if section is not None and section not in spec:
         raise ValidationError(section, f"the spec has no [{section}] section")
-    plan = make_plan(spec, t1=t1)
+    try:
+        plan = make_plan(spec, t1=t1)
+    except ValidationError as exc:
+        if exc.field != "--t1":
+            raise
+        raise ValidationError("t1", exc.message) from None  # the argument's name here, not the command line's
     if out is not None:
         guard_result(plan, out, force=force, spec_file=spec_file)
     return plan

@@ -137,3 +137,21 @@ def test_a_spec_without_its_section_is_refused_before_anything_is_written(folder
         {"refine_spec": refine_spec, "shock_spec": shock_spec}[fn](folder / "s.toml", folder / "r.nc")
     assert exc.value.field == section and f"no [{section}] section" in exc.value.message
     assert sorted(p.name for p in folder.iterdir()) == before
+
+
+@pytest.mark.parametrize("fn", ["run_spec", "refine_spec", "shock_spec"])
+def test_the_api_names_its_own_arguments(folder, fn):
+    """A bad t1 is the argument t1 (it was the command line's --t1), and a keyword the call does not take is
+    refused in the call's name before anything runs (it was a TypeError from the internal run_plan)."""
+    from stabjax.explore.refine import refine_spec
+    from stabjax.explore.shock import shock_spec
+
+    call = {"run_spec": stabjax.run_spec, "refine_spec": refine_spec, "shock_spec": shock_spec}[fn]
+    before = sorted(p.name for p in folder.iterdir())
+    with pytest.raises(TypeError, match=rf"^{fn}\(\) got an unexpected keyword argument 'bogus'"):
+        call(folder / "s.toml", folder / "r.nc", bogus=1)
+    if fn == "run_spec":
+        with pytest.raises(ValidationError) as exc:
+            call(folder / "s.toml", t1=-1.0)
+        assert exc.value.field == "t1"
+    assert sorted(p.name for p in folder.iterdir()) == before
