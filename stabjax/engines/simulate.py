@@ -68,7 +68,8 @@ def batch_params(system: System, overrides: Mapping[str, Any] | None, n: int = 1
 def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t1: float | None = None,
              ts=None, t0: float = 0.0, solver: str = "tsit5", rtol: float = 1e-10, atol: float = 1e-12,
              max_steps: int | None = None):
-    """One trajectory with the full state saved at ``ts`` (default: 1000 points on [t0, t1]; t1 always included).
+    """One trajectory with the full state saved at ``ts`` (default: 1001 points on [t0, t1], 1000 steps apart;
+    t1 always included).
 
     Runs on the engine that saves full states (:func:`stabjax.engines.trajectory_fn`; stops at once on a non-finite state, and at the system's escape
     radius if it has one). ``params``: a mapping of parameter names (a start's components among them) to values,
@@ -102,8 +103,11 @@ def simulate(system: System | str, params: Mapping[str, Any] | None = None, *, t
     ds = xr.Dataset(coords={"t": ("t", ts, {"long_name": "time"})})
     comps = system.unpack(ys)
     for name, shape in system.state:
-        ds[name] = (("t", *_dims_for(name, shape)), comps[name])
+        ds[name] = (("t", *_dims_for(name, shape)), comps[name], {"long_name": f"state component {name}"})
     for i, name in enumerate(system.observables):
+        if name in ds:  # the model check holds such an observable equal to its state component: one variable
+            ds[name].attrs["long_name"] = f"state component {name}: {system.observable_doc[i]} (also an observable)"
+            continue
         ds[name] = ("t", obs[:, i], {"long_name": system.observable_doc[i]})
     if "axis" in ds.dims:
         ds = ds.assign_coords(axis=["x", "y", "z"])

@@ -116,6 +116,10 @@ def test_python_api_accepts_a_class_and_an_instance(project):
     np.testing.assert_allclose(traj["x"].values, np.exp(-t / 4) * (np.cos(w * t) + np.sin(w * t) / (4 * w)),
                                rtol=0, atol=bound)
     assert bound < 1e-6  # still a sharp check of the model
+    # every variable labelled; the observable x is the state component x, one variable that says so
+    assert traj["v"].attrs["long_name"] == "state component v"
+    assert traj["x"].attrs["long_name"] == "state component x: displacement (also an observable)"
+    assert traj["amplitude"].attrs["long_name"] == "sqrt(x^2 + v^2)"
 
 
 def test_register_for_the_running_process(project, capsys, monkeypatch):
