@@ -386,9 +386,14 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
     data["bracketed"] = ("segment", width_ok.astype(np.int8), {
         "long_name": "whether the bracket is within the tolerance on every axis",
         "flag_values": np.array([0, 1], np.int8), "flag_meanings": "wider_than_tolerance within_tolerance"})
+    # the theorem's margin on a regular grid, so that the plot needs nothing but this file
+    nt = 201 if ref.D == 2 else 1001
+    tgrid = [np.linspace(float(ax.values.min()), float(ax.values.max()), nt) for ax in plan.grid]
+    mesh = np.meshgrid(*tgrid, indexing="ij")
+    mt, main = _margin(plan, np.stack([g.ravel() for g in mesh], axis=1))
     # theory: only segments between the stable outcome and another one say how conservative the theorem is
-    main = ""
-    if cfg.stable is not None and S:
+    # (a model that states no theorem gets no theory variables: NaN distances to a contour that is not there)
+    if cfg.stable is not None and S and main:
         st = cfg.names.index(cfg.stable)
         use = (lab_p == st) ^ (lab_q == st)
         for a, n in enumerate(names):
@@ -419,13 +424,8 @@ def assemble(ref: Refiner, *, wall: float = float("nan"), engines: set[str] = fr
         "long_name": "fraction of the point's samples carrying its label at each horizon bracketed"})
     data["point_round"] = ("point", rounds, {"long_name": "round in which the point was evaluated"})
     data["point_steps"] = ("point", steps, {"long_name": "accepted solver steps over the point's samples"})
-    # the theorem's margin on a regular grid, so that the plot needs nothing but this file
-    nt = 201 if ref.D == 2 else 1001
-    tgrid = [np.linspace(float(ax.values.min()), float(ax.values.max()), nt) for ax in plan.grid]
-    mesh = np.meshgrid(*tgrid, indexing="ij")
-    mt, main = _margin(plan, np.stack([g.ravel() for g in mesh], axis=1))
     coords = {f"{n}_theory": (f"{n}_theory", g, {"long_name": f"{n} (theory grid)", **u})
-              for n, g, u in zip(names, tgrid, units_of)}
+              for n, g, u in zip(names, tgrid, units_of)} if main else {}
     coords["horizon"] = ("horizon", horizons, {"long_name": "verdict horizon T bracketed: labels of the prefix "
                                                             "t <= T of each run"})
     if main:

@@ -165,6 +165,20 @@ def warnings(ds: xr.Dataset) -> list[str]:
     return out
 
 
+def _checked(ds: xr.Dataset) -> str:
+    """What :func:`warnings` looked for and did not find, for this kind of result (a named-outcome page said
+    "verdicts stable at the last horizon", a refinement's "no solver failures": checks it never made)."""
+    if kind(ds) == "refine":
+        return "every boundary segment bracketed within the tolerance, no refinement point undecided, " \
+               "unclassified or failed"
+    said = ["no unclassified excess at any grid point"]
+    if "solver_status" in ds:
+        said.append("no solver failures")
+    if "verdict" in ds and "horizon" in ds.dims and ds.sizes["horizon"] >= 2:
+        said.append("verdicts stable at the last horizon")
+    return ", ".join(said)
+
+
 def undecided_warnings(ds: xr.Dataset) -> list[str]:
     """The shares of 'unclassified' and 'undecided' trajectories above :data:`UNCLASSIFIED_WARN`, per grid
     point when the result samples starts at each point (the points named, with their share), else over the
@@ -232,7 +246,8 @@ def figures(ds: xr.Dataset) -> list[tuple[str, bytes]]:
 
     from .show import plot
 
-    captions = {"refine": "Evaluated points coloured by label, bracketed boundary and the theorem's boundary.",
+    captions = {"refine": "Evaluated points coloured by label and the bracketed boundary"
+                          + (" with the theorem's boundary." if "theory_margin" in ds else "."),
                 "basin": "Outcomes and basin stability S with 95% Wilson intervals.",
                 "discovery": "Discovered attractors (named with where they lie) and basin stability S with 95% "
                              "Wilson intervals.",
@@ -339,8 +354,7 @@ def render(ds: xr.Dataset, source: str = "") -> str:
     parts.append("<h2>Warnings</h2>")
     ws = warnings(ds)
     parts.append("".join(f"<div class=warn>{e(w)}</div>" for w in ws) if ws else
-                 "<div class=ok>None: no unclassified excess at any grid point, no solver failures, verdicts stable "
-                 "at the last horizon.</div>")
+                 f"<div class=ok>None: {e(_checked(ds))}.</div>")
     parts.append("</body></html>")
     return "\n".join(parts)
 

@@ -521,6 +521,14 @@ def test_refine_named_outcome_of_a_user_model_file(tmp_path):
     assert ds.attrs["n_segments"] == 1
     assert float(ds["k_lo"][0]) <= k_star <= float(ds["k_hi"][0])
     assert float(ds["width_k"][0]) <= 1e-3
+    # the model states no theorem: no theory variables (they were NaN distances to a contour that is not there),
+    # and the page says neither "the theorem's boundary" nor checks the result never made (verdicts, solver)
+    from stabjax.present.report import _checked, render
+
+    assert not [k for k in ds.variables if "theory" in str(k)]
+    page = render(ds)
+    assert "the theorem's boundary" not in page and "verdicts stable" not in page
+    assert _checked(ds).startswith("every boundary segment bracketed within the tolerance")
 
 
 def test_refine_and_sweep_label_an_escaped_point_alike(monkeypatch):
