@@ -624,3 +624,41 @@ def _validate(system):
         if not isinstance(outcomes, Outcomes):
             raise ValidationError(f"{where}.outcomes", "must be a stabjax.Outcomes(...)")
         outcomes.check(system, where=f"{where}.outcomes")
+    _check_theory(system, where, p)
+
+
+def _check_theory(system, where: str, p: dict[str, np.ndarray]) -> None:
+    """The theorems on a batch of two trajectories at the defaults: a stabjax.Theory whose predicates and derived
+    quantities give one value per trajectory (or one for all), and whose ``main`` is one of its predicates. A wrong
+    theory() was a traceback after the first chunk had been integrated (a store left behind), or a result naming a
+    main theorem it does not have."""
+    from .system import Predicate, Theory
+
+    batch = {k: np.broadcast_to(np.asarray(v), (2, *np.shape(v))).copy() for k, v in p.items()}
+    try:
+        th = system.theory(batch)
+    except ValidationError:
+        raise
+    except BaseException as exc:  # noqa: BLE001
+        if not _is_model_error(exc):
+            raise
+        raise ValidationError(f"{where}.theory", f"raised {_last_line(exc)} at the default parameters") from None
+    if not isinstance(th, Theory):
+        raise ValidationError(f"{where}.theory", f"returned a {type(th).__name__}; expected a stabjax.Theory("
+                                                 "predicates={name: Predicate(ok, margin, doc)}, ...)")
+    values = [(f"predicates.{k}.{part}", getattr(v, part, None)) for k, v in th.predicates.items()
+              for part in ("ok", "margin")]
+    for k, v in th.predicates.items():
+        if not isinstance(v, Predicate):
+            raise ValidationError(f"{where}.theory", f"predicate {k!r} is a {type(v).__name__}; expected a "
+                                                     "stabjax.Predicate(ok, margin, doc)")
+    for name, v in values + [(f"derived.{k}", v) for k, v in th.derived.items()]:
+        try:
+            np.broadcast_to(np.asarray(v, dtype=float), (2,))
+        except (TypeError, ValueError):
+            raise ValidationError(f"{where}.theory", f"{name} has shape {np.shape(v)} for a batch of 2 "
+                                                     "trajectories: give one value per trajectory (shape (2,)) or "
+                                                     "one for all") from None
+    if th.main and th.main not in th.predicates:
+        raise ValidationError(f"{where}.theory", f"main = {th.main!r} is not one of its predicates "
+                                                 f"({', '.join(th.predicates) or 'none'})")

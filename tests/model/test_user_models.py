@@ -179,6 +179,14 @@ def test_systems_name_describes_a_builtin(capsys):
 # ---- bad model files: each a clear error naming the file and the member, exit 2, nothing written ----
 
 GOOD = MODEL.read_text()
+
+
+def _with_theory(returned: str) -> str:
+    """The oscillator with a theory() returning ``returned`` (``c``: the damping of the batch)."""
+    return GOOD.replace("from stabjax import Outcomes, Param, ParamSet, System",
+                        "import numpy as np\nfrom stabjax import Outcomes, Param, ParamSet, Predicate, System, Theory") \
+        .replace("    def initial_state(self, p):", "    def theory(self, p):\n        c = np.asarray(p['c'], float)\n"
+                 f"        return {returned}\n\n    def initial_state(self, p):", 1)
 BAD = {
     "missing_file": (None, "model file not found"),
     "no_class": (GOOD.replace("class Oscillator(System)", "class Other(System)"), "no class 'Oscillator'"),
@@ -211,6 +219,18 @@ BAD = {
     "observable_named_as_state": (GOOD.replace("return jnp.stack([jnp.sqrt(y[0] ** 2 + y[1] ** 2), y[0]])",
                                                "return jnp.stack([jnp.sqrt(y[0] ** 2 + y[1] ** 2), y[0] ** 2])"),
                                   "observable 'x' has the name of a state component but observes something else"),
+    # a wrong theory() was a traceback after the first chunk had run, leaving a store behind
+    **{f"theory_{case}": (_with_theory(body), needle) for case, (body, needle) in {
+        "shape": ('Theory(predicates={"t": Predicate(np.ones(3, bool), np.ones(3), "t")}, main="t")',
+                  "predicates.t.ok has shape (3,) for a batch of 2"),
+        "keepdims": ('Theory(predicates={"t": Predicate(c[..., None] > 0, c[..., None], "t")}, main="t")',
+                     "predicates.t.ok has shape (2, 1)"),
+        "derived": ('Theory(predicates={}, derived={"r": np.ones(7)})', "derived.r has shape (7,)"),
+        "dict": ('{"t": c > 0}', "returned a dict; expected a stabjax.Theory"),
+        "main": ('Theory(predicates={"t": Predicate(c > 0, c, "t")}, main="nosuch")',
+                 "main = 'nosuch' is not one of its predicates (t)"),
+        "raises": ('{}["oops"]', "Oscillator.theory: raised KeyError: 'oops'"),
+    }.items()},
 }
 
 
