@@ -244,7 +244,7 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
         for a in found:
             lam = f", largest Lyapunov exponent {a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else ""
             if lam and "attractor_events" in ds:
-                lam += " (median over its grid points)"
+                lam += " (median over its trajectories at every grid point)"
             lines.append(f"  {a['name']:<{w}}{a['count']:>9d} {trajectory_noun(a['count'])}{lam}; "
                          f"{a['where'] or 'where: not recorded'}")
     if "start_label_mcc" in ds:
