@@ -412,7 +412,8 @@ def settle(plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.
     tolerances) and its final state written back into the shocked entries. Needs entries that *are* state entries
     (``initial_state`` copies each into one state entry, and every state entry comes from one): checked on the
     Jacobian of ``initial_state``. For a forced system the final state is on the attractor at t1's phase; the shock
-    is applied at t0, so choose t1 a whole number of forcing periods."""
+    is applied at t0, so choose t1 a whole number of forcing periods. A start that reaches no attractor (it escapes,
+    or the solver fails) is left as given."""
     import jax
 
     from ..engines.simulate import simulate
@@ -444,6 +445,11 @@ def settle(plan, cfg: ShockConfig, base: dict[str, np.ndarray]) -> dict[str, np.
         ds = simulate(sysm, p, t1=ic.t1, t0=ic.t0, ts=[ic.t1], solver=ic.solver, rtol=ic.rtol, atol=ic.atol,
                       max_steps=ic.max_steps)
         yf = np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in sysm.state])
+        if int(ds.attrs["solver_status"]) != 0 or not np.all(np.isfinite(yf)):
+            # no attractor to settle on (the start escapes, or the solver fails): the start stays as given, and
+            # the unshocked run says what it reaches ("escaped" is an answer; the non-finite state written back
+            # here made it "failed", exit 1)
+            continue
         for j, e in enumerate(cfg.entries):
             v = yf[row[j]] * np.sign(J[row[j], j])
             if e.index is None:

@@ -139,6 +139,18 @@ def test_settle_moves_the_start_onto_its_attractor():
     assert abs(np.hypot(*(cycle.shock_witness.values - cycle.shock_delta.values)) - 2.0) < 1e-6
 
 
+def test_settle_of_a_start_that_escapes_leaves_it_as_given():
+    """x' = -x + x^3 from x0 = 1.5 (outside the origin's basin |x| < 1): there is no attractor to settle on. The
+    settle run's non-finite final state was written back as the start, so the unshocked run 'failed' (exit 1);
+    the start stays as given and its run escapes, an answer (the same as without settle)."""
+    shock = {"components": ["x0"], "max_radius": 2.0, "directions": 2, "refine": "none"}
+    settled = search("test_shock_t1", {**shock, "settle": True}, params={"x0": 1.5})
+    plain = search("test_shock_t1", shock, params={"x0": 1.5})
+    names = settled.attrs["outcome_names"].split()
+    assert names[int(settled.base_outcome)] == "escaped" == names[int(plain.base_outcome)]
+    assert int(settled.base_solver_status) == int(plain.base_solver_status)
+
+
 def test_discovered_attractors_decide_fatal():
     """T2 with its attractors discovered (no rules): the origin's group and the r = 2 cycle's; delta* = 1."""
     ds = search("test_shock_t2", {"components": ["x0", "y0"], "max_radius": 2.0, "directions": 8, "refine": "none"},
