@@ -112,7 +112,10 @@ def theory_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]], list[str
         return (["axis", "median distance", "range"], rows,
                 [f"Distance of each bracketed boundary segment to the boundary of the theorem "
                  f"'{ds.attrs.get('theory_main', '')}' along the axis (> 0: the theorem is conservative there)."])
-    if "verdict" not in ds or not ds.attrs.get("theory_main"):
+    main = ds.attrs.get("theory_main")
+    if "verdict" not in ds and main and "outcome" in ds and f"theory_{main}" in ds:
+        return _outcome_agreement(ds, main)
+    if "verdict" not in ds or not main:
         return None
     c = confusion(ds)
     if "predicate" not in c:
@@ -123,6 +126,27 @@ def theory_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]], list[str
                  f"Theory conservative (silent, simulation converged): {c['conservative']:,}.",
                  f"Red flags (theory guarantees stability, simulation flipped or diverged): {c['red_flags']:,}."]
     return header, rows, sentences
+
+
+def _outcome_agreement(ds: xr.Dataset, main: str):
+    """The main theorem against named outcomes: trajectories guaranteed / not, per outcome. Which outcome the
+    theorem guarantees is the model's statement, not declared to stabjax: the table counts, the reader judges (the
+    page said "this system states no theorem" beside the theorem's own variables)."""
+    import xarray as xr
+
+    th, oc = xr.broadcast(ds[f"theory_{main}"], ds["outcome"])
+    th, oc = np.asarray(th.values).ravel(), np.asarray(oc.values).ravel()
+    names = str(ds["outcome"].attrs.get("flag_meanings", "")).split()
+    codes = np.asarray(ds["outcome"].attrs.get("flag_values", np.arange(len(names))))
+    cols = [(n, c) for n, c in zip(names, codes) if (oc == c).any()]
+    rows = [[label, *[f"{int(((th == g) & (oc == c)).sum()):,}" for _, c in cols]]
+            for label, g in (("theory: guaranteed", 1), ("theory: silent", 0))]
+    doc = ds[f"theory_{main}"].attrs.get("long_name", "")
+    return (["theory \\ outcome", *[n for n, _ in cols]], rows,
+            [f"Predicate '{main}'" + (f" ({doc})" if doc else "") + ": 'guaranteed' rows are the trajectories whose "
+             "parameters (and start, where it reads the start) satisfy it.",
+             "Which outcome it guarantees is the model's statement: a guaranteed trajectory ending in another "
+             "outcome refutes it there (a red flag), a silent one ending in it is where it is conservative."])
 
 
 def warnings(ds: xr.Dataset) -> list[str]:

@@ -217,3 +217,24 @@ def test_report_replaces_its_own_page_and_no_other_file(results, tmp_path, capsy
     page = other.read_text()
     assert run_cli("report", str(res), "--out", str(other)) == 2  # a page of another result
     assert other.read_text() == page
+
+
+def test_a_theorem_is_held_against_named_outcomes():
+    """The shock example's Lyapunov disc (r0 < 1 guarantees the origin; exact: the basin is that disc) against the
+    outcomes of 200 starts: the page counted nothing and said "this system states no theorem" beside the theory's
+    own variables. Guaranteed and origin are the starts with r0 < 1, silent and cycle2 those with 1 < r0 < 3."""
+    from pathlib import Path
+
+    import stabjax
+    from stabjax.present.report import render, theory_section
+
+    model = Path(stabjax.__file__).parent / "examples" / "shock_circle" / "model.py"
+    box = {"dist": "uniform", "low": -2.0, "high": 2.0}
+    ds = stabjax.run_spec({"system": f"{model}:Circle", "sample": {"n": 200, "seed": 0, "x0": box, "y0": box},
+                           "integrate": {"t1": 30.0, "n_checkpoints": 100}})
+    r0 = np.hypot(ds["x0_sample"].values, ds["y0_sample"].values)
+    header, rows, sentences = theory_section(ds)
+    assert header == ["theory \\ outcome", "origin", "cycle2"]
+    inside = int((r0 < 1).sum())
+    assert rows == [["theory: guaranteed", f"{inside:,}", "0"], ["theory: silent", "0", f"{r0.size - inside:,}"]]
+    assert "states no theorem" not in render(ds) and "lyapunov_disc" in sentences[0]
