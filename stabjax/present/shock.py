@@ -103,7 +103,9 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
 
 # ---- figures --------------------------------------------------------------------------------------------
 
-THEORY_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))))
+# eight distinct (colour, dash) pairs (Okabe-Ito colours): a fifth theorem repeated the first's line
+THEORY_STYLES = (("#000000", "--"), ("#D55E00", ":"), ("#009E73", "-."), ("#CC79A7", (0, (5, 2, 1, 2))),
+                 ("#E69F00", "--"), ("#56B4E9", ":"), ("#000000", "-."), ("#D55E00", (0, (1, 1))))
 
 
 def plot_shock(ds: xr.Dataset, out: str | Path | None = None, basin: xr.Dataset | None = None, title: str | None = None):
@@ -246,7 +248,10 @@ def _plane(ax, ds, basin):
         r = float(p[f"theory_radius_{name}"].values)
         if np.isfinite(r) and r > 0:
             col, ls = THEORY_STYLES[i % len(THEORY_STYLES)]
-            ax.plot(*(base + circ * (r / scale)[:, None]).T, color=col, ls=ls, lw=1.6, label=f"region of {name}")
+            # the ball of the search's norm the theorem guarantees, not its region's shape (an ellipse V < 1 is
+            # drawn as the largest such ball inside it: "region of" called that circle the region)
+            ax.plot(*(base + circ * (r / scale)[:, None]).T, color=col, ls=ls, lw=1.6,
+                    label=f"ball guaranteed by {name} (radius {r:.4g}, the search's norm)")
     ax.plot(*base, "o", color="k", ms=6, label=f"the attractor's start ({outcome_name(ds, p['base_outcome'].values)})")
     ax.set_xlabel(comps[0])
     ax.set_ylabel(comps[1])

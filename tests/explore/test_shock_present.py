@@ -123,3 +123,10 @@ def test_a_failed_unshocked_start_exits_1(tmp_path, capsys):
     ds = open_result(out)
     assert ds.base_solver_status.sel(c=-1.0) != 0 and ds.base_solver_status.sel(c=1.0) == 0
     assert float(ds.shock_norm_lo.sel(c=1.0)) <= 1.0 <= float(ds.shock_norm.sel(c=1.0))
+
+
+def test_each_theorem_keeps_its_own_line():
+    """Five theorems drew the fifth with the first's line (four styles): eight distinct (colour, dash) pairs."""
+    from stabjax.present.shock import THEORY_STYLES
+
+    assert len({repr(s) for s in THEORY_STYLES}) == len(THEORY_STYLES) >= 8
