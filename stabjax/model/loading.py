@@ -576,14 +576,7 @@ def _validate(system):
     pj = {k: jnp.asarray(v, jnp.float64) for k, v in p.items()}
 
     def call(member, fn, *a):
-        try:
-            return fn(*a)
-        except ValidationError:
-            raise
-        except BaseException as exc:  # noqa: BLE001
-            if not _is_model_error(exc):
-                raise
-            raise ValidationError(f"{where}.{member}", f"raised {_last_line(exc)}") from None
+        return _member_call(where, member, fn, *a)
 
     def expect(member, val, shape):
         arr = jnp.asarray(val) if not hasattr(val, "shape") else val
@@ -627,6 +620,18 @@ def _validate(system):
     _check_theory(system, where, p)
 
 
+def _member_call(where: str, member: str, fn, *a, said: str = ""):
+    """A model member called by the check: an exception of the model's own code is an error naming the member."""
+    try:
+        return fn(*a)
+    except ValidationError:
+        raise
+    except BaseException as exc:  # noqa: BLE001
+        if not _is_model_error(exc):
+            raise
+        raise ValidationError(f"{where}.{member}", f"raised {_last_line(exc)}{said}") from None
+
+
 def _check_theory(system, where: str, p: dict[str, np.ndarray]) -> None:
     """The theorems on a batch of two trajectories at the defaults: a stabjax.Theory whose predicates and derived
     quantities give one value per trajectory (or one for all), and whose ``main`` is one of its predicates. A wrong
@@ -635,14 +640,7 @@ def _check_theory(system, where: str, p: dict[str, np.ndarray]) -> None:
     from .system import Predicate, Theory
 
     batch = {k: np.broadcast_to(np.asarray(v), (2, *np.shape(v))).copy() for k, v in p.items()}
-    try:
-        th = system.theory(batch)
-    except ValidationError:
-        raise
-    except BaseException as exc:  # noqa: BLE001
-        if not _is_model_error(exc):
-            raise
-        raise ValidationError(f"{where}.theory", f"raised {_last_line(exc)} at the default parameters") from None
+    th = _member_call(where, "theory", system.theory, batch, said=" at the default parameters")
     if not isinstance(th, Theory):
         raise ValidationError(f"{where}.theory", f"returned a {type(th).__name__}; expected a stabjax.Theory("
                                                  "predicates={name: Predicate(ok, margin, doc)}, ...)")
