@@ -22,12 +22,6 @@ def _compilation_cache() -> str | None:
 
 _OWN_CACHE = _compilation_cache()
 
-# XLA's CPU backend at LLVM's lowest optimisation level: the suite compiles ~2,500 small programs and runs each
-# briefly, and LLVM's passes were about a quarter of its time (tests/engines/test_fused.py: 98 s -> 78 s). The
-# programs compute the same operations; only the last bits may differ, as between machines with and without
-# AVX-512, which no test's tolerance may depend on (the brief). A user's own XLA_FLAGS are kept as they are.
-os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
-
 
 def pytest_unconfigure(config):
     if _OWN_CACHE is not None:
