@@ -146,7 +146,7 @@ def simulate(
         final[name] = ds[name].isel(t=k).values
     for name in sysm.observables:
         final[name] = float(ds[name].isel(t=k))
-    final["solver_ok"] = bool(ds.attrs["solver_ok"])
+    final["solver_ok"] = ok
     final["n_steps"] = int(ds.attrs["n_steps"])
     if as_json:
         console.print_json(json.dumps(jsonable(final)))

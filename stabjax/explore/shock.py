@@ -537,8 +537,8 @@ def minimal_fatal_shock(system, components, max_radius: float, *, params: Mappin
                         outcomes: Mapping[str, Any] | None = None, out: str | Path | None = None,
                         **shock: Any) -> xr.Dataset:
     """The minimal fatal shock from Python in one call: ``system`` (a name, ``"model.py:Class"``, a class),
-    the shocked initial-condition parameters ``components`` (a list of names, or one name), ``max_radius`` and any other ``[shock]`` field as a
-    keyword (``norm="max"``, ``weights={...}``, ``theory=[...]``); ``params``/``grid``/``integrate``/``outcomes``:
+    the shocked initial-condition parameters ``components`` (a list of names, or one name), ``max_radius`` and any
+    other ``[shock]`` field as a keyword (``norm="max"``, ``weights={...}``, ``theory=[...]``); ``params``/``grid``/``integrate``/``outcomes``:
     those tables of a spec. The same search as ``stabjax sweep`` on a spec with that ``[shock]`` table."""
     # one name is one component (list("theta0") was six one-letter ones); anything else goes to the spec's check
     comps = [components] if isinstance(components, str) else \

@@ -376,7 +376,8 @@ def witness_replay(ds: xr.Dataset, **sel) -> dict[str, Any]:
         if k not in axes:
             raise ValidationError(k, f"is not a grid axis of this result ({', '.join(axes) or 'it has no grid'})")
         if np.ndim(v) or not np.isin(v, ds[k].values):
-            raise ValidationError(k, f"{v!r} is not one of its grid values ({', '.join(f'{x:g}' for x in ds[k].values)})")
+            grid = ", ".join(f"{x:g}" for x in ds[k].values)
+            raise ValidationError(k, f"{v!r} is not one of its grid values ({grid})")
     if set(sel) != set(axes):
         raise ValidationError("sel", f"select one grid point: give a value of each of {', '.join(axes)}")
     fixed = json.loads(ds.attrs["fixed_params_json"])

@@ -70,8 +70,8 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    ``fixed_point`` in an autonomous model where the representative's oscillation dies out at the exponent's rate
    (:func:`_decaying`: a weak focus, its exponent within ``chaos_threshold`` of a cycle's 0); else
    ``attractor`` in an autonomous model where its members trace closed orbits farther than ``eps`` apart
-   (:func:`_continuum`: a centre's family of neutral orbits, said); else ``limit_cycle`` (a periodic or quasi-periodic motion: its exponent is 0 for autonomous flows,
-   negative for forced ones). The finite-time
+   (:func:`_continuum`: a centre's family of neutral orbits, said); else ``limit_cycle`` (a periodic or
+   quasi-periodic motion: its exponent is 0 for autonomous flows, negative for forced ones). The finite-time
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
    group not at rest is ``attractor``; where it, or an unclassified trajectory, ends its window in a
@@ -628,11 +628,11 @@ def _continuum(g: np.ndarray, f: _Features) -> bool:
     if f.trace is None or g.size < 2:
         return False
     k = len(STATS)
-    size = (f.x[g][:, 3::k] - f.x[g][:, 2::k]).sum(axis=1)
-    a, b = int(g[np.argmin(size)]), int(g[np.argmax(size)])
-    ranges = f.x[[a, b]][:, 3::k] - f.x[[a, b]][:, 2::k]
-    if not np.linalg.norm(ranges[1] - ranges[0]) > f.eps:
+    ranges = f.x[g][:, 3::k] - f.x[g][:, 2::k]
+    ia, ib = int(np.argmin(ranges.sum(axis=1))), int(np.argmax(ranges.sum(axis=1)))
+    if not np.linalg.norm(ranges[ib] - ranges[ia]) > f.eps:
         return False
+    a, b = int(g[ia]), int(g[ib])
     if (a, b) not in f.orbits:
         orbits = [f.trace(i)[1] / f.scale for i in (a, b)]
         f.orbits[(a, b)] = _orbit_distance(*orbits) if all(_closes(o, f.eps) for o in orbits) \
@@ -797,7 +797,8 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                             and rep not in f.continua
                             and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
                  # untyped groups of closed orbits of many sizes (:func:`_continuum`, :func:`_warn_continuum`)
-                 continuum=[(n, int(g.size)) for n, t, g, rep in zip(names, types, (r[3] for r in typed), reps)
+                 continuum=[(n, int(g.size), float(lam)) for n, t, g, lam, rep in
+                            zip(names, types, (r[3] for r in typed), lams, reps)
                             if t == "attractor" and rep in f.continua],
                  # untyped groups whose observables rest while the exponent says the state may move
                  hidden=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
@@ -984,8 +985,8 @@ def _warn_by_exponent(groups: list[tuple[str, int, float]]) -> None:
     for four periods: -0.06); only a longer window tells them apart."""
     import warnings
 
-    warnings.warn(f"{_listed(groups)}: typed a fixed point by the negative exponent alone, the trajectories still oscillating "
-                  f"over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
+    warnings.warn(f"{_listed(groups)}: typed a fixed point by the negative exponent alone, the trajectories still "
+                  f"oscillating over the feature window (not at rest): an equilibrium approached slowly, or a cycle whose "
                   f"finite-time exponent is off zero over a short window; raise [integrate] t1 to tell them apart",
                   TransientWarning, stacklevel=3)
 
@@ -994,8 +995,8 @@ def _warn_hidden_motion(groups: list[tuple[str, int, float]]) -> None:
     """Said, not only stored: see :func:`_hidden_motion`."""
     import warnings
 
-    warnings.warn(f"{_listed(groups)}: every observable at rest over the feature window, yet the exponent shows no contraction "
-                  f"toward an equilibrium: a motion the observables do not see (a cycle on which they are constant) or "
+    warnings.warn(f"{_listed(groups)}: every observable at rest over the feature window, yet the exponent shows no "
+                  f"contraction toward an equilibrium: a motion the observables do not see (a cycle on which they are constant) or "
                   f"a non-hyperbolic equilibrium; left untyped. Add an observable that moves along the state (or "
                   f"raise [integrate] t1)", TransientWarning, stacklevel=3)
 
@@ -1031,12 +1032,11 @@ def _warn_still_far(groups: list[tuple[str, int, float, float, str, float]], eps
                   f"t1", TransientWarning, stacklevel=3)
 
 
-def _warn_continuum(groups: list[tuple[str, int]], eps: float) -> None:
+def _warn_continuum(groups: list[tuple[str, int, float]], eps: float) -> None:
     """Said, not only stored: a family of closed orbits is no attractor, and its basin stability means nothing."""
     import warnings
 
-    parts = ", ".join(f"{name} ({n} trajectories)" for name, n in groups)
-    warnings.warn(f"{parts}: closed orbits of many sizes, their members' orbits farther than eps = {eps:g} apart "
+    warnings.warn(f"{_listed(groups)}: closed orbits of many sizes, their members' orbits farther than eps = {eps:g} apart "
                   f"and none contracting onto another (exponent ~0): a family of neutral orbits (a centre, or a "
                   f"conservative system), not one limit cycle; left untyped, and its basin fraction is that of the "
                   f"family, not of an attractor", TransientWarning, stacklevel=3)

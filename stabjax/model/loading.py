@@ -508,20 +508,17 @@ def _same_name_same_value(system, where: str, obs_names, y0: np.ndarray, ob: np.
     the observable silently replaced the state (x observed as 2x read back as the state x). Checked at the
     default initial state and at a second state, so that an observable equal to its component at one point
     only (x**2 at x = 1) is caught too."""
-    at, i = {}, 0
-    for name, shape in system.state:
-        k = int(np.prod(shape)) if shape else 1
-        at[name] = i if not shape else None  # a vector component is never one observable
-        i += k
-    clash = [o for o in obs_names if o in at]
+    parts = system.unpack(y0)
+    clash = [o for o in obs_names if o in parts]
     if not clash:
         return
     y1 = y0 * 1.37 + 0.29
-    ob1 = observe(y1)
+    ob1, parts1 = observe(y1), system.unpack(y1)
     for o in clash:
-        j, c = obs_names.index(o), at[o]
-        if c is None or ob[j] != y0[c] or ob1[j] != y1[c]:
-            state = f"{y0[c]:g}" if c is not None else "a vector"
+        j = obs_names.index(o)
+        scalar = np.shape(parts[o]) == ()  # a vector component is never one observable
+        if not scalar or ob[j] != parts[o] or ob1[j] != parts1[o]:
+            state = f"{float(parts[o]):g}" if scalar else "a vector"
             raise ValidationError(f"{where}.observables", f"observable {o!r} has the name of a state component but "
                                                           f"observes something else ({o} = {state} in the state, "
                                                           f"{ob[j]:g} observed at the defaults): rename it")

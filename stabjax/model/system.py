@@ -164,7 +164,7 @@ class System:
         out, i = {}, 0
         for name, shape in self.state:
             k = int(np.prod(shape)) if shape else 1
-            out[name] = y[..., i : i + k].reshape(*y.shape[:-1], *shape)
+            out[name] = y[..., i : i + k].reshape(tuple(y.shape[:-1]) + tuple(shape))  # () of one state too
             i += k
         return out
 

@@ -255,7 +255,8 @@ def attractor_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]]] | Non
         return None
     rows = [[a["name"], a["type"].replace("_", " "), f"{a['count']:,}",
              f"{a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else "-", a["where"] or "-"] for a in found]
-    lam = "largest Lyapunov exponent" + (" (median over its trajectories at every grid point)" if "attractor_events" in ds else "")
+    lam = "largest Lyapunov exponent" + (" (median over its trajectories at every grid point)"
+                                         if "attractor_events" in ds else "")
     return ["attractor", "type", "trajectories", lam, "where (representative)"], rows
 
 

@@ -269,11 +269,8 @@ def _remove_array(folder: Path) -> None:
             if _zarr_file((here / f).relative_to(folder).parts):
                 (here / f).unlink()
         for d in dirs:
-            q = here / d
-            if q.is_symlink():
-                continue  # a link is the user's; zarr never writes one
             with contextlib.suppress(OSError):
-                q.rmdir()  # only when emptied
+                (here / d).rmdir()  # only when emptied (a link, the user's, is never a folder rmdir removes)
     with contextlib.suppress(OSError):
         folder.rmdir()
 

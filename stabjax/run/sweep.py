@@ -399,8 +399,8 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
     from .outputs import plan_result
 
     setup_jax()
-    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), caller="run_spec",
-                       kw={"batch_size": batch_size, "progress": progress, "restart": restart, **kw}, runner=run_plan)
+    plan = plan_result(spec, out, t1=t1, force=bool(kw.get("force", False)), caller="run_spec", kw=kw,
+                       runner=run_plan)
     return run_plan(plan, out, batch_size=batch_size, progress=progress, restart=restart,
                     overrides={"t1": None if t1 is None else float(t1)}, **kw)
 
