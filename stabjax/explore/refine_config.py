@@ -146,8 +146,9 @@ def refine_config(plan: Plan, raw: Mapping[str, Any] | None = None) -> RefineCon
     if stable is not None:
         if not isinstance(stable, str) or stable not in names:
             raise ValidationError("refine.stable", f"must name an outcome ({', '.join(names)}), got {stable!r}")
-    else:
-        stable = pair[0] if pair else ("converged" if "converged" in names else None)
+    else:  # the outcome the main theorem says it guarantees, else the pair's first, else converged
+        stable = _guaranteed(plan) if label == "outcome" else None
+        stable = stable or (pair[0] if pair else ("converged" if "converged" in names else None))
 
     horizons = _horizons(plan, raw, label)
     max_points = _integer(raw.get("max_points", 1_000_000), "refine.max_points", lo=1, hi=None)
@@ -269,3 +270,10 @@ def classes(cfg: RefineConfig) -> np.ndarray:
         cls[cfg.names.index(cfg.pair[1])] = 1
     cls[a] = 0
     return cls
+
+
+def _guaranteed(plan) -> str | None:
+    """The named outcome the system's main theorem guarantees (``Predicate(..., outcome=...)``), or None."""
+    th = plan.system.theory(plan.system.check(plan.params_for(0, 1)))
+    pred = th.predicates.get(th.main) if th.main else None
+    return (pred.outcome or None) if pred is not None else None

@@ -41,3 +41,46 @@ def summary_rows(ds) -> list[tuple[str, int, float, float, float, float]]:
     st = basin_stats(codes[None, :], len(names))
     return [(name, int(st["count"][0, k]), float(st["fraction"][0, k]), float(st["se"][0, k]),
              float(st["ci_low"][0, k]), float(st["ci_high"][0, k])) for k, name in enumerate(names)]
+
+
+def theory_agreement(ds) -> dict | None:
+    """The main theorem against the named outcomes, trajectory by trajectory, or None without a main theorem.
+
+    Returns ``predicate``, ``doc``, ``columns`` (the outcomes that occur), ``rows`` (``"theory: guaranteed"`` and
+    ``"theory: silent"`` -> a count per column) and ``guarantees`` (the outcome the predicate declares it
+    guarantees, ``""`` when it declares none). With one declared: ``red_flags`` (guaranteed, ending in another
+    outcome: the simulation refutes the theorem there), ``red_flags_by_outcome``, ``undecided`` (guaranteed,
+    ending unclassified or failed: neither refuted nor confirmed), ``conservative`` (silent, ending in the
+    guaranteed outcome) and ``red_flag_mask``, the boolean red flags laid out as ``ds["outcome"]``.
+    """
+    import xarray as xr
+
+    main = ds.attrs.get("theory_main")
+    if not main or "outcome" not in ds or f"theory_{main}" not in ds:
+        return None
+    th_da, oc_da = xr.broadcast(ds[f"theory_{main}"], ds["outcome"])
+    th_da = th_da.transpose(*oc_da.dims)
+    ok = np.asarray(th_da.values).astype(bool)
+    oc = np.asarray(oc_da.values)
+    names = str(ds["outcome"].attrs.get("flag_meanings", "")).split()
+    codes = [int(c) for c in np.asarray(ds["outcome"].attrs.get("flag_values", np.arange(len(names))))]
+    cols = [(n, c) for n, c in zip(names, codes) if (oc == c).any()]
+    attrs = ds[f"theory_{main}"].attrs
+    out = {"predicate": main, "doc": str(attrs.get("long_name", "")), "columns": [n for n, _ in cols],
+           "rows": {label: [int((want(ok) & (oc == c)).sum()) for _, c in cols]
+                    for label, want in (("theory: guaranteed", lambda m: m), ("theory: silent", lambda m: ~m))},
+           "guarantees": str(attrs.get("guarantees", ""))}
+    if out["guarantees"] and out["guarantees"] in names:
+        from ..model.outcomes import FAILED_NAME, UNCLASSIFIED
+
+        good = codes[names.index(out["guarantees"])]
+        # an unclassified or failed trajectory refutes nothing (the simulation did not decide): counted apart
+        open_ = np.isin(oc, [c for n, c in zip(names, codes) if n in (UNCLASSIFIED, FAILED_NAME)])
+        bad = ok & (oc != good) & ~open_
+        out["undecided"] = int((ok & open_).sum())
+        out["red_flag_mask"] = bad
+        out["red_flags"] = int(bad.sum())
+        out["red_flags_by_outcome"] = {n: int((bad & (oc == c)).sum()) for n, c in cols if c != good
+                                       and (bad & (oc == c)).any()}
+        out["conservative"] = int((~ok & (oc == good)).sum())
+    return out

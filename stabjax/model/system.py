@@ -30,11 +30,18 @@ from .params import ParamSet
 
 
 class Predicate(NamedTuple):
-    """A theorem/corollary hypothesis evaluated over a batch of parameters."""
+    """A theorem/corollary hypothesis evaluated over a batch of parameters.
+
+    ``outcome``: for a model with named outcomes (rules or templates), the outcome the theorem guarantees where
+    its hypothesis holds (``"origin"``). With it a sweep counts the trajectories the theorem guarantees that end
+    elsewhere (red flags) and the silent ones that end in it (where the theorem is conservative), and marks them
+    on the basin figure; without it the table of theorem against outcome is shown and the reader judges.
+    """
 
     ok: np.ndarray  # bool: hypothesis holds -> the theorem guarantees its conclusion
     margin: np.ndarray  # float: signed distance to the bound (> 0 inside)
     doc: str  # the inequality, with the paper's equation number
+    outcome: str = ""  # the named outcome it guarantees (models with rules or templates); "" for the verdicts
 
 
 @dataclass

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .system import Predicate, Theory
+from .system import Theory
 
 
 class _Recording(Mapping):
@@ -108,7 +108,7 @@ def evaluate(system, p: Mapping[str, Any]) -> Theory:
         return system.theory(p)
     if not rep.read <= names:  # lookups that depend on the values: the safe answer is the whole batch
         return system.theory(p)
-    preds = {k: Predicate(_spread(v.ok, inv, u), _spread(v.margin, inv, u), v.doc) for k, v in th.predicates.items()}
+    preds = {k: v._replace(ok=_spread(v.ok, inv, u), margin=_spread(v.margin, inv, u)) for k, v in th.predicates.items()}
     derived = {k: _spread(v, inv, u) for k, v in th.derived.items()}
     return Theory(preds, derived, dict(th.derived_doc), th.main)
 

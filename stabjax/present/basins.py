@@ -27,14 +27,15 @@ if TYPE_CHECKING:
     import xarray as xr
 
 
-def _legend(ax, names, colors, codes=None, where=None):
-    """Legend of the outcomes that occur in ``codes`` (all of them without); a discovered attractor is named
-    with where it lies (``where``: :func:`stabjax.present.kit.where_of`)."""
+def _legend(ax, names, colors, codes=None, where=None, extra=()):
+    """Legend of the outcomes that occur in ``codes`` (all of them without), then ``extra`` handles (the
+    theorem's); a discovered attractor is named with where it lies (``where``: :func:`stabjax.present.kit.where_of`)."""
     from matplotlib.patches import Patch
 
     present = [codes is None or bool((np.asarray(codes) == k).any()) for k in range(len(names))]
     handles = [Patch(color=c, label=attractor_label(n, where or {})) for n, c, p in zip(names, colors, present) if p]
-    if where:  # entries with locations are long: under the axes, off the data
+    handles += list(extra)
+    if where or extra:  # entries with locations are long: under the axes, off the data
         ax.legend(handles=handles, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
     else:
         ax.legend(handles=handles, fontsize=8, loc="upper right", framealpha=0.8)
@@ -111,7 +112,8 @@ def _samples_only(ds, names, colors, head=None):
     a0.set_xlabel(axis_label(ds, keys[0]))
     a0.set_ylabel(axis_label(ds, keys[1]))
     a0.set_title("sampled starts, coloured by outcome (one dot = one trajectory)", fontsize=9)
-    _legend(a0, names, colors, code, kit.where_of(ds))
+    _legend(a0, names, colors, code, kit.where_of(ds),
+            _theorem(a0, ds, [ds[f"{k}_sample"].values for k in keys], ("sample",)))
     _bar(a1, ds, names, colors)
     fig.suptitle(_title(ds, "basin stability", head), fontsize=10, y=1.03)
     return fig
@@ -149,7 +151,8 @@ def _fractions_along(ds, dim, names, colors, head=None):
     ax.set_ylim(-0.02, 1.02)
     if int(ds[dim].attrs.get("log_axis", 0)):
         ax.set_xscale("log")
-    ax.legend(fontsize=8)
+    handles, _ = ax.get_legend_handles_labels()
+    ax.legend(handles=handles + _theorem(ax, ds, [x, np.array(1.0)], (dim,)), fontsize=8)
     ax.grid(alpha=0.3)
     fig.suptitle(_title(ds, "basin stability along " + axis_label(ds, dim), head), fontsize=10)
     return fig
@@ -173,7 +176,7 @@ def _dominant_map(ds, dims, names, colors, head=None):
                 ax.text(float(x[j]), float(y[i]), f"{share[i, j]:.2f}", ha="center", va="center", fontsize=6)
     ax.set_xlabel(axis_label(ds, dims[0]))
     ax.set_ylabel(axis_label(ds, dims[1]))
-    _legend(ax, names, colors, dom, kit.where_of(ds))
+    _legend(ax, names, colors, dom, kit.where_of(ds), _theorem(ax, ds, [x, y], dims))
     fig.suptitle(_title(ds, "dominant outcome per cell (shade and number: its fraction S)", head), fontsize=10)
     return fig
 
@@ -197,9 +200,67 @@ def _outcome_map(ds, dims, names, colors, head=None):
                   interpolation="nearest")
         ax.set_ylabel(axis_label(ds, dims[1]))
     ax.set_xlabel(axis_label(ds, dims[0]))
-    _legend(ax, names, colors, code, kit.where_of(ds))
-    fig.suptitle(_title(ds, "outcome (one cell = one trajectory)", head), fontsize=10)
+    at = [ds[d].values for d in dims] if len(dims) == 2 else [ds[dims[0]].values, np.array(0.5)]
+    _legend(ax, names, colors, code, kit.where_of(ds), _theorem(ax, ds, at, dims))
+    fig.suptitle(_title(ds, "outcome (one cell = one trajectory)", head), fontsize=10, y=1.0 if len(dims) == 2 else 1.1)
     return fig
+
+
+def _theorem(ax, ds, at, dims) -> list:
+    """Draw the main theorem over an outcome picture; return its legend handles (none without a theorem).
+
+    ``dims``: the picture's axes (grid axes, or ``("sample",)`` for sampled starts), ``at``: the positions of
+    their points (the second one a constant height on a picture with one axis). The boundary is the zero of the
+    predicate's margin (a contour on two grid axes, a triangulated one through sampled starts, vertical lines on
+    one axis), drawn only where the margin depends on those axes alone; a cross marks each red flag (a cell or
+    start the theorem guarantees that ends in another outcome, :func:`stabjax.mapping.basin.theory_agreement`).
+    """
+    from matplotlib import patheffects
+    from matplotlib.lines import Line2D
+
+    from ..mapping.basin import theory_agreement
+    from .labels import theory_words
+    from .maps import zero_crossings
+
+    a = theory_agreement(ds)
+    if a is None or f"margin_{a['predicate']}" not in ds:
+        return []
+    main, handles = a["predicate"], []
+    said = theory_words(ds, main)
+    m = ds[f"margin_{main}"]
+    extra = [d for d in m.dims if d not in dims]
+    if extra and all(np.all(np.ptp(m.values, axis=m.get_axis_num(d)) == 0) for d in extra):
+        m = m.isel({d: 0 for d in extra})  # the same over the samples: one boundary over the grid
+    if not [d for d in m.dims if d not in dims] and np.nanmin(m.values) < 0 < np.nanmax(m.values):
+        mv = m.transpose(*[d for d in dims if d in m.dims]).values if m.dims else m.values
+        if dims == ("sample",):
+            if len(at) == 2 and mv.size >= 3:
+                ax.tricontour(np.asarray(at[0], float), np.asarray(at[1], float), mv, levels=[0.0], colors="k",
+                              linewidths=2.0)
+                handles.append(Line2D([], [], color="k", lw=2.0, label=f"theory boundary: {said}"))
+        elif len(dims) == 2 and m.ndim == 2:
+            ax.contour(at[0], at[1], mv.T, levels=[0.0], colors="k", linewidths=2.0)  # rows: the second axis
+            handles.append(Line2D([], [], color="k", lw=2.0, label=f"theory boundary: {said}"))
+        elif len(dims) == 1 and m.ndim == 1:
+            for xc in zero_crossings(at[0], mv):
+                ax.axvline(xc, color="k", lw=2.0)
+            handles.append(Line2D([], [], color="k", lw=2.0, label=f"theory boundary: {said}"))
+    if a.get("red_flags"):
+        bad = ds["outcome"].copy(data=a["red_flag_mask"])
+        bad = bad.any([d for d in bad.dims if d not in dims]) if set(bad.dims) - set(dims) else bad
+        bad = bad.transpose(*dims).values
+        halo = [patheffects.withStroke(linewidth=3.5, foreground="white")]
+        if len(dims) == 2:
+            ii, jj = np.nonzero(bad)
+            ax.plot(np.asarray(at[0])[ii], np.asarray(at[1])[jj], "kx", ms=7, mew=1.5, path_effects=halo)
+        else:
+            idx = np.nonzero(bad)[0]
+            y = np.asarray(at[1], float)
+            ax.plot(np.asarray(at[0])[idx], y[idx] if y.ndim else np.full(idx.size, y), "kx", ms=7, mew=1.5,
+                    path_effects=halo)
+        handles.append(Line2D([], [], color="k", marker="x", ls="", mew=1.5, path_effects=halo,
+                              label=f"red flag: guaranteed {a['guarantees']!r}, ended elsewhere ({a['red_flags']:,})"))
+    return handles
 
 
 def _extent(x, y):
@@ -214,7 +275,7 @@ LATTICE_NOTE = ("; one trajectory per grid point, not random draws: S is the lat
 
 def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
     """The outcome table the CLI prints: pooled counts and fractions, and per grid point if few."""
-    from ..mapping.basin import summary_rows
+    from ..mapping.basin import summary_rows, theory_agreement
 
     rows = summary_rows(ds)
     n = sum(r[1] for r in rows)
@@ -247,6 +308,13 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                 lam += " (median over its trajectories at every grid point)"
             lines.append(f"  {a['name']:<{w}}{a['count']:>9d} {trajectory_noun(a['count'])}{lam}; "
                          f"{a['where'] or 'where: not recorded'}")
+    agree = theory_agreement(ds)
+    if agree is not None:
+        lines.append(f"theorem '{agree['predicate']}' against the outcomes (trajectories):")
+        w = max(len(r) for r in agree["rows"]) + 2
+        lines.append(" " * w + "".join(f"{c:>14}" for c in agree["columns"]))
+        lines += [f"{r:<{w}}" + "".join(f"{v:>14d}" for v in vals) for r, vals in agree["rows"].items()]
+        lines += [f"  {t}" for t in agreement_sentences(agree)]
     if "start_label_mcc" in ds:
         lines.append(f"against the starts file's labels: agreement {float(ds['start_label_agreement']):.4f}, "
                      f"Matthews correlation {float(ds['start_label_mcc']):.4f} "
@@ -266,3 +334,23 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
                      f"{a.get('boxes')} boxes on a boundary; S_bb {'>' if sbb > np.log(2) else '<='} ln 2"
                      f"{': fractal boundary' if sbb > np.log(2) else ''})")
     return "\n".join(lines)
+
+
+def agreement_sentences(a: dict) -> list[str]:
+    """What the theorem-against-outcome table (:func:`stabjax.mapping.basin.theory_agreement`) says, in words:
+    its red flags and where it is conservative when the predicate names the outcome it guarantees."""
+    head = (f"Predicate '{a['predicate']}'" + (f" ({a['doc']})" if a["doc"] else "")
+            + ": 'guaranteed' rows are the trajectories whose parameters (and start, where it reads the start) "
+              "satisfy it.")
+    if not a["guarantees"]:
+        return [head, "It names no outcome it guarantees (Predicate(..., outcome=NAME) in the model's theory()): "
+                      "a guaranteed trajectory ending in another outcome would refute it there, a silent one ending "
+                      "in it is where it is conservative; the table counts, the reader judges."]
+    g = a["guarantees"]
+    by = ", ".join(f"{n} {c:,}" for n, c in a["red_flags_by_outcome"].items())
+    out = [head, f"It guarantees '{g}'. Theory conservative (silent, ended in '{g}'): {a['conservative']:,}.",
+           f"RED FLAGS (guaranteed '{g}', ended in another outcome): {a['red_flags']:,}" + (f" ({by})." if by else ".")]
+    if a["undecided"]:
+        out.append(f"{a['undecided']:,} guaranteed trajectories ended unclassified or failed: neither refuted nor "
+                   "confirmed.")
+    return out

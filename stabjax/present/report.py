@@ -129,24 +129,14 @@ def theory_section(ds: xr.Dataset) -> tuple[list[str], list[list[str]], list[str
 
 
 def _outcome_agreement(ds: xr.Dataset, main: str):
-    """The main theorem against named outcomes: trajectories guaranteed / not, per outcome. Which outcome the
-    theorem guarantees is the model's statement, not declared to stabjax: the table counts, the reader judges (the
-    page said "this system states no theorem" beside the theorem's own variables)."""
-    import xarray as xr
+    """The main theorem against named outcomes: trajectories guaranteed / not, per outcome, and where the
+    predicate says which outcome it guarantees, its red flags and where it is conservative."""
+    from ..mapping.basin import theory_agreement
+    from .basins import agreement_sentences
 
-    th, oc = xr.broadcast(ds[f"theory_{main}"], ds["outcome"])
-    th, oc = np.asarray(th.values).ravel(), np.asarray(oc.values).ravel()
-    names = str(ds["outcome"].attrs.get("flag_meanings", "")).split()
-    codes = np.asarray(ds["outcome"].attrs.get("flag_values", np.arange(len(names))))
-    cols = [(n, c) for n, c in zip(names, codes) if (oc == c).any()]
-    rows = [[label, *[f"{int(((th == g) & (oc == c)).sum()):,}" for _, c in cols]]
-            for label, g in (("theory: guaranteed", 1), ("theory: silent", 0))]
-    doc = ds[f"theory_{main}"].attrs.get("long_name", "")
-    return (["theory \\ outcome", *[n for n, _ in cols]], rows,
-            [f"Predicate '{main}'" + (f" ({doc})" if doc else "") + ": 'guaranteed' rows are the trajectories whose "
-             "parameters (and start, where it reads the start) satisfy it.",
-             "Which outcome it guarantees is the model's statement: a guaranteed trajectory ending in another "
-             "outcome refutes it there (a red flag), a silent one ending in it is where it is conservative."])
+    a = theory_agreement(ds)
+    rows = [[label, *[f"{v:,}" for v in vals]] for label, vals in a["rows"].items()]
+    return ["theory \\ outcome", *a["columns"]], rows, agreement_sentences(a)
 
 
 def warnings(ds: xr.Dataset) -> list[str]:

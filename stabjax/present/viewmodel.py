@@ -406,7 +406,7 @@ def agreement_html(r: Result) -> str:
 
     from .report import theory_section
 
-    th = theory_section(r.ds) if r.kind in ("verdicts", "refine") else None
+    th = theory_section(r.ds) if r.kind != "shock" else None  # a shock search's theorems: its own panel
     if th is None:
         return "<p><b>Theory</b>: this system states no theorem here; nothing to compare.</p>"
     header, rows, sentences = th

@@ -167,7 +167,8 @@ def theory(plan) -> tuple[dict[str, np.ndarray], dict[str, dict], str]:
             put(f"theory_{name}", lo, hi, pred.ok, np.int8)
             put(f"margin_{name}", lo, hi, pred.margin, float)
             meta[f"theory_{name}"] = {"long_name": pred.doc, "flag_values": np.array([0, 1], np.int8),
-                                      "flag_meanings": "not_guaranteed guaranteed"}
+                                      "flag_meanings": "not_guaranteed guaranteed",
+                                      **({"guarantees": pred.outcome} if pred.outcome else {})}
             meta[f"margin_{name}"] = {"long_name": f"signed margin of: {pred.doc} (> 0 inside)"}
         for name, val in th.derived.items():
             put(f"derived_{name}", lo, hi, val, float)

@@ -230,7 +230,14 @@ BAD = {
         "main": ('Theory(predicates={"t": Predicate(c > 0, c, "t")}, main="nosuch")',
                  "main = 'nosuch' is not one of its predicates (t)"),
         "raises": ('{}["oops"]', "Oscillator.theory: raised KeyError: 'oops'"),
+        # a misspelt guaranteed outcome would count every guaranteed trajectory a red flag
+        "outcome": ('Theory(predicates={"t": Predicate(c > 0, c, "t", outcome="decay")}, main="t")',
+                    "predicate 't' guarantees outcome 'decay', which is not one of the model's outcomes (decays, "),
     }.items()},
+    # discovered attractors are named by the run: a theorem cannot name one in advance
+    "theory_outcome_discovered": (_with_theory('Theory(predicates={"t": Predicate(c > 0, c, "t", outcome="decays")})')
+                                  .replace("    outcomes = Outcomes(", "    outcomes = None\n    _declared = Outcomes(", 1),
+                                  "guarantees outcome 'decays', but the model declares no named outcomes"),
 }
 
 

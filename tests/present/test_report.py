@@ -238,3 +238,6 @@ def test_a_theorem_is_held_against_named_outcomes():
     inside = int((r0 < 1).sum())
     assert rows == [["theory: guaranteed", f"{inside:,}", "0"], ["theory: silent", "0", f"{r0.size - inside:,}"]]
     assert "states no theorem" not in render(ds) and "lyapunov_disc" in sentences[0]
+    # the disc guarantees the origin and is the basin itself: nothing refuted, nothing conservative
+    assert sentences[1:] == ["It guarantees 'origin'. Theory conservative (silent, ended in 'origin'): 0.",
+                             "RED FLAGS (guaranteed 'origin', ended in another outcome): 0."]

@@ -36,7 +36,8 @@ class Circle(System):
         r0 = np.hypot(np.asarray(p["x0"], float), np.asarray(p["y0"], float))
         margin = 1.0 - r0
         return Theory(
-            predicates={"lyapunov_disc": Predicate(margin > 0, margin, "V = x^2 + y^2 < 1: dV/dt < 0 on the disc")},
+            predicates={"lyapunov_disc": Predicate(margin > 0, margin, "V = x^2 + y^2 < 1: dV/dt < 0 on the disc",
+                                                   outcome="origin")},
             derived={"lyapunov_radius": np.ones_like(r0)},
             derived_doc={"lyapunov_radius": "radius of the disc V < 1 the Lyapunov function guarantees"},
             main="lyapunov_disc",
