@@ -15,7 +15,8 @@ Verdicts (per grid point): **refuted** where the witness -- a fatal start -- lie
 classification of that one trajectory, which is therefore re-integrated with tolerances a hundred times tighter
 (``shock_witness_recheck``); **consistent** where ``r_g`` lies within the resolution below the bracket or in it
 (the theorem is tight); **conservative** where ``r_g <= r_lo``, by a factor in [r_lo / r_g, |delta*| / r_g];
-**not applicable** where ``r_g = 0`` (the hypotheses fail there) or no attractor was searched; **untested** where
+**not applicable** where ``r_g = 0`` (the hypotheses fail there), no attractor was searched, or the predicate
+names the outcome it guarantees and the shocked attractor is another; **untested** where
 no fatal shock was found up to ``max_radius`` and ``r_g`` lies beyond it (the range between was never searched:
 the search neither confirms nor refutes the theorem there).
 """
@@ -115,8 +116,10 @@ def predicate_radius(plan, norm: Norm, name: str, g: np.ndarray, U: np.ndarray, 
 
 
 def compare(plan, cfg: ShockConfig, norm: Norm, name: str, search, witness: np.ndarray, found: np.ndarray,
-            lo: np.ndarray, hi: np.ndarray) -> dict[str, np.ndarray]:
-    """Radius, verdict and factor bracket of theorem ``name`` at every grid point (see the module docstring)."""
+            lo: np.ndarray, hi: np.ndarray, names: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Radius, verdict and factor bracket of theorem ``name`` at every grid point (see the module docstring).
+    A predicate that names the outcome it guarantees (``Predicate(..., outcome=...)``) is held only where the
+    shocked attractor is that outcome: its region says nothing of another attractor's basin."""
     G = search.G
     g = np.arange(G)
     base = norm.params(g, np.zeros((G, cfg.dim)))
@@ -141,6 +144,9 @@ def compare(plan, cfg: ShockConfig, norm: Norm, name: str, search, witness: np.n
             wm = theory_values(plan, norm.params(g[found], witness[found]), name)
             inside[found] = wm > 0
     valid = search.attractor >= 0
+    said = th.predicates[name].outcome if name in th.predicates else ""
+    if said and said in names:
+        valid &= search.attractor == names.index(said)
     verdict = np.full(G, NOT_APPLICABLE, np.int8)
     ok = valid & (rg > 0)  # NaN: no radius there; inf: a global claim
     tol = cfg.tol(np.where(found, hi, np.inf))
@@ -282,7 +288,7 @@ def assemble(plan, rplan, cfg: ShockConfig, norm: Norm, search, names: tuple[str
                      "fatal shock up to max_radius)", **nu})
     theory_json = {}
     for name in cfg.theory:
-        c = compare(plan, cfg, norm, name, search, witness, found, np.where(np.isnan(lo), 0, lo), hi)
+        c = compare(plan, cfg, norm, name, search, witness, found, np.where(np.isnan(lo), 0, lo), hi, names)
         data[f"theory_radius_{name}"] = (gdims, shp(c["radius"]), {
             "long_name": f"radius of the region guaranteed by {name} in the shock's norm (0: its hypotheses fail; "
                          "inf: no edge along the directions searched)",

@@ -23,9 +23,11 @@ from stabjax.examples.shock_circle.model import Circle
 class Over(Circle):
     def theory(self, p):
         r0 = np.hypot(np.asarray(p["x0"], float), np.asarray(p["y0"], float))
-        big, small = 1.5 - r0, 0.5 - r0
+        big, small, wide = 1.5 - r0, 0.5 - r0, 2.5 - r0
         return Theory(predicates={"too_big": Predicate(big > 0, big, "r0 < 1.5", outcome="origin"),
-                                  "too_small": Predicate(small > 0, small, "r0 < 0.5", outcome="origin")},
+                                  "too_small": Predicate(small > 0, small, "r0 < 0.5", outcome="origin"),
+                                  "wide": Predicate(wide > 0, wide, "r0 < 2.5", outcome="origin"),
+                                  "wide_unsaid": Predicate(wide > 0, wide, "r0 < 2.5")},
                       main="too_big")
 '''
 SETTINGS = {"t1": 30.0, "n_checkpoints": 100}
@@ -129,3 +131,17 @@ def test_refinement_compares_the_theorem_with_the_outcome_it_guarantees(over):
     base = {"system": over, "grid": {"x0": {"start": 0.05, "stop": 2.95, "num": 9}}, "integrate": SETTINGS}
     assert refine_config(make_plan({**base, "refine": {"tol": {"x0": 0.01}}})).stable == "origin"
     assert refine_config(make_plan({**base, "refine": {"tol": {"x0": 0.01}, "stable": "cycle2"}})).stable == "cycle2"
+
+
+def test_a_shock_search_holds_a_theorem_only_against_the_attractor_it_guarantees(over):
+    """Shocked off the cycle r = 2 (start (2, 0)), the minimal fatal shock is 1 (to r = 1 or r = 3). A disc
+    r0 < 2.5 that guarantees the origin says nothing of the cycle's basin: not applicable; the same disc naming
+    no outcome is read as a claim about the attractor shocked, and the fatal witness inside it refutes it."""
+    from stabjax.explore.shock_result import VERDICTS
+
+    ds = stabjax.shock_spec({"system": over, "params": {"x0": 2.0, "y0": 0.0}, "integrate": SETTINGS,
+                           "shock": {"components": ["x0", "y0"], "max_radius": 1.5, "directions": 8,
+                                     "theory": ["wide", "wide_unsaid"]}})
+    assert abs(float(ds["shock_norm"]) - 1.0) < 0.05
+    assert VERDICTS[int(ds["theory_verdict_wide"])] == "not_applicable"
+    assert VERDICTS[int(ds["theory_verdict_wide_unsaid"])] == "refuted"
