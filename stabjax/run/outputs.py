@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Callable, Iterator, Optional
 
@@ -333,6 +334,11 @@ def plan_result(spec, out, *, t1: float | None = None, force: bool = False, sect
         spec = load_spec(spec_file)
     if section is not None and section not in spec:
         raise ValidationError(section, f"the spec has no [{section}] section")
+    # run_spec of a spec with a [shock] table ran a plain sweep and returned its outcomes, as if searched
+    for table, runs in (("refine", "refine_spec"), ("shock", "shock_spec")):
+        if table != section and isinstance(spec, Mapping) and table in spec:
+            raise ValidationError(table, f"the spec has a [{table}] table, which {caller or 'this function'}() does "
+                                         f"not run: use stabjax.{runs}(spec) (as `stabjax sweep` does)")
     try:
         plan = make_plan(spec, t1=t1)
     except ValidationError as exc:

@@ -139,6 +139,20 @@ def test_a_spec_without_its_section_is_refused_before_anything_is_written(folder
     assert sorted(p.name for p in folder.iterdir()) == before
 
 
+@pytest.mark.parametrize("table", ["refine", "shock"])
+def test_run_spec_refuses_a_table_it_would_not_run(folder, table):
+    """run_spec of a spec with a [shock] table ran the plain sweep and returned its outcomes as if searched."""
+    import tomllib
+
+    spec = tomllib.loads((folder / "s.toml").read_text())
+    spec[table] = {"tol": {"x0": 0.1}} if table == "refine" else {"components": ["x0"], "max_radius": 1.0}
+    before = sorted(p.name for p in folder.iterdir())
+    with pytest.raises(ValidationError) as exc:
+        stabjax.run_spec(spec, folder / "r.nc")
+    assert exc.value.field == table and f"use stabjax.{table}_spec(spec)" in exc.value.message
+    assert sorted(p.name for p in folder.iterdir()) == before
+
+
 @pytest.mark.parametrize("fn", ["run_spec", "refine_spec", "shock_spec"])
 def test_the_api_names_its_own_arguments(folder, fn):
     """A bad t1 is the argument t1 (it was the command line's --t1), and a keyword the call does not take is
