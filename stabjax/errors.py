@@ -1,6 +1,6 @@
 """Error types. Every user-facing error names the offending field (or file).
 
-Exit statuses (the command line, :func:`stabjax.app.cli.main`): 0 every trajectory classified; 1 a run
+Exit statuses (the command line, :func:`stabjax.app.cli.main`): 0 every trajectory has an outcome; 1 a run
 that finished with failures (failed trajectories, a solver failure, a write that failed, e.g. a
 full disk); 2 bad input or a refused command; 128 + N interrupted by signal N (130 Ctrl-C,
 143 SIGTERM, 129 SIGHUP).

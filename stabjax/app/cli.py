@@ -103,7 +103,7 @@ def _answers_without_running(args: list[str]) -> bool:
 def main(argv: list[str] | None = None):
     """Entry point: runs the app and turns every outcome into an exit status that tells the truth.
 
-    0 success (a sweep: every trajectory classified); 1 a run that failed (failed trajectories, a
+    0 success (a sweep: every trajectory has an outcome); 1 a run that failed (failed trajectories, a
     solver failure reported by ``simulate``, an I/O error such as a full disk); 2 bad input (a usage
     error -- unknown option or command, extra argument, a value of the wrong type -- printed with the
     usage, or a :class:`~stabjax.errors.StabjaxError` naming the field, an environment variable

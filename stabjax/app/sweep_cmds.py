@@ -39,7 +39,8 @@ def sweep(
 
     A spec with a [refine] section brackets the boundary between outcomes adaptively instead; one with a
     [shock] section searches the minimal fatal shock of its start at every grid point.
-    Exit status: 0 every trajectory classified, 1 some failed (the result is written and says which),
+    Exit status: 0 every trajectory has an outcome (a share of unclassified or undecided ones over 5 % is
+    warned about), 1 some failed (the result is written and says which),
     2 bad input, 130/143/129 interrupted (finished chunks kept: the same command resumes)."""
     from .. import validate
     from ..errors import ValidationError
@@ -117,9 +118,19 @@ def sweep(
     if stops:
         console.print(stops, markup=False)
     print_result(ds, out.with_suffix(".png") if plot else None, result=out)
+    _say_undecided(ds)
     status = run_status(ds, out)  # the last line: how many failed, when any did
     if status:
         raise typer.Exit(status)
+
+
+def _say_undecided(ds) -> None:
+    """The report's warnings on 'unclassified' and 'undecided' shares (over 5 %, per grid point), one line each:
+    the run exits 0 (every trajectory has an outcome) but its other fractions are lower bounds there."""
+    from ..present.report import undecided_warnings
+
+    for w in undecided_warnings(ds):
+        err_console.print(f"warning: {w}", style="yellow", markup=False)
 
 
 @contextlib.contextmanager

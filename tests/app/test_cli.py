@@ -238,3 +238,25 @@ def test_a_map_of_the_same_spec_is_replaced_without_its_result(tmp_path):
     before = png.read_bytes()
     assert run_cli("sweep", str(spec), "--out", str(out), "--no-progress") == 2
     assert png.read_bytes() == before and not out.exists()
+
+
+def test_a_sweep_with_many_unclassified_starts_says_so_and_exits_0(tmp_path, capsys):
+    """The circle's starts near r0 = 1 leave the unstable cycle slowly (r' ~ r - 1): at t1 = 2 a share of them has
+    reached neither rule's window, so is 'unclassified'. That is an outcome (exit 0), but the other fractions are
+    lower bounds: the sweep said nothing of it on the terminal (the report alone warned)."""
+    from clirun import captured
+
+    import stabjax
+
+    model = Path(stabjax.__file__).parent / "examples" / "shock_circle" / "model.py"
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'system = "{model}:Circle"\nname = "short"\n[integrate]\nt1 = 2.0\nn_checkpoints = 40\n'
+                    '[sample]\nn = 200\nseed = 0\nx0 = {dist = "uniform", low = -2.0, high = 2.0}\n'
+                    'y0 = {dist = "uniform", low = -2.0, high = 2.0}\n')
+    code, out, err = captured(capsys, "sweep", spec, "--out", tmp_path / "r.nc", "--no-progress", "--no-plot")
+    assert code == 0, err
+    ds = open_result(tmp_path / "r.nc")
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    share = float((ds["outcome"].values == names.index("unclassified")).mean())
+    assert share > 0.05
+    assert f"warning: {100 * share:.1f}% of the trajectories are 'unclassified'" in err
