@@ -615,6 +615,17 @@ def _decaying(rep: int, lam: float, f: _Features) -> bool:
     return bool(drop < ENVELOPE_DECAY and 0.5 * lam >= rate >= 2.0 * lam)
 
 
+def _dying(rep: int, f: _Features) -> bool:
+    """Whether a group's representative oscillates with peaks falling at every peak to below ``ENVELOPE_DECAY`` of
+    the first over the window: an oscillation dying out, a transient (without the exponent, a stable focus at
+    x' = -0.2 (x - 1) - y, y' = (x - 1) - 0.2 y watched to t1 = 50 was three untyped groups, unsaid)."""
+    if f.trace is None:
+        return False
+    if rep not in f.envelope:
+        f.envelope[rep] = _envelope_rate(*f.trace(rep))
+    return bool(f.envelope[rep][1] < ENVELOPE_DECAY)
+
+
 def _continuum(g: np.ndarray, f: _Features) -> bool:
     """Whether a group that would be a limit cycle is a family of closed orbits instead -- a centre, or a
     conservative system's periodic orbits (x' = -y, y' = x: circles of every radius, one limit_cycle_1 with S = 1).
@@ -795,7 +806,7 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  transient=[n for n, t, g, lam, rep in zip(names, types, (r[3] for r in typed), lams, reps)
                             if t == "attractor" and not lam > f.chaos and not np.mean(f.at_rest[g]) > 0.5
                             and rep not in f.continua
-                            and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam))],
+                            and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam) or _dying(rep, f))],
                  # untyped groups of closed orbits of many sizes (:func:`_continuum`, :func:`_warn_continuum`)
                  continuum=[(n, int(g.size), float(lam)) for n, t, g, lam, rep in
                             zip(names, types, (r[3] for r in typed), lams, reps)
@@ -941,7 +952,7 @@ class Discovery(Mapper):
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
-        data, coords = _attractor_vars(plan, disc, results, cfg)
+        data, coords = _attractor_vars(plan, disc, results, cfg, settle)
         if events is not None:
             ax = plan.grid[0]
             ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
@@ -967,7 +978,8 @@ def _warn_transient(names: list[str], counts: dict[str, int], unclassified: int,
     n = sum(counts[k] for k in names) + unclassified
     how = "raise [integrate] t1" + ("" if lyapunov else ", or set [outcomes.discovery] lyapunov = true to type the "
                                                          "approach")
-    way = "contracting at a negative exponent, or monotonically" if lyapunov else "monotonically"
+    way = ("contracting at a negative exponent, or monotonically" if lyapunov
+           else "monotonically, or in oscillations dying out")
     warnings.warn(f"{n} trajectories ({', '.join(parts)}) end their feature window still approaching something "
                   f"({way}): a transient that t1 did not outlast, left untyped; {how}", TransientWarning,
                   stacklevel=3)
@@ -1069,7 +1081,7 @@ def _warn_unbounded(n: int, total: int, name: str, radius: bool) -> None:
                   UnboundedWarning, stacklevel=3)
 
 
-def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
+def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settle: float):
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]
@@ -1079,10 +1091,17 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
         if not np.all(np.isfinite(states[k])):  # never an attractor "at x = inf": unknown, and said
             states[k] = np.nan
             _warn_representative(disc.names[k])
-    starts = plan.params_at(disc.representative) if a else {}
-    varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     n_obs = len(plan.system.observables)
     final = np.asarray(results["feat_final"], float)[disc.representative, :n_obs] if a else np.zeros((0, n_obs))
+    placed = np.zeros(a, np.int8)
+    if a and is_autonomous(plan.system):
+        said = {r[0] for r in disc.stats.get("by_exponent", ())}  # already warned of (_warn_by_exponent)
+        for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
+            if t == "fixed_point" and np.all(np.isfinite(states[k])):
+                placed[k] = _place_fixed_point(plan, int(rep), settle, disc.names[k], states, final, k,
+                                               warn=disc.names[k] not in said)
+    starts = plan.params_at(disc.representative) if a else {}
+    varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     data = {
         "attractor_type": ("attractor", np.array(disc.types, dtype=object),
                            {"long_name": "fixed_point (window std ~ 0), chaotic (lyapunov > threshold), "
@@ -1097,9 +1116,16 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
         "attractor_representative": ("attractor", disc.representative,
                                      {"long_name": "flat index of the trajectory nearest the median features"}),
         "attractor_state": (("attractor", "state_component"), states,
-                            {"long_name": "state at t1 of the representative trajectory (re-integrated)"}),
+                            {"long_name": "state at t1 of the representative trajectory (re-integrated); of a fixed "
+                                          "point still approached at t1, the stable equilibrium inside its last "
+                                          "window (attractor_placed)"}),
         "attractor_observables": (("attractor", "observable"), final,
-                                  {"long_name": "observables of the representative trajectory at t1"}),
+                                  {"long_name": "observables of the representative trajectory at t1 (of a placed "
+                                                "fixed point, at the equilibrium)"}),
+        "attractor_placed": ("attractor", placed, {
+            "long_name": "how the attractor's state was found",
+            "flag_values": np.array([0, 1], np.int8),
+            "flag_meanings": "representative_at_t1 equilibrium_by_newton_inside_the_last_window"}),
         "observable_range": ("observable", disc.scale,
                              {"long_name": "range of each observable over the sweep (feature scale)"}),
     }
@@ -1113,6 +1139,79 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig):
               "state_component": ("state_component", np.array(comps, dtype=object)),
               "observable": ("observable", list(plan.system.observables))}
     return data, coords
+
+
+PLACE_POINTS = 201  # states of a fixed point's representative over its window, for the box the equilibrium is in
+PLACE_MOVING = 1000.0  # window range, in tolerance units, above which a fixed point's representative still moves
+NEWTON_STEPS = 50
+
+
+def _place_fixed_point(plan, rep: int, settle: float, name: str, states, final, k: int, warn: bool = True) -> int:
+    """Place a fixed point whose representative still moves over the feature window (an oscillation dying out
+    slowly: x' = -a(x - 1) - y, y' = (x - 1) - a y at a = 0.005 and t1 = 100 was placed "at x = -0.67, y = -0.74",
+    1.9 from its equilibrium (1, 0), without a word): Newton's method on the right-hand side from its state at t1;
+    the point is taken (``states[k]``, ``final[k]`` updated; returns 1) when Newton converges to within one
+    tolerance unit, the Jacobian there is stable and the point lies inside the box the representative's states
+    span over the window (a spiral about it does; an equilibrium elsewhere does not). Otherwise the position stays
+    where t1 left the representative, and a warning says so (returns 0; a monotone approach, whose equilibrium lies
+    beyond the box, is said by :func:`_warn_still_far`). A representative at rest is left as is."""
+    import jax
+    import jax.numpy as jnp
+
+    icfg = plan.icfg
+    ts = np.linspace(icfg.t0 + settle, icfg.t1, PLACE_POINTS)
+    ds = _again(plan, rep, ts)
+    if int(ds.attrs["solver_status"]) != 0:
+        return 0
+    Y = np.stack([np.concatenate([np.ravel(ds[n].values[i]) for n, _ in plan.system.state])
+                  for i in range(len(ds["t"]))])
+    Y = Y[ds["t"].values >= ts[0]]
+    lo, hi = Y.min(axis=0), Y.max(axis=0)
+    tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
+    if np.max((hi - lo) / tol) <= PLACE_MOVING:
+        return 0
+    p = plan.system.check({key: np.asarray(v)[0] for key, v in plan.params_at(np.array([rep])).items()})
+    args = plan.system.prepare({key: jnp.asarray(v) for key, v in p.items()})
+
+    def f(y):
+        return plan.system.rhs(icfg.t1, y, args)
+
+    jac = jax.jacfwd(f)
+    y, ok = jnp.asarray(Y[-1]), False
+    for _ in range(NEWTON_STEPS):
+        J, fy = np.asarray(jac(y)), np.asarray(f(y))
+        try:
+            step = np.linalg.solve(J, fy)
+        except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(step)):
+            break
+        y = y - step
+        if np.sqrt(np.mean((step / (icfg.atol + icfg.rtol * np.abs(np.asarray(y)))) ** 2)) < 1.0:
+            ok = True
+            break
+    x = np.asarray(y)
+    slack = 10.0 * tol
+    inside = bool(np.all(x >= lo - slack) and np.all(x <= hi + slack))
+    stable = ok and bool(np.all(np.real(np.linalg.eigvals(np.asarray(jac(y)))) < 0))
+    if not (ok and stable and inside):
+        # a monotone approach (every component ends the window at an extreme) has its equilibrium beyond the box:
+        # its distance to go is estimated and said by _warn_still_far
+        if warn and not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
+            _warn_still_moving(name, float(np.max(hi - lo)))
+        return 0
+    states[k] = x
+    final[k] = np.asarray(plan.system.observe(icfg.t1, y, args), float)[: final.shape[1]]
+    return 1
+
+
+def _warn_still_moving(name: str, spread: float) -> None:
+    import warnings
+
+    warnings.warn(f"{name}: typed a fixed point while its representative still moves over the feature window (its "
+                  f"state spans {spread:.3g} there), and no stable equilibrium was found inside that window: its "
+                  f"position is where t1 left the representative; raise [integrate] t1", TransientWarning,
+                  stacklevel=3)
 
 
 def _again(plan, index: int, ts):

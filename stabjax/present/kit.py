@@ -246,6 +246,8 @@ def attractors(ds) -> list[dict[str, Any]]:
         obs = [str(o) for o in ds["observable"].values] if "observable" in ds.coords else []
         if typ == "fixed_point" and state is not None and np.all(np.isfinite(state)):
             where = "at " + ", ".join(f"{c} = {_num(v)}" for c, v in zip(comps, state))
+            if "attractor_placed" in ds and int(ds["attractor_placed"].values[k]):
+                where += " (the stable equilibrium inside its last window: its trajectories still approach it at t1)"
         elif typ == "fixed_point" and "attractor_observables" in ds and obs:  # its state could not be recomputed
             where = "at " + ", ".join(f"{o} = {_num(v)}" for o, v in zip(obs, ds["attractor_observables"].values[k]))
         elif "attractor_features" in ds and feats:
@@ -257,7 +259,7 @@ def attractors(ds) -> list[dict[str, Any]]:
             where = ""
         if where and continued:  # followed along the axis: one grid point's place, not the attractor's everywhere
             at = ", ".join(f"{d} = {_num(ds[f'attractor_start_{d}'].values[k])}" for d in continued)
-            where += f" (at {at}, its representative's grid point; it moves along {', '.join(continued)})"
+            where += f" (at {at}, its representative's grid point; followed along {', '.join(continued)})"
         out.append({"name": str(name), "type": typ,
                     "count": int(ds["attractor_count"].values[k]) if "attractor_count" in ds else -1,
                     "lyapunov": float(ds["attractor_lyapunov"].values[k]) if "attractor_lyapunov" in ds else np.nan,

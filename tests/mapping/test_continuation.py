@@ -158,7 +158,7 @@ def test_van_der_pol_continuation_names_the_cycle_a_cycle():
 
     rep_m = {n: float(ds["attractor_start_m"].values[k]) for k, n in enumerate(names)}
     for a in kit.attractors(ds):
-        assert a["where"].endswith(f"(at m = {rep_m[a['name']]:.4g}, its representative's grid point; it moves "
+        assert a["where"].endswith(f"(at m = {rep_m[a['name']]:.4g}, its representative's grid point; followed "
                                    "along m)"), a["where"]
         assert (rep_m[a["name"]] > 0) == (a["type"] == "limit_cycle")
     text = format_summary(ds)

@@ -839,6 +839,33 @@ def test_a_weak_focus_is_no_limit_cycle():
     names = ds["outcome"].attrs["flag_meanings"].split()
     lab = ds["outcome"].values.ravel()
     assert set(lab) <= {names.index("fixed_point_1"), names.index("unclassified")} and (lab == 0).mean() >= 0.8
+    # where it is: the focus (1, 0) itself, not where t1 left the representative on its spiral (it was reported
+    # 1.9 away from a start box of [-4, 4]^2, without a word); Newton's last step is below one tolerance unit
+    rep = int(ds["attractor_representative"].values[0])
+    assert np.hypot(fin[rep, 0] - 1.0, fin[rep, 1]) > 1e-3  # the representative is still on its way
+    np.testing.assert_allclose(ds["attractor_state"].values[0], [1.0, 0.0], rtol=0, atol=1e-9)
+    assert int(ds["attractor_placed"].values[0]) == 1
+    from stabjax.present.kit import attractors
+
+    assert "still approach it at t1" in attractors(ds)[0]["where"]
+
+
+def test_without_the_exponent_a_dying_oscillation_is_said_to_be_a_transient():
+    """The focus at a = 0.2 (eigenvalues -0.2 +- i) watched to t1 = 50 without the exponent: over the window [25, 50]
+    every oscillation falls by e^(-0.2 * 25) = 0.7 %, still 1e-2 of the range at its start, so DBSCAN's groups are
+    pieces of one transient (three untyped groups and 75 unclassified of 100), and nothing said so. Each group is
+    still untyped (without the exponent nothing types it), but the warning names every one: its representative's
+    peaks fall at every peak."""
+    from stabjax.mapping.discover import TransientWarning
+
+    _, Focus = _relax()
+    box = {"n": 100, "seed": 5, "x0": {"dist": "uniform", "low": -4.0, "high": 4.0},
+           "y0": {"dist": "uniform", "low": -4.0, "high": 4.0}}
+    ds, names, said = _discovered(Focus, box, 50.0, {"lyapunov": False}, TransientWarning, params={"a": 0.2})
+    groups = [n for n in names if n not in ("unclassified", "failed")]
+    assert groups and set(ds["attractor_type"].values) == {"attractor"}, names
+    assert len(said) == 1 and "oscillations dying out" in said[0], said
+    assert all(f" in {n}" in said[0] for n in groups), said[0]
 
 
 def test_a_slow_runaway_over_a_short_window_is_not_called_chaotic():
