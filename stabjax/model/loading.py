@@ -559,6 +559,12 @@ def _validate(system):
     obs_names = tuple(system.observables)
     if not obs_names or len(set(obs_names)) != len(obs_names):
         raise ValidationError(f"{where}.observables", "must be a non-empty tuple of distinct names")
+    from .system import System
+
+    if type(system).observable_doc is System.observable_doc and obs_names != tuple(System.observables):
+        # its own observables under the base class's descriptions ("error metric", "size") labelled x and y so in
+        # `stabjax systems`, simulate and the figures: described by their names instead
+        system.observable_doc = obs_names
     if len(system.observable_doc) != len(obs_names):
         raise ValidationError(f"{where}.observable_doc", f"needs one line per observable ({len(obs_names)})")
     n = system.state_size

@@ -258,6 +258,18 @@ def test_bad_model_file(case, tmp_path, capsys):
     assert not (tmp_path / "res.nc.zarr").exists() and not (tmp_path / "res.png").exists()
 
 
+def test_observables_without_descriptions_are_described_by_their_names(tmp_path):
+    """A model that declares its observables but not observable_doc inherited the base class's ("error metric",
+    "size"), which labelled amplitude and x so in `stabjax systems`, simulate and the figures."""
+    from stabjax.model.loading import resolve
+
+    text = GOOD.replace('    observable_doc = ("sqrt(x^2 + v^2)", "displacement")\n', "")
+    assert text != GOOD
+    (tmp_path / "model.py").write_text(text)
+    system = resolve(f"{tmp_path / 'model.py'}:Oscillator")
+    assert tuple(system.observable_doc) == ("amplitude", "x")
+
+
 def test_model_reference_forms():
     from stabjax.model.loading import resolve
 
