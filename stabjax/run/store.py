@@ -253,8 +253,9 @@ def remove_listed(path: Path, m: Mapping[str, Any], *, manifest: bool = True) ->
 
 def _zarr_file(rel: tuple[str, ...]) -> bool:
     """A file zarr writes inside an array's folder: its metadata, or a chunk (``c/0/1`` in zarr 3, ``0.1`` or
-    ``0/1`` in zarr 2's keys): names of digits, nothing else."""
-    if len(rel) == 1 and rel[0] in ("zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"):
+    ``0/1`` in zarr 2's keys; a 0-d array's one chunk is ``c`` in zarr 3, ``0`` in zarr 2): names of digits,
+    nothing else."""
+    if len(rel) == 1 and rel[0] in ("zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata", "c"):
         return True
     keys = rel[1:] if rel[0] == "c" else rel
     return bool(keys) and all(k.replace(".", "").isdigit() for k in keys)

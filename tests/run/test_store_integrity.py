@@ -334,3 +334,14 @@ def test_the_layout_made_without_dask_is_the_same_store(tmp_path, monkeypatch, t
     assert_same(made["numpy"][3], made["dask"][3])
     if text is TINY:
         assert_same(made["numpy"][3], reference)
+
+
+def test_a_0d_arrays_chunk_is_removed_with_its_store(tmp_path):
+    """A 0-d array's one chunk is the file ``c`` (zarr 3): the continuation's ``attractor_events`` kept its folder
+    and that file behind every finished discovery sweep (the store folder left with them)."""
+    store = tmp_path / "s.zarr"
+    xr.Dataset({"events": ((), "[]"), "x": ("n", np.arange(3.0))}).to_zarr(store, zarr_format=3)
+    assert (store / "events" / "c").is_file()
+    (store / "x" / "mine.txt").write_text("mine")  # a user's file stays, as before
+    S.remove_listed(store, {"entries": ["events", "x", "zarr.json"], "damaged": True})
+    assert not (store / "events").exists() and (store / "x" / "mine.txt").read_text() == "mine"
