@@ -595,7 +595,10 @@ def _unsettled(lam: float, f: _Features, cfg: DiscoveryConfig) -> bool:
 
 
 ENVELOPE_POINTS = 4001  # samples of a representative's window for its envelope (a period needs ~20 of them)
-ENVELOPE_DECAY = 0.9  # the envelope's last peak below this share of its first: decaying beyond the sampling's error
+# the envelope's last peak below this share of its first: decaying, far beyond the dense sampling's error (~1e-5 of
+# a peak); 0.9 missed the weak focus a = 0.005 watched to t1 = 50 (9 % over its window, its rate the exponent's
+# to 1 %): three 'families of neutral orbits'
+ENVELOPE_DECAY = 0.99
 
 
 def _decaying(rep: int, lam: float, f: _Features) -> bool:

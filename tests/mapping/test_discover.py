@@ -848,6 +848,12 @@ def test_a_weak_focus_is_no_limit_cycle():
     from stabjax.present.kit import attractors
 
     assert "still approach it at t1" in attractors(ds)[0]["where"]
+    # watched to t1 = 50 the peaks fall by 9 % over the window (e^(-0.005 * 18.8) over its three periods): the three
+    # groups DBSCAN makes of the spirals' sizes were "families of neutral orbits (a centre)"; one fixed point
+    ds = run_spec({"system": Focus, "params": {"a": 0.005}, "sample": box, "integrate": {"t1": 50.0,
+                                                                                        "n_checkpoints": 200}})
+    assert list(ds["attractor_type"].values) == ["fixed_point"], list(ds["attractor_type"].values)
+    np.testing.assert_allclose(ds["attractor_state"].values[0], [1.0, 0.0], rtol=0, atol=1e-9)
 
 
 def test_without_the_exponent_a_dying_oscillation_is_said_to_be_a_transient():
