@@ -383,7 +383,8 @@ def write_report(ds: xr.Dataset | str | Path, out: str | Path, source: str = "",
     (what ``stabjax report`` checks of its ``--out``)."""
     import os
 
-    from ..run.outputs import check_output, input_files, is_own_output, spec_digest_of, stamp_output
+    from ..run.outputs import (check_output, clean_stale_temps, input_files, is_own_output, spec_digest_of,
+                               stamp_output, temp_beside)
     from .show import _dataset
 
     ds, path = _dataset(ds)
@@ -395,7 +396,8 @@ def write_report(ds: xr.Dataset | str | Path, out: str | Path, source: str = "",
                  same=lambda p: is_own_output(p, source or None, spec=digest),
                  what="a page stabjax wrote of this result (or of a result of its spec)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")  # the suffix tells stamp_output the format
+    clean_stale_temps(out, keep_suffix=True)  # a process killed while it wrote this page left its file behind
+    tmp = temp_beside(out, keep_suffix=True)  # the suffix tells stamp_output the format
     try:
         tmp.write_text(render(ds, source), encoding="utf-8")
         stamp_output(tmp, source or None, spec=spec_digest_of(ds))

@@ -93,15 +93,23 @@ def check_store_path(store: Path, inputs, outputs=()) -> None:
                                                  "holds only what the sweep writes: choose another --store")
 
 
-def temp_beside(out: Path) -> Path:
+def _temp_form(out: Path, keep_suffix: bool) -> tuple[str, str]:
+    """(prefix, ending) of the temporary files of ``out``: ``.NAME.`` and ``.tmp``, or with ``keep_suffix``
+    (an image or a page, whose writer reads the format from the suffix) ``.STEM.`` and ``.tmp.SUFFIX``."""
+    return (f".{out.stem}.", f".tmp{out.suffix}") if keep_suffix else (f".{out.name}.", ".tmp")
+
+
+def temp_beside(out: Path, keep_suffix: bool = False) -> Path:
     """The temporary file a result is written to before it is renamed over ``out``:
-    ``.NAME.HOST-PID.tmp`` beside it, naming the process that writes it (:func:`clean_stale_temps`)."""
+    ``.NAME.HOST-PID.tmp`` beside it (``.STEM.HOST-PID.tmp.SUFFIX`` with ``keep_suffix``: figures and pages),
+    naming the process that writes it (:func:`clean_stale_temps`)."""
     import socket
 
-    return out.with_name(f".{out.name}.{socket.gethostname()}-{os.getpid()}.tmp")
+    prefix, end = _temp_form(out, keep_suffix)
+    return out.with_name(f"{prefix}{socket.gethostname()}-{os.getpid()}{end}")
 
 
-def clean_stale_temps(out: Path) -> list[Path]:
+def clean_stale_temps(out: Path, keep_suffix: bool = False) -> list[Path]:
     """Remove the temporary files of ``out`` (:func:`temp_beside`) left by processes of this host that
     are dead (a kill -9 while the file was written); the files removed. Any other file -- one of a live
     process, of another host, or not of that exact form -- is left alone."""
@@ -110,13 +118,13 @@ def clean_stale_temps(out: Path) -> list[Path]:
     from .lock import _pid_alive
 
     host, gone = socket.gethostname(), []
-    prefix = f".{out.name}."
+    prefix, end = _temp_form(out, keep_suffix)
     try:
-        found = list(out.parent.glob(f".{glob.escape(out.name)}.*.tmp"))
+        found = list(out.parent.glob(f"{glob.escape(prefix)}*{glob.escape(end)}"))
     except OSError:
         return gone
     for f in found:
-        who = f.name[len(prefix):-len(".tmp")]
+        who = f.name[len(prefix):-len(end)]
         h, _, pid = who.rpartition("-")
         if h != host or not pid.isdigit() or not pid.isascii() or int(pid) == os.getpid() or _pid_alive(int(pid)):
             continue
@@ -152,7 +160,8 @@ def write_image(path: Path, draw, result: Optional[Path] = None, *, spec: str | 
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    clean_stale_temps(path, keep_suffix=True)  # a process killed while it drew this image left its file behind
+    tmp = temp_beside(path, keep_suffix=True)
     try:
         draw(tmp)
         if result is not None or spec is not None:

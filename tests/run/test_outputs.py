@@ -209,3 +209,44 @@ def test_a_figure_of_a_result_of_the_same_spec_is_ours_and_so_is_a_map_stamped_b
     assert output_stamp(legacy) is None
     assert is_own_output(legacy, spec="0123456789abcdef") and not is_own_output(legacy, spec="fedcba9876543210")
     assert not is_own_output(legacy, tmp_path / "R.nc")
+
+
+def test_a_killed_drawing_leaves_no_temporary_image_or_page_for_good(tmp_path):
+    """Figures and pages are written through ``.STEM.HOST-PID.tmp.SUFFIX``: one a kill -9 left behind stayed for
+    good (the netCDF file's were cleaned); now the next drawing of that file removes the dead process's."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stabjax.run.outputs import temp_beside, write_image
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        host = socket.gethostname()
+        out = tmp_path / "s.png"
+        stale = tmp_path / f".s.{host}-{dead.pid}.tmp.png"
+        kept = [tmp_path / f".s.{host}-{live.pid}.tmp.png", tmp_path / f".s.elsewhere-{dead.pid}.tmp.png",
+                tmp_path / f".s.{host}-{dead.pid}.tmp.svg", tmp_path / f".t.{host}-{dead.pid}.tmp.png"]
+        for f in [stale, *kept]:
+            f.write_bytes(b"partial")
+        assert temp_beside(out, keep_suffix=True).name == f".s.{host}-{os.getpid()}.tmp.png"
+
+        def draw(p):
+            fig, ax = plt.subplots()
+            fig.savefig(p)
+            plt.close(fig)
+
+        write_image(out, draw)
+        assert not stale.exists() and out.read_bytes()[:4] == b"\x89PNG"
+        assert all(f.read_bytes() == b"partial" for f in kept)
+    finally:
+        live.kill()
+        live.wait()
