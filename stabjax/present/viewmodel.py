@@ -494,9 +494,18 @@ def status_text(r: Result) -> str:
         txt = (f"<b>chunk store, every chunk finished</b> ({ds.attrs.get('store_chunks', '?')}); the netCDF file is "
                f"written when the sweep ends (or: stabjax export {r.path} --out FILE.nc)<br>" + txt)
     elif "pending" in ds:
+        from ..run.lock import held
+        from ..run.store import LOCK
+
         done = int((~np.asarray(ds["pending"].values)).sum())
-        txt = (f"<b>running sweep</b>: {done:,} of {int(ds['pending'].size):,} trajectories finished "
-               f"({ds.attrs.get('store_chunks', '?')} chunks; pending cells grey; refreshes as chunks land)<br>" + txt)
+        if r.store is not None and not held(r.store / LOCK):  # no sweep writes it: it was stopped, not running
+            txt = (f"<b>interrupted sweep</b>: {done:,} of {int(ds['pending'].size):,} trajectories finished "
+                   f"({ds.attrs.get('store_chunks', '?')} chunks; pending cells grey); no sweep is writing this "
+                   f"store: the same stabjax sweep command resumes it, and this page follows<br>" + txt)
+        else:
+            txt = (f"<b>running sweep</b>: {done:,} of {int(ds['pending'].size):,} trajectories finished "
+                   f"({ds.attrs.get('store_chunks', '?')} chunks; pending cells grey; refreshes as chunks land)<br>"
+                   + txt)
     if r.kind == "discovery" and "outcome" not in ds:
         txt += "<br>attractor discovery: the outcomes are assigned when every trajectory has run"
     return txt

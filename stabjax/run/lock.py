@@ -36,6 +36,18 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def held(path: Path) -> bool:
+    """Whether the lock file ``path`` is held by a writer that may still run: present, and not that of a dead
+    process of this host (a process on another host is taken as running: we cannot tell)."""
+    lock = Lock(path)
+    holder = lock._read()
+    if holder is None:
+        return False
+    if holder and holder.get("host") == socket.gethostname() and isinstance(holder.get("pid"), int):
+        return _pid_alive(holder["pid"])
+    return True
+
+
 class Lock:
     """Exclusive writer lock: a file created with O_CREAT|O_EXCL holding pid and host.
 

@@ -236,7 +236,20 @@ def test_a_running_sweeps_store_shows_finished_chunks_and_marks_the_rest(tmp_pat
     assert r.running
     src = doc.select_one({"name": "map"}).renderers[0].data_source
     assert sum(n == "pending" for n in src.data["name"]) == 16
-    assert "running sweep" in doc.select_one({"name": "status"}).text
+    # no sweep writes the store (the lock went with the interrupted one): said so, not "running" (a store stopped
+    # by SIGTERM was labelled a running sweep that "refreshes as chunks land")
+    status = doc.select_one({"name": "status"}).text
+    assert "interrupted sweep" in status and "resumes it" in status and "running sweep" not in status
+    from stabjax.run.lock import Lock
+    from stabjax.run.store import LOCK
+
+    writer = Lock(store / LOCK)  # a sweep writing it (this process, alive)
+    writer.acquire(store)
+    try:
+        other, _ = page(store)
+        assert "running sweep" in other.select_one({"name": "status"}).text
+    finally:
+        writer.release()
     # the rest of the sweep lands: the page's periodic refresh redraws the map from the store
     run_spec(VERDICT_MAP, out, batch_size=5, keep_partial=True)
     (refresh,) = [cb for cb in doc.session_callbacks if type(cb).__name__ == "PeriodicCallback"]
@@ -281,7 +294,7 @@ def test_a_running_discovery_store_is_shown_and_followed_to_its_result(tmp_path)
     click(doc, done)
     why = doc.select_one({"name": "why"}).text
     assert "assigned when every trajectory has run" in why and "solver status 0" in why
-    assert "running sweep" in doc.select_one({"name": "status"}).text
+    assert "interrupted sweep" in doc.select_one({"name": "status"}).text
     # the sweep finishes: the store is removed, the netCDF file written
     run_spec(WELL_DISCOVERY, out, batch_size=4)
     assert not store.exists() and out.is_file()
