@@ -151,13 +151,27 @@ def test_write_image_stamps_the_map_with_its_result(tmp_path, result):
     assert not list(tmp_path.glob(".*tmp*")) and not list(tmp_path.glob(".*stamp"))
 
 
-def test_the_next_write_removes_temporary_files_of_dead_writers_only(tmp_path):
+@pytest.fixture
+def pids():
+    """(a pid of a process of this host that has ended, a pid of one still running): temporary files named by them."""
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        yield dead.pid, live.pid
+    finally:
+        live.kill()
+        live.wait()
+
+
+def test_the_next_write_removes_temporary_files_of_dead_writers_only(tmp_path, pids):
     """A kill -9 while the netCDF file is written leaves ``.NAME.HOST-PID.tmp``; the next write of that file
     removes it when PID is dead on this host, and leaves every other file alone."""
     import os
     import socket
-    import subprocess
-    import sys
 
     import numpy as np
     import xarray as xr
@@ -165,29 +179,23 @@ def test_the_next_write_removes_temporary_files_of_dead_writers_only(tmp_path):
     from stabjax.run.outputs import temp_beside
     from stabjax.run.sweep import write
 
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    try:
-        host = socket.gethostname()
-        out = tmp_path / "r.nc"
-        stale = tmp_path / f".r.nc.{host}-{dead.pid}.tmp"
-        kept = [tmp_path / f".r.nc.{host}-{live.pid}.tmp",   # a writer still running
-                tmp_path / f".r.nc.elsewhere-{dead.pid}.tmp",  # another host's: its pids are not ours to judge
-                tmp_path / f".r.nc.{dead.pid}.tmp",            # not of that form
-                tmp_path / ".r.nc.notes.tmp",
-                tmp_path / f".other.nc.{host}-{dead.pid}.tmp"]  # another output's
-        for f in [stale, *kept]:
-            f.write_bytes(b"partial")
-        assert temp_beside(out).name == f".r.nc.{host}-{os.getpid()}.tmp"
-        write(xr.Dataset({"x": ("i", np.arange(3.0))}), out)
-        assert not stale.exists()
-        assert all(f.read_bytes() == b"partial" for f in kept)
-        assert xr.load_dataset(out)["x"].values.tolist() == [0.0, 1.0, 2.0]
-        assert not temp_beside(out).exists()
-    finally:
-        live.kill()
-        live.wait()
+    dead, live = pids
+    host = socket.gethostname()
+    out = tmp_path / "r.nc"
+    stale = tmp_path / f".r.nc.{host}-{dead}.tmp"
+    kept = [tmp_path / f".r.nc.{host}-{live}.tmp",   # a writer still running
+            tmp_path / f".r.nc.elsewhere-{dead}.tmp",  # another host's: its pids are not ours to judge
+            tmp_path / f".r.nc.{dead}.tmp",            # not of that form
+            tmp_path / ".r.nc.notes.tmp",
+            tmp_path / f".other.nc.{host}-{dead}.tmp"]  # another output's
+    for f in [stale, *kept]:
+        f.write_bytes(b"partial")
+    assert temp_beside(out).name == f".r.nc.{host}-{os.getpid()}.tmp"
+    write(xr.Dataset({"x": ("i", np.arange(3.0))}), out)
+    assert not stale.exists()
+    assert all(f.read_bytes() == b"partial" for f in kept)
+    assert xr.load_dataset(out)["x"].values.tolist() == [0.0, 1.0, 2.0]
+    assert not temp_beside(out).exists()
 
 
 def test_a_figure_of_a_result_of_the_same_spec_is_ours_and_so_is_a_map_stamped_before_the_stamps(tmp_path):
@@ -211,42 +219,23 @@ def test_a_figure_of_a_result_of_the_same_spec_is_ours_and_so_is_a_map_stamped_b
     assert not is_own_output(legacy, tmp_path / "R.nc")
 
 
-def test_a_killed_drawing_leaves_no_temporary_image_or_page_for_good(tmp_path):
+def test_a_killed_drawing_leaves_no_temporary_image_or_page_for_good(tmp_path, pids):
     """Figures and pages are written through ``.STEM.HOST-PID.tmp.SUFFIX``: one a kill -9 left behind stayed for
     good (the netCDF file's were cleaned); now the next drawing of that file removes the dead process's."""
     import os
     import socket
-    import subprocess
-    import sys
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from stabjax.run.outputs import temp_beside, write_image
 
-    dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()
-    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    try:
-        host = socket.gethostname()
-        out = tmp_path / "s.png"
-        stale = tmp_path / f".s.{host}-{dead.pid}.tmp.png"
-        kept = [tmp_path / f".s.{host}-{live.pid}.tmp.png", tmp_path / f".s.elsewhere-{dead.pid}.tmp.png",
-                tmp_path / f".s.{host}-{dead.pid}.tmp.svg", tmp_path / f".t.{host}-{dead.pid}.tmp.png"]
-        for f in [stale, *kept]:
-            f.write_bytes(b"partial")
-        assert temp_beside(out, keep_suffix=True).name == f".s.{host}-{os.getpid()}.tmp.png"
-
-        def draw(p):
-            fig, ax = plt.subplots()
-            fig.savefig(p)
-            plt.close(fig)
-
-        write_image(out, draw)
-        assert not stale.exists() and out.read_bytes()[:4] == b"\x89PNG"
-        assert all(f.read_bytes() == b"partial" for f in kept)
-    finally:
-        live.kill()
-        live.wait()
+    dead, live = pids
+    host = socket.gethostname()
+    out = tmp_path / "s.png"
+    stale = tmp_path / f".s.{host}-{dead}.tmp.png"
+    kept = [tmp_path / f".s.{host}-{live}.tmp.png", tmp_path / f".s.elsewhere-{dead}.tmp.png",
+            tmp_path / f".s.{host}-{dead}.tmp.svg", tmp_path / f".t.{host}-{dead}.tmp.png"]
+    for f in [stale, *kept]:
+        f.write_bytes(b"partial")
+    assert temp_beside(out, keep_suffix=True).name == f".s.{host}-{os.getpid()}.tmp.png"
+    write_image(out, draw)
+    assert not stale.exists() and out.read_bytes()[:4] == b"\x89PNG"
+    assert all(f.read_bytes() == b"partial" for f in kept)
