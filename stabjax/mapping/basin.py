@@ -48,7 +48,8 @@ def theory_agreement(ds) -> dict | None:
 
     Returns ``predicate``, ``doc``, ``columns`` (the outcomes that occur), ``rows`` (``"theory: guaranteed"`` and
     ``"theory: silent"`` -> a count per column) and ``guarantees`` (the outcome the predicate declares it
-    guarantees, ``""`` when it declares none). With one declared: ``red_flags`` (guaranteed, ending in another
+    guarantees, ``""`` when it declares none), ``absent`` (it names one this result does not have: a spec's
+    ``[outcomes]`` replaced the model's, or discovery named the attractors; nothing is counted then). With one declared: ``red_flags`` (guaranteed, ending in another
     outcome: the simulation refutes the theorem there), ``red_flags_by_outcome``, ``undecided`` (guaranteed,
     ending unclassified or failed: neither refuted nor confirmed), ``conservative`` (silent, ending in the
     guaranteed outcome) and ``red_flag_mask``, the boolean red flags laid out as ``ds["outcome"]``.
@@ -70,7 +71,8 @@ def theory_agreement(ds) -> dict | None:
            "rows": {label: [int((want(ok) & (oc == c)).sum()) for _, c in cols]
                     for label, want in (("theory: guaranteed", lambda m: m), ("theory: silent", lambda m: ~m))},
            "guarantees": str(attrs.get("guarantees", ""))}
-    if out["guarantees"] and out["guarantees"] in names:
+    out["absent"] = bool(out["guarantees"]) and out["guarantees"] not in names
+    if out["guarantees"] and not out["absent"]:
         from ..model.outcomes import FAILED_NAME, UNCLASSIFIED
 
         good = codes[names.index(out["guarantees"])]

@@ -342,6 +342,10 @@ def agreement_sentences(a: dict) -> list[str]:
     head = (f"Predicate '{a['predicate']}'" + (f" ({a['doc']})" if a["doc"] else "")
             + ": 'guaranteed' rows are the trajectories whose parameters (and start, where it reads the start) "
               "satisfy it.")
+    if a.get("absent"):
+        return [head, f"It guarantees '{a['guarantees']}', which is not an outcome of this result (the spec's "
+                      "[outcomes] replaced the model's, or the attractors were discovered): no red flag or "
+                      "conservative count; the table counts, the reader judges."]
     if not a["guarantees"]:
         return [head, "It names no outcome it guarantees (Predicate(..., outcome=NAME) in the model's theory()): "
                       "a guaranteed trajectory ending in another outcome would refute it there, a silent one ending "

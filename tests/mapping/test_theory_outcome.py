@@ -145,3 +145,28 @@ def test_a_shock_search_holds_a_theorem_only_against_the_attractor_it_guarantees
     assert abs(float(ds["shock_norm"]) - 1.0) < 0.05
     assert VERDICTS[int(ds["theory_verdict_wide"])] == "not_applicable"
     assert VERDICTS[int(ds["theory_verdict_wide_unsaid"])] == "refuted"
+
+
+def test_a_guaranteed_outcome_the_result_does_not_have_is_said_and_counts_nothing(over, tmp_path, capsys):
+    """The spec's [outcomes] replace the model's, so 'origin' is no outcome of the result: the sweep wrote its file
+    and then died on a KeyError (exit 1), and report, plot and view crashed on that file. Now the table is shown
+    and the theorem's guarantee said to be absent, nothing counted."""
+    from clirun import captured
+
+    from stabjax.present.basins import format_summary
+
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'system = "{over.replace(chr(92), "/")}"\nname = "renamed"\n[integrate]\nt1 = 30.0\n'
+                    'n_checkpoints = 100\n[sample]\nn = 60\nseed = 0\n'
+                    'x0 = {dist = "uniform", low = -2.0, high = 2.0}\ny0 = {dist = "uniform", low = -2.0, high = 2.0}\n'
+                    '[outcomes]\nrules = {inner = "max(r) < 0.5", outer = "abs(mean(r) - 2) < 0.5"}\nwindow = 0.2\n')
+    out = tmp_path / "r.nc"
+    code, text, err = captured(capsys, "sweep", spec, "--out", out, "--no-progress")
+    assert code == 0, err
+    assert "'origin', which is not an outcome of this result" in text and "RED FLAGS" not in text
+    ds = stabjax.open_result(out)
+    a = theory_agreement(ds)
+    assert a["absent"] and "red_flags" not in a and "not an outcome of this result" in format_summary(ds)
+    for cmd in (("report", out), ("plot", out, "--out", tmp_path / "again.png")):
+        code, _, err = captured(capsys, *cmd)
+        assert code == 0, err

@@ -234,10 +234,6 @@ BAD = {
         "outcome": ('Theory(predicates={"t": Predicate(c > 0, c, "t", outcome="decay")}, main="t")',
                     "predicate 't' guarantees outcome 'decay', which is not one of the model's outcomes (decays, "),
     }.items()},
-    # discovered attractors are named by the run: a theorem cannot name one in advance
-    "theory_outcome_discovered": (_with_theory('Theory(predicates={"t": Predicate(c > 0, c, "t", outcome="decays")})')
-                                  .replace("    outcomes = Outcomes(", "    outcomes = None\n    _declared = Outcomes(", 1),
-                                  "guarantees outcome 'decays', but the model declares no named outcomes"),
 }
 
 
