@@ -77,7 +77,10 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
             f_lo, f_hi = float(p[f"theory_factor_lo_{th}"].values), float(p[f"theory_factor_hi_{th}"].values)
             if v == 0:
                 flags.append((th, where, r, hi, witness_replay(ds, **sel)["command"]))
-                row += f"; {th}: RED FLAG (radius {r:.4g} > a fatal shock {hi:.4g})"
+                # refuted by the radius, or by the predicate holding at the witness (its region need not be a ball:
+                # a radius below the shock does not make the comparison true)
+                row += (f"; {th}: RED FLAG (radius {r:.4g} > a fatal shock {hi:.4g})" if r > hi else
+                        f"; {th}: RED FLAG (its hypothesis holds at the fatal witness, norm {hi:.4g})")
             elif v == 2:
                 row += f"; {th}: conservative by {f_lo:.3g}" + (f"..{f_hi:.3g}" if np.isfinite(f_hi) else "+") + \
                        f" (radius {r:.4g})"
@@ -94,8 +97,10 @@ def format_summary(ds: xr.Dataset, limit: int = 12) -> str:
         lines.append(f"  ... {shown - limit} more grid points (in the file)")
     lines.append("statement: " + str(ds.attrs.get("statement", "")))
     for th, where, r, hi, cmd in flags[:5]:
-        lines.append(f"RED FLAG {th}{' at ' + where if where else ''}: a start at norm {hi:.4g} inside the guaranteed "
-                     f"radius {r:.4g} does not reach the attractor. Replay: {cmd}")
+        inside = (f"inside the guaranteed radius {r:.4g}" if r > hi else
+                  f"where its hypothesis holds (inside its region, whose largest ball has radius {r:.4g})")
+        lines.append(f"RED FLAG {th}{' at ' + where if where else ''}: a start at norm {hi:.4g} {inside} does not "
+                     f"reach the attractor. Replay: {cmd}")
     if len(flags) > 5:
         lines.append(f"... {len(flags) - 5} more red flags")
     return "\n".join(lines)
