@@ -822,6 +822,10 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  short_window=[(n, int(g.size), float(lam)) for n, t, g, lam in
                                zip(names, types, (r[3] for r in typed), lams) if t == "attractor" and lam > f.chaos],
                  transient_unclassified=int(_ends_at_extreme(np.flatnonzero(f.valid & (labels < 0)), f).sum()),
+                 # limit cycles whose representative's peaks fall at every peak over the window: a cycle approached
+                 # from outside, or an oscillation dying out with a finite-time exponent near 0 (:func:`_warn_fading`)
+                 fading=[(n, int(g.size), float(f.envelope[rep][1])) for n, t, g, rep in
+                         zip(names, types, (r[3] for r in typed), reps) if t == "limit_cycle" and _dying(rep, f)],
                  # fixed points typed by their negative exponent alone, their members still oscillating over the
                  # window (neither at rest nor in a monotone approach), where the exponent could be a cycle's
                  # finite-time bias: :func:`_warn_by_exponent`
@@ -949,6 +953,8 @@ class Discovery(Mapper):
             _warn_continuum(disc.stats["continuum"], cfg.eps)
         if disc.stats.get("short_window"):
             _warn_short_window(disc.stats["short_window"], span)
+        if disc.stats.get("fading"):
+            _warn_fading(disc.stats["fading"])
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
         if far:
             _warn_still_far(far, cfg.eps)
@@ -1103,6 +1109,7 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settl
             if t == "fixed_point" and np.all(np.isfinite(states[k])):
                 placed[k] = _place_fixed_point(plan, int(rep), settle, disc.names[k], states, final, k,
                                                warn=disc.names[k] not in said)
+        _warn_one_place(disc, states, placed, plan.icfg)
     starts = plan.params_at(disc.representative) if a else {}
     varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     data = {
@@ -1206,6 +1213,39 @@ def _place_fixed_point(plan, rep: int, settle: float, name: str, states, final, 
     states[k] = x
     final[k] = np.asarray(plan.system.observe(icfg.t1, y, args), float)[: final.shape[1]]
     return 1
+
+
+def _warn_fading(groups: list[tuple[str, int, float]]) -> None:
+    """Said, not only stored: a group typed a limit cycle (its exponent near 0) whose representative's peaks fall
+    at every peak over the window. Either a cycle approached from outside, or an oscillation still dying out whose
+    finite-time exponent is near 0 (x'' = x - x^3 - 0.02 x' watched to t1 = 150: orbits above the saddle's energy,
+    slowly losing it, were two 'limit cycles' of a model that has none); only a longer window tells them apart."""
+    import warnings
+
+    parts = ", ".join(f"{name} ({n} trajectories, last peak {100 * drop:.3g}% of the first)" for name, n, drop in groups)
+    warnings.warn(f"{parts}: typed a limit cycle while its representative's peaks fall at every peak over the feature "
+                  f"window: a cycle still approached, or an oscillation dying out slowly; raise [integrate] t1 to tell "
+                  f"them apart", TransientWarning, stacklevel=3)
+
+
+def _warn_one_place(disc, states, placed, icfg) -> None:
+    """Said, not only stored: two fixed points, one of them placed by Newton (:func:`_place_fixed_point`), at the
+    same equilibrium (within 100 tolerance units): DBSCAN kept apart groups still spiralling into one point
+    (x'' = x - x^3 - 0.05 x' watched to t1 = 100: fixed_point_2 and fixed_point_3 both at (-1, 0)), one attractor
+    under two names whose basin fractions add up."""
+    import warnings
+
+    fp = [k for k, t in enumerate(disc.types) if t == "fixed_point" and np.all(np.isfinite(states[k]))]
+    pairs = []
+    for i, a in enumerate(fp):
+        for b in fp[i + 1:]:
+            tol = icfg.atol + icfg.rtol * np.maximum(np.abs(states[a]), np.abs(states[b]))
+            if (placed[a] or placed[b]) and np.all(np.abs(states[a] - states[b]) <= 100.0 * tol):
+                pairs.append(f"{disc.names[a]} and {disc.names[b]}")
+    if pairs:
+        warnings.warn(f"{'; '.join(pairs)} lie at the same equilibrium (placed by Newton's method inside their last "
+                      f"windows): one attractor whose trajectories were still spiralling in at t1, grouped apart; "
+                      f"add their basin fractions, or raise [integrate] t1", TransientWarning, stacklevel=3)
 
 
 def _warn_still_moving(name: str, spread: float) -> None:

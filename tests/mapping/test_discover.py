@@ -874,6 +874,54 @@ def test_without_the_exponent_a_dying_oscillation_is_said_to_be_a_transient():
     assert all(f" in {n}" in said[0] for n in groups), said[0]
 
 
+def test_a_double_well_that_has_no_cycle_says_so_of_every_cycle_it_names():
+    """x'' = x - x^3 - 0.05 x' from 100 starts in [-1, 3] x [-2, 2], t1 = 100: energy only decreases, so there is no
+    cycle; orbits still above the saddle's energy at t1 lose it so slowly that their exponent is ~0, and a group of
+    them is typed limit_cycle. Every such name now comes with a warning that its peaks fall at every peak (a cycle
+    still approached, or an oscillation dying out); each well's focus is placed at (+-1, 0), and two names placed at
+    one equilibrium are said."""
+    import warnings
+
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+    from stabjax.mapping.discover import TransientWarning
+
+    class TwoWells(System):
+        params = ParamSet((Param("c", 0.05, "damping"), Param("x0", 0.5, "x0", kind="initial"),
+                           Param("y0", 0.0, "y0", kind="initial")))
+        state = (("x", ()), ("y", ()))
+        observables = ("x", "y")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["y0"]])
+
+        def rhs(self, t, z, p):
+            return jnp.stack([z[1], z[0] - z[0] ** 3 - p["c"] * z[1]])
+
+        def observe(self, t, z, p):
+            return jnp.stack([z[0], z[1]])
+
+    for seed in (0, 4):  # seed 4: one well's spirals in two groups (here)
+        box = {"n": 100, "seed": seed, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
+               "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ds = run_spec({"system": TwoWells, "sample": box, "integrate": {"t1": 100.0},
+                           "outcomes": {"discover": True}})
+        said = " ".join(str(w.message) for w in caught if issubclass(w.category, TransientWarning))
+        types, names = list(ds["attractor_type"].values), [str(n) for n in ds["attractor"].values]
+        for n, t in zip(names, types):
+            if t == "limit_cycle":
+                assert f"{n} (" in said and "peaks fall at every peak" in said, said
+        placed = ds["attractor_placed"].values.astype(bool)
+        at = ds["attractor_state"].values[placed]
+        assert len(at) and np.all(np.min(np.abs(at[:, :1] - np.array([[-1.0, 1.0]])), axis=1) < 1e-9)
+        np.testing.assert_allclose(at[:, 1], 0.0, atol=1e-9)
+        if len(np.unique(np.round(at[:, 0]))) < len(at):  # two names at one well
+            assert "lie at the same equilibrium" in said, said
+
+
 def test_a_slow_runaway_over_a_short_window_is_not_called_chaotic():
     """The unstable focus x' = 0.1 x - y, y' = x + 0.1 y watched to t1 = 15 (window 7.5: a separation grows e^0.75,
     too little for unbounded() to see the runaway) was five 'chaotic' attractors. Its exponent is the closed form's
