@@ -612,21 +612,22 @@ def _decaying(rep: int, lam: float, f: _Features) -> bool:
     window, was limit_cycle_1.)"""
     if f.trace is None or not np.isfinite(lam):
         return False
+    rate, drop = _envelope(rep, f)
+    return bool(drop < ENVELOPE_DECAY and 0.5 * lam >= rate >= 2.0 * lam)
+
+
+def _envelope(rep: int, f: _Features) -> tuple[float, float]:
+    """:func:`_envelope_rate` of trajectory ``rep``'s dense window (integrated again once, then remembered)."""
     if rep not in f.envelope:
         f.envelope[rep] = _envelope_rate(*f.trace(rep))
-    rate, drop = f.envelope[rep]
-    return bool(drop < ENVELOPE_DECAY and 0.5 * lam >= rate >= 2.0 * lam)
+    return f.envelope[rep]
 
 
 def _dying(rep: int, f: _Features) -> bool:
     """Whether a group's representative oscillates with peaks falling at every peak to below ``ENVELOPE_DECAY`` of
     the first over the window: an oscillation dying out, a transient (without the exponent, a stable focus at
     x' = -0.2 (x - 1) - y, y' = (x - 1) - 0.2 y watched to t1 = 50 was three untyped groups, unsaid)."""
-    if f.trace is None:
-        return False
-    if rep not in f.envelope:
-        f.envelope[rep] = _envelope_rate(*f.trace(rep))
-    return bool(f.envelope[rep][1] < ENVELOPE_DECAY)
+    return f.trace is not None and bool(_envelope(rep, f)[1] < ENVELOPE_DECAY)
 
 
 def _continuum(g: np.ndarray, f: _Features) -> bool:
@@ -1105,8 +1106,10 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settl
     placed = np.zeros(a, np.int8)
     if a and is_autonomous(plan.system):
         said = {r[0] for r in disc.stats.get("by_exponent", ())}  # already warned of (_warn_by_exponent)
+        # a representative the fixed-point stop finished is at its equilibrium already (stabjax.fold.equilibrium)
+        stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
         for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
-            if t == "fixed_point" and np.all(np.isfinite(states[k])):
+            if t == "fixed_point" and np.all(np.isfinite(states[k])) and not (stopped is not None and stopped[rep]):
                 placed[k] = _place_fixed_point(plan, int(rep), settle, disc.names[k], states, final, k,
                                                warn=disc.names[k] not in said)
         _warn_one_place(disc, states, placed, plan.icfg)
@@ -1151,7 +1154,6 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settl
     return data, coords
 
 
-PLACE_POINTS = 201  # states of a fixed point's representative over its window, for the box the equilibrium is in
 PLACE_MOVING = 1000.0  # window range, in tolerance units, above which a fixed point's representative still moves
 NEWTON_STEPS = 50
 
@@ -1169,7 +1171,8 @@ def _place_fixed_point(plan, rep: int, settle: float, name: str, states, final, 
     import jax.numpy as jnp
 
     icfg = plan.icfg
-    ts = np.linspace(icfg.t0 + settle, icfg.t1, PLACE_POINTS)
+    # the envelope traces' save times (window_trace): the same compiled program re-integrates both
+    ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
     ds = _again(plan, rep, ts)
     if int(ds.attrs["solver_status"]) != 0:
         return 0
