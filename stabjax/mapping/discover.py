@@ -690,21 +690,40 @@ def _envelope_rate(t: np.ndarray, obs: np.ndarray) -> tuple[float, float]:
     return float(np.polyfit(t[i], np.log(c[i]), 1)[0]), float(c[i][-1] / c[i][0])
 
 
-def window_trace(plan, settle: float):
-    """``trace(index)`` for :func:`features`: trajectory ``index``'s observables at ``ENVELOPE_POINTS`` times over
-    the feature window, integrated again on its own (diffrax, the plan's solver and tolerances)."""
-    icfg = plan.icfg
-    ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
+class Again:
+    """Each representative integrated again on its own (diffrax, the plan's solver and tolerances:
+    :func:`stabjax.engines.simulate.simulate`), saved at ``ENVELOPE_POINTS`` times over the feature window and
+    remembered: the envelope and orbit tests (``trace``), the fixed-point placement and the state at t1 read the
+    same integration. One set of save times compiles one program per model (a second set, [t1] alone, cost a
+    trace and a compilation of diffrax's loop, ~1 s, in every discovery sweep)."""
 
-    def trace(index: int):
-        ds = _again(plan, index, ts)
+    def __init__(self, plan, settle: float):
+        icfg = plan.icfg
+        self.plan = plan
+        self.ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
+        self._done: dict[int, Any] = {}
+
+    def __call__(self, index: int):
+        index = int(index)
+        if index not in self._done:
+            self._done[index] = _again(self.plan, index, self.ts)
+        return self._done[index]
+
+    def trace(self, index: int):
+        """Trajectory ``index``'s window: (times, observables), empty if the solver failed (for :func:`features`)."""
+        ds = self(index)
         if int(ds.attrs["solver_status"]) != 0:
-            return ts[:0], np.zeros((0, len(plan.system.observables)))
+            return self.ts[:0], np.zeros((0, len(self.plan.system.observables)))
         t = ds["t"].values
-        keep = t >= ts[0]
-        return t[keep], np.stack([ds[o].values[keep] for o in plan.system.observables], axis=1)
+        keep = t >= self.ts[0]
+        return t[keep], np.stack([ds[o].values[keep] for o in self.plan.system.observables], axis=1)
 
-    return trace
+    def states(self, index: int) -> np.ndarray:
+        """The full state at each save time (rows) over the window."""
+        ds = self(index)
+        t = ds["t"].values
+        Y = np.concatenate([ds[n].values.reshape(len(t), -1) for n, _ in self.plan.system.state], axis=1)
+        return Y[t >= self.ts[0]]
 
 
 CHAOS_SPAN = 2.0  # exponent x window length below which a runaway at that rate passes unbounded()'s GROWTH test
@@ -922,12 +941,13 @@ class Discovery(Mapper):
         obs, auto = tuple(plan.system.observables), is_autonomous(plan.system)
         settle = (1.0 - float(decl.window)) * (plan.icfg.t1 - plan.icfg.t0)
         span = float(decl.window) * (plan.icfg.t1 - plan.icfg.t0)
+        again = Again(plan, settle)
         if continues(plan, cfg):
             disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
-                                                 plan.icfg.rtol, auto, settle, span, window_trace(plan, settle))
+                                                 plan.icfg.rtol, auto, settle, span, again.trace)
         else:
             disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle, span,
-                            window_trace(plan, settle))
+                            again.trace)
         away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
         # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
         # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
@@ -962,7 +982,7 @@ class Discovery(Mapper):
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
-        data, coords = _attractor_vars(plan, disc, results, cfg, settle)
+        data, coords = _attractor_vars(plan, disc, results, cfg, again)
         if events is not None:
             ax = plan.grid[0]
             ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
@@ -1091,13 +1111,13 @@ def _warn_unbounded(n: int, total: int, name: str, radius: bool) -> None:
                   UnboundedWarning, stacklevel=3)
 
 
-def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settle: float):
+def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, again: Again):
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]
     states = np.full((a, len(comps)), np.nan)
     for k, rep in enumerate(disc.representative):
-        states[k] = representative_state(plan, int(rep))
+        states[k] = representative_state(again, int(rep))
         if not np.all(np.isfinite(states[k])):  # never an attractor "at x = inf": unknown, and said
             states[k] = np.nan
             _warn_representative(disc.names[k])
@@ -1110,7 +1130,7 @@ def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, settl
         stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
         for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
             if t == "fixed_point" and np.all(np.isfinite(states[k])) and not (stopped is not None and stopped[rep]):
-                placed[k] = _place_fixed_point(plan, int(rep), settle, disc.names[k], states, final, k,
+                placed[k] = _place_fixed_point(plan, int(rep), again, disc.names[k], states, final, k,
                                                warn=disc.names[k] not in said)
         _warn_one_place(disc, states, placed, plan.icfg)
     starts = plan.params_at(disc.representative) if a else {}
@@ -1158,7 +1178,7 @@ PLACE_MOVING = 1000.0  # window range, in tolerance units, above which a fixed p
 NEWTON_STEPS = 50
 
 
-def _place_fixed_point(plan, rep: int, settle: float, name: str, states, final, k: int, warn: bool = True) -> int:
+def _place_fixed_point(plan, rep: int, again: Again, name: str, states, final, k: int, warn: bool = True) -> int:
     """Place a fixed point whose representative still moves over the feature window (an oscillation dying out
     slowly: x' = -a(x - 1) - y, y' = (x - 1) - a y at a = 0.005 and t1 = 100 was placed "at x = -0.67, y = -0.74",
     1.9 from its equilibrium (1, 0), without a word): Newton's method on the right-hand side from its state at t1;
@@ -1171,14 +1191,9 @@ def _place_fixed_point(plan, rep: int, settle: float, name: str, states, final, 
     import jax.numpy as jnp
 
     icfg = plan.icfg
-    # the envelope traces' save times (window_trace): the same compiled program re-integrates both
-    ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
-    ds = _again(plan, rep, ts)
-    if int(ds.attrs["solver_status"]) != 0:
+    if int(again(rep).attrs["solver_status"]) != 0:
         return 0
-    Y = np.stack([np.concatenate([np.ravel(ds[n].values[i]) for n, _ in plan.system.state])
-                  for i in range(len(ds["t"]))])
-    Y = Y[ds["t"].values >= ts[0]]
+    Y = again.states(rep)
     lo, hi = Y.min(axis=0), Y.max(axis=0)
     tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
     if np.max((hi - lo) / tol) <= PLACE_MOVING:
@@ -1271,8 +1286,10 @@ def _again(plan, index: int, ts):
                     atol=icfg.atol, max_steps=icfg.max_steps)
 
 
-def representative_state(plan, index: int) -> np.ndarray:
-    """The state at t1 of trajectory ``index`` of ``plan``, integrated on its own (diffrax, the plan's
-    solver and tolerances)."""
-    ds = _again(plan, index, [plan.icfg.t1])
-    return np.concatenate([np.ravel(ds[name].values[-1]) for name, _ in plan.system.state])
+def representative_state(again: Again, index: int) -> np.ndarray:
+    """The state at t1 of trajectory ``index``, integrated again on its own (:class:`Again`; t1 is its last save
+    time); non-finite where that integration failed."""
+    ds = again(index)
+    if int(ds.attrs["solver_status"]) != 0:
+        return np.full(again.plan.system.state_size, np.nan)
+    return again.states(index)[-1]

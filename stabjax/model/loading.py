@@ -199,12 +199,15 @@ def _local_file(module) -> str | None:
     return str(real)
 
 
-def _imported_names(source: bytes) -> set[str]:
-    """Absolute module names a source file imports (``import a.b`` -> a, a.b; ``from a import b`` -> a, a.b)."""
+@functools.lru_cache(maxsize=64)
+def _imported_names(source: bytes) -> frozenset[str]:
+    """Absolute module names a source file imports (``import a.b`` -> a, a.b; ``from a import b`` -> a, a.b).
+    Remembered by content: every sweep's provenance asks again of the same files (a class defined in a long
+    module, a test file, parsed once per plan)."""
     try:
         tree = ast.parse(source)
     except (SyntaxError, ValueError):
-        return set()
+        return frozenset()
     out: set[str] = set()
     for node in ast.walk(tree):
         names = []
@@ -215,7 +218,7 @@ def _imported_names(source: bytes) -> set[str]:
         for n in names:
             parts = n.split(".")
             out.update(".".join(parts[: i + 1]) for i in range(len(parts)))
-    return out
+    return frozenset(out)
 
 
 def _local_imports(new_modules: set[str], model_source: bytes) -> dict[str, str]:
