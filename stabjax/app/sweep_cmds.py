@@ -60,9 +60,10 @@ def sweep(
     replacing = check_output(out, "--out", RESULT_SUFFIXES, inputs=inputs, force=force,
                               same=lambda p: result_spec(p) == this_spec,
                               what="a result of this spec (with this --t1)")
-    if plot:  # the map follows its result: replaced with it, else only with --force
+    if plot:  # the map is replaced when its content says it is the map of this spec, else only with --force
+        # (replacing the result does not make the image beside it ours: a user's own file of that name stays)
         png = out.with_suffix(".png")
-        check_output(png, "--out", IMAGE_SUFFIXES, inputs=inputs, force=force or replacing,
+        check_output(png, "--out", IMAGE_SUFFIXES, inputs=inputs, force=force,
                       same=lambda p: is_own_output(p, spec=spec_digest(this_spec)),
                       what="the map of a previous result of this spec")
     store = store or default_store(out)

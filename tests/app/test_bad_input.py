@@ -394,9 +394,18 @@ def test_rerun_replaces_own_result_else_needs_force(tmp_path, capsys):
         assert code == 2 and "is not a result of this spec" in err and "--force" in err, err
         assert_clean(o, err)
         assert out.read_bytes() == first
-    # an image that is not this result's map: refused unless --force
+    # an image that is not this result's map: refused unless --force, also where the result beside it is this
+    # spec's own and would be replaced (the image was replaced with it, a user's file of that name lost)
     png = out.with_suffix(".png")
+    code, _, err = cli(capsys, "sweep", spec, "--out", out, "--no-progress", "--force")  # the spec changed above
+    assert code == 0 and png.exists()
+    code, _, err = cli(capsys, "sweep", spec, "--out", out, "--no-progress")
+    assert code == 0 and "it will be replaced" in err  # its own map, stamped: replaced with the result
+    first = out.read_bytes()
     png.write_bytes(b"someone's picture")
+    code, o, err = cli(capsys, "sweep", spec, "--out", out, "--no-progress")
+    assert code == 2 and f"{png.name} exists and is not the map of a previous result of this spec" in err, err
+    assert "--force" in err and png.read_bytes() == b"someone's picture" and out.read_bytes() == first
     code, o, err = cli(capsys, "sweep", spec, "--out", out, "--no-progress", "--force")
     assert code == 0 and "it will be replaced" in err and png.read_bytes() != b"someone's picture"
     # plot: the map of the result is redrawn (said); another image, or the result itself, is refused
