@@ -976,6 +976,10 @@ class Discovery(Mapper):
             _warn_short_window(disc.stats["short_window"], span)
         if disc.stats.get("fading"):
             _warn_fading(disc.stats["fading"])
+        if not continues(plan, cfg):
+            split = _split_along_grid(plan, disc, results, obs)
+            if split:
+                _warn_split_along_grid(split, cfg.eps)
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
         if far:
             _warn_still_far(far, cfg.eps)
@@ -991,6 +995,68 @@ class Discovery(Mapper):
                              f"index where it is present (birth) or absent again (death), the {ax.name} value there)",
                 "match_threshold": threshold})
         return Mapped(code, OutcomeScheme(names, colors, decl), data, coords)
+
+
+def _split_along_grid(plan, disc: Attractors, results, obs) -> list[str]:
+    """Pairs of attractors that pooled grouping (``continuation = false``) likely made of one: of one type, never
+    found at one grid point, and across some pair of neighbouring grid points each the nearest (median scaled
+    features) of what appears where the other disappears. An attractor that moves with the parameter by more than
+    ``eps`` between grid points falls apart into one group per stretch of the grid (the double well
+    x'' = -0.3 x' + x - x^3 + F on F = -0.5 ... 0.5: the left well as fixed_point_1, _3 and _5)."""
+    if plan.points is not None or not plan.grid or not plan.n_sample or not len(disc.names):
+        return []
+    shape = tuple(ax.size for ax in plan.grid)
+    G = int(np.prod(shape))
+    lab = np.asarray(disc.labels).reshape(G, -1)
+    A = len(disc.names)
+    present = np.stack([(lab == k).any(axis=1) for k in range(A)])  # (A, G)
+    x, _ = feature_table(results, obs)
+    x = (x / np.repeat(disc.scale, len(STATS))).reshape(G, lab.shape[1], -1)
+
+    def at(k: int, g: int) -> np.ndarray:
+        return np.median(x[g][lab[g] == k], axis=0)
+
+    pairs: dict[tuple[int, int], str] = {}
+    for g in range(G):
+        idx = np.unravel_index(g, shape)
+        for i, ax in enumerate(plan.grid):
+            if idx[i] + 1 >= shape[i]:
+                continue
+            h = int(np.ravel_multi_index(idx[:i] + (idx[i] + 1,) + idx[i + 1:], shape))
+            for here, there in ((g, h), (h, g)):
+                gone = np.flatnonzero(present[:, here] & ~present[:, there])
+                new = np.flatnonzero(present[:, there] & ~present[:, here])
+                if not (gone.size and new.size):
+                    continue
+                for a in gone:
+                    d = [float(np.linalg.norm(at(a, here) - at(b, there))) for b in new]
+                    b = int(new[int(np.argmin(d))])
+                    near = [float(np.linalg.norm(at(c, here) - at(b, there))) for c in gone]
+                    if int(gone[int(np.argmin(near))]) != a or disc.types[a] != disc.types[b] \
+                            or np.any(present[a] & present[b]):
+                        continue
+                    key = (min(a, b), max(a, b))
+                    if key not in pairs:
+                        v0, v1 = (float(ax.values[idx[i]]), float(ax.values[idx[i] + 1]))
+                        pairs[key] = f"{disc.names[key[0]]} and {disc.names[key[1]]} (across {ax.name} = " \
+                                     f"{v0:.6g} -> {v1:.6g})"
+    return list(pairs.values())
+
+
+def _warn_split_along_grid(pairs: list[str], eps: float) -> None:
+    """Said, not only stored: pooled grouping may have given one moving attractor several names
+    (:func:`_split_along_grid`)."""
+    import warnings
+
+    warnings.warn(f"{'; '.join(pairs)}: of one type, never found at one grid point, each the nearest of what "
+                  f"appears where the other disappears: likely one attractor that moved farther than eps = {eps:g} "
+                  f"between grid points, under two names (continuation = false groups every grid point's "
+                  f"trajectories together by distance); set [outcomes.discovery] continuation = true (one grid axis) "
+                  f"to follow it, or refine the grid", SplitWarning, stacklevel=3)
+
+
+class SplitWarning(UserWarning):
+    """Pooled discovery over a grid likely gave one attractor that moves with the parameter several names."""
 
 
 class TransientWarning(UserWarning):

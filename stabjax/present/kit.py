@@ -232,12 +232,14 @@ def attractors(ds) -> list[dict[str, Any]]:
     """Each discovered attractor of the result (empty for other kinds): ``name``, ``type``, ``count``,
     ``lyapunov`` (the median over its trajectories, at every grid point it lives at) and ``where`` -- the
     representative trajectory's state at t1 for a fixed point, the late-window range of each observable for an
-    attractor that moves (a point of a cycle says little); under continuation with the grid point it is taken at."""
+    attractor that moves (a point of a cycle says little); over a grid with the grid point it is taken at."""
     if "attractor" not in ds.dims or "attractor_type" not in ds:
         return []
     out = []
     # under continuation an attractor spans the grid axis: its place is said at its representative's grid point
-    continued = [str(d) for d in ds.dims if f"attractor_start_{d}" in ds] if "attractor_events" in ds else []
+    # (grouped over the whole grid at once, too: one name may hold a different place at every grid point)
+    on_grid = [str(d) for d in ds.dims if f"attractor_start_{d}" in ds]
+    followed = "attractor_events" in ds
     feats = [str(f) for f in ds["attractor_feature"].values] if "attractor_feature" in ds.coords else []
     comps = [str(c) for c in ds["state_component"].values] if "state_component" in ds.coords else []
     for k, name in enumerate(ds["attractor"].values):
@@ -257,9 +259,10 @@ def attractors(ds) -> list[dict[str, Any]]:
                               for o in obs if f"max({o})" in feats)
         else:
             where = ""
-        if where and continued:  # followed along the axis: one grid point's place, not the attractor's everywhere
-            at = ", ".join(f"{d} = {_num(ds[f'attractor_start_{d}'].values[k])}" for d in continued)
-            where += f" (at {at}, its representative's grid point; followed along {', '.join(continued)})"
+        if where and on_grid:  # one grid point's place, not the attractor's everywhere
+            at = ", ".join(f"{d} = {_num(ds[f'attractor_start_{d}'].values[k])}" for d in on_grid)
+            how = f"followed along {', '.join(on_grid)}" if followed else "grouped over the grid"
+            where += f" (at {at}, its representative's grid point; {how})"
         out.append({"name": str(name), "type": typ,
                     "count": int(ds["attractor_count"].values[k]) if "attractor_count" in ds else -1,
                     "lyapunov": float(ds["attractor_lyapunov"].values[k]) if "attractor_lyapunov" in ds else np.nan,

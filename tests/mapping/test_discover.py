@@ -2,6 +2,7 @@
 partition of the examples' starts against their declared rules/templates (independent of the
 discovery code: the rules are the examples' own, checked against SciPy in test_examples.py)."""
 import functools
+import re
 import tomllib
 from pathlib import Path
 
@@ -1084,3 +1085,56 @@ def test_two_equilibria_closer_than_eps_are_two():
     for r in (0.0, 0.2, 10.0):
         assert len(set(lab[rest == r])) == 1, (r, set(lab[rest == r]))
         assert at[lab[rest == r][0]] == pytest.approx(r, abs=1e-6)
+
+
+def test_pooled_grouping_over_a_grid_says_which_names_are_one_moving_attractor():
+    """The reliability pass's case, smaller: x'' = -0.3 x' + x - x^3 + F over F = -0.5 ... 0.5 with
+    continuation = false. Each well's equilibrium (a root of x - x^3 + F) moves ~0.1-0.2 between grid points, farther
+    than eps, so the pooled grouping gives each well one name per stretch of the grid (exit 0, unsaid; the table
+    said "at x = 1.125" with no grid point). Every pair of names that hold one well at neighbouring grid points is now
+    said, no pair of different wells is, and each place names its representative's grid point."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+    from stabjax.mapping.discover import SplitWarning
+    from stabjax.present.kit import attractors
+
+    class ForcedWells(System):
+        params = ParamSet((Param("F", 0.0, "constant force"), Param("x0", 0.5, "x0", kind="initial"),
+                           Param("v0", 0.0, "v0", kind="initial")))
+        state = (("x", ()), ("v", ()))
+        observables = ("x", "v")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["v0"]])
+
+        def rhs(self, t, z, p):
+            return jnp.stack([z[1], -0.3 * z[1] + z[0] - z[0] ** 3 + p["F"]])
+
+        def observe(self, t, z, p):
+            return jnp.stack([z[0], z[1]])
+
+    F = [-0.5, -0.3, -0.15, 0.0, 0.15, 0.3, 0.5]
+    box = {"n": 100, "seed": 3, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
+           "v0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    ds, names, said = _discovered(ForcedWells, box, 100.0, {"continuation": False}, SplitWarning, grid={"F": F})
+    state = ds["attractor_state"].values
+    rep_F = ds["attractor_start_F"].values
+    for k in range(len(state)):  # each name rests at a stable root of x - x^3 + F at its representative's F
+        roots = np.roots([-1.0, 0.0, 1.0, rep_F[k]])
+        stable = [r.real for r in roots if abs(r.imag) < 1e-12 and 1 - 3 * r.real ** 2 < 0]
+        assert min(abs(state[k, 0] - r) for r in stable) < 1e-8 and abs(state[k, 1]) < 1e-8
+    o = ds["outcome"].values
+    present = {n: [j for j in range(len(F)) if (o[j] == i).any()] for i, n in enumerate(names) if n.startswith("fixed")}
+    well = {n: np.sign(state[names.index(n), 0]) for n in present}
+    expected = set()
+    for side in (-1.0, 1.0):
+        chain = sorted((n for n in present if well[n] == side), key=lambda n: present[n][0])
+        expected |= {frozenset(p) for p in zip(chain, chain[1:])}
+    assert len(expected) >= 2 and len(said) == 1, (present, said)  # the case splits; one warning says it
+    text = said[0]
+    reported = {frozenset(p) for p in re.findall(r"(fixed_point_\d+) and (fixed_point_\d+) \(across", text)}
+    assert reported == expected, (reported, expected, present)
+    assert "continuation = true" in text
+    for a in attractors(ds):
+        assert "(at F = " in a["where"] and "grouped over the grid" in a["where"], a
