@@ -959,6 +959,16 @@ class Discovery(Mapper):
                                   f"and min_samples = {cfg.min_samples} ({small} of them groups of fewer than "
                                   f"{2 * cfg.min_samples} trajectories): more than the {MAX_CODES} outcome codes hold; "
                                   "raise eps or min_samples")
+        # where each attractor is, before anything is said of it by name: fixed points found at one equilibrium are
+        # one attractor (merged; under continuation, whose names are matched point by point, said)
+        places = _places(plan, disc, results, again)
+        same = _one_place(disc, places, plan.icfg)
+        if same and events is None:
+            disc, places = _merged(disc, places, same)
+            names, colors = outcome_names(decl, tuple(disc.names), escape)
+        elif same:
+            _warn_one_place(disc, same)
+        _say_places(disc, places)
         code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
         if away.any():
             code = np.where(away, names.index(decl.escape), code)
@@ -986,7 +996,7 @@ class Discovery(Mapper):
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
         code = S.outcomes(status, code, escape=names.index(decl.escape) if self.escape else None,
                           failed=names.index(FAILED_NAME), finite=finite_features(results, obs)).astype(np.int8)
-        data, coords = _attractor_vars(plan, disc, results, cfg, again)
+        data, coords = _attractor_vars(plan, disc, cfg, places)
         if events is not None:
             ax = plan.grid[0]
             ev = [{**e, ax.name: float(ax.values[e["index"]])} for e in events]
@@ -1177,28 +1187,60 @@ def _warn_unbounded(n: int, total: int, name: str, radius: bool) -> None:
                   UnboundedWarning, stacklevel=3)
 
 
-def _attractor_vars(plan, disc: Attractors, results, cfg: DiscoveryConfig, again: Again):
+@dataclass
+class _Places:
+    """Where each attractor is (:func:`_places`): ``states`` (A, state size) and ``final`` (A, n_obs) of its
+    representative at t1, or of the equilibrium Newton's method placed it at (``placed``); ``moving``: attractor
+    index -> the spread of a fixed point's representative over the window where no equilibrium was found inside it
+    (:func:`_warn_still_moving`); ``lost``: attractors whose representative failed when integrated again."""
+
+    comps: list[str]
+    states: np.ndarray
+    final: np.ndarray
+    placed: np.ndarray
+    moving: dict[int, float]
+    lost: list[int]
+
+
+def _places(plan, disc: Attractors, results, again: Again) -> _Places:
+    """Each attractor's place; nothing is said here (:func:`_say_places`, after the names are final)."""
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]
     states = np.full((a, len(comps)), np.nan)
+    lost = []
     for k, rep in enumerate(disc.representative):
         states[k] = representative_state(again, int(rep))
         if not np.all(np.isfinite(states[k])):  # never an attractor "at x = inf": unknown, and said
             states[k] = np.nan
-            _warn_representative(disc.names[k])
+            lost.append(k)
     n_obs = len(plan.system.observables)
     final = np.asarray(results["feat_final"], float)[disc.representative, :n_obs] if a else np.zeros((0, n_obs))
     placed = np.zeros(a, np.int8)
+    moving: dict[int, float] = {}
     if a and is_autonomous(plan.system):
-        said = {r[0] for r in disc.stats.get("by_exponent", ())}  # already warned of (_warn_by_exponent)
         # a representative the fixed-point stop finished is at its equilibrium already (stabjax.fold.equilibrium)
         stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
         for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
             if t == "fixed_point" and np.all(np.isfinite(states[k])) and not (stopped is not None and stopped[rep]):
-                placed[k] = _place_fixed_point(plan, int(rep), again, disc.names[k], states, final, k,
-                                               warn=disc.names[k] not in said)
-        _warn_one_place(disc, states, placed, plan.icfg)
+                placed[k], spread = _place_fixed_point(plan, int(rep), again, states, final, k)
+                if spread is not None:
+                    moving[k] = spread
+    return _Places(comps, states, final, placed, moving, lost)
+
+
+def _say_places(disc: Attractors, places: _Places) -> None:
+    said = {r[0] for r in disc.stats.get("by_exponent", ())}  # already warned of (_warn_by_exponent)
+    for k in places.lost:
+        _warn_representative(disc.names[k])
+    for k, spread in places.moving.items():
+        if disc.names[k] not in said:
+            _warn_still_moving(disc.names[k], spread)
+
+
+def _attractor_vars(plan, disc: Attractors, cfg: DiscoveryConfig, places: _Places):
+    a = len(disc.names)
+    comps, states, final, placed = places.comps, places.states, places.final, places.placed
     starts = plan.params_at(disc.representative) if a else {}
     varied = [ax.param.name for ax in plan.grid] + list(plan.sample) if a else []
     data = {
@@ -1244,26 +1286,27 @@ PLACE_MOVING = 1000.0  # window range, in tolerance units, above which a fixed p
 NEWTON_STEPS = 50
 
 
-def _place_fixed_point(plan, rep: int, again: Again, name: str, states, final, k: int, warn: bool = True) -> int:
+def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int) -> tuple[int, float | None]:
     """Place a fixed point whose representative still moves over the feature window (an oscillation dying out
     slowly: x' = -a(x - 1) - y, y' = (x - 1) - a y at a = 0.005 and t1 = 100 was placed "at x = -0.67, y = -0.74",
     1.9 from its equilibrium (1, 0), without a word): Newton's method on the right-hand side from its state at t1;
     the point is taken (``states[k]``, ``final[k]`` updated; returns 1) when Newton converges to within one
     tolerance unit, the Jacobian there is stable and the point lies inside the box the representative's states
     span over the window (a spiral about it does; an equilibrium elsewhere does not). Otherwise the position stays
-    where t1 left the representative, and a warning says so (returns 0; a monotone approach, whose equilibrium lies
-    beyond the box, is said by :func:`_warn_still_far`). A representative at rest is left as is."""
+    where t1 left the representative (returns 0 and, to be said by :func:`_warn_still_moving`, the representative's
+    spread over the window; a monotone approach, whose equilibrium lies beyond the box, is said by
+    :func:`_warn_still_far` instead). A representative at rest is left as is (0, None)."""
     import jax
     import jax.numpy as jnp
 
     icfg = plan.icfg
     if int(again(rep).attrs["solver_status"]) != 0:
-        return 0
+        return 0, None
     Y = again.states(rep)
     lo, hi = Y.min(axis=0), Y.max(axis=0)
     tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
     if np.max((hi - lo) / tol) <= PLACE_MOVING:
-        return 0
+        return 0, None
     p = plan.system.check({key: np.asarray(v)[0] for key, v in plan.params_at(np.array([rep])).items()})
     args = plan.system.prepare({key: jnp.asarray(v) for key, v in p.items()})
 
@@ -1291,12 +1334,12 @@ def _place_fixed_point(plan, rep: int, again: Again, name: str, states, final, k
     if not (ok and stable and inside):
         # a monotone approach (every component ends the window at an extreme) has its equilibrium beyond the box:
         # its distance to go is estimated and said by _warn_still_far
-        if warn and not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
-            _warn_still_moving(name, float(np.max(hi - lo)))
-        return 0
+        if not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
+            return 0, float(np.max(hi - lo))
+        return 0, None
     states[k] = x
     final[k] = np.asarray(plan.system.observe(icfg.t1, y, args), float)[: final.shape[1]]
-    return 1
+    return 1, None
 
 
 def _warn_fading(groups: list[tuple[str, int, float]]) -> None:
@@ -1312,24 +1355,96 @@ def _warn_fading(groups: list[tuple[str, int, float]]) -> None:
                   f"them apart", TransientWarning, stacklevel=3)
 
 
-def _warn_one_place(disc, states, placed, icfg) -> None:
-    """Said, not only stored: two fixed points, one of them placed by Newton (:func:`_place_fixed_point`), at the
-    same equilibrium (within 100 tolerance units): DBSCAN kept apart groups still spiralling into one point
-    (x'' = x - x^3 - 0.05 x' watched to t1 = 100: fixed_point_2 and fixed_point_3 both at (-1, 0)), one attractor
-    under two names whose basin fractions add up."""
-    import warnings
-
+def _one_place(disc: Attractors, places: _Places, icfg) -> list[tuple[int, int]]:
+    """Pairs of fixed points, one of them placed by Newton (:func:`_place_fixed_point`), at the same equilibrium
+    (within 100 tolerance units): DBSCAN kept apart groups still spiralling into one point (x'' = x - x^3 - 0.05 x'
+    watched to t1 = 100: fixed_point_2 and fixed_point_3 both at (-1, 0))."""
+    states, placed = places.states, places.placed
     fp = [k for k, t in enumerate(disc.types) if t == "fixed_point" and np.all(np.isfinite(states[k]))]
     pairs = []
     for i, a in enumerate(fp):
         for b in fp[i + 1:]:
             tol = icfg.atol + icfg.rtol * np.maximum(np.abs(states[a]), np.abs(states[b]))
             if (placed[a] or placed[b]) and np.all(np.abs(states[a] - states[b]) <= 100.0 * tol):
-                pairs.append(f"{disc.names[a]} and {disc.names[b]}")
+                pairs.append((a, b))
+    return pairs
+
+
+def _warn_one_place(disc: Attractors, pairs: list[tuple[int, int]]) -> None:
+    """Said, not only stored (under continuation, whose names are matched point by point and are not merged): two
+    fixed points at one equilibrium, one attractor under two names whose basin fractions add up."""
+    import warnings
+
     if pairs:
-        warnings.warn(f"{'; '.join(pairs)} lie at the same equilibrium (placed by Newton's method inside their last "
-                      f"windows): one attractor whose trajectories were still spiralling in at t1, grouped apart; "
-                      f"add their basin fractions, or raise [integrate] t1", TransientWarning, stacklevel=3)
+        warnings.warn(f"{'; '.join(f'{disc.names[a]} and {disc.names[b]}' for a, b in pairs)} lie at the same "
+                      f"equilibrium (placed by Newton's method inside their last windows): one attractor whose "
+                      f"trajectories were still spiralling in at t1, grouped apart; add their basin fractions, or raise "
+                      f"[integrate] t1", TransientWarning, stacklevel=3)
+
+
+def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> tuple[Attractors, _Places]:
+    """One attractor of fixed points found at one equilibrium (:func:`_one_place`): each pair's groups joined
+    under the name of the larger (the first: groups are ordered by type, then size), their counts added, the place
+    Newton found kept; the names of each type numbered again in order, and the names in ``stats`` (what is said of
+    each group) changed with them."""
+    import dataclasses
+
+    root = list(range(len(disc.names)))
+
+    def find(i):
+        while root[i] != i:
+            i = root[i]
+        return i
+
+    for a, b in pairs:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            root[max(ra, rb)] = min(ra, rb)
+    into = [find(i) for i in range(len(disc.names))]
+    keep = [i for i in range(len(disc.names)) if into[i] == i]
+    new = {old: n for n, old in enumerate(keep)}
+    to = np.array([new[into[i]] for i in range(len(disc.names))], np.int64)
+    labels = np.where(disc.labels >= 0, to[np.maximum(disc.labels, 0)], disc.labels)
+    counts = np.bincount(to, weights=disc.counts, minlength=len(keep)).astype(np.int64)
+    types = [disc.types[i] for i in keep]
+    seen: dict[str, int] = {}
+    names = []
+    for t in types:
+        seen[t] = seen.get(t, 0) + 1
+        names.append(f"{t}_{seen[t]}")
+    rename = {disc.names[i]: names[to[i]] for i in range(len(disc.names))}
+    states, final, placed = places.states.copy(), places.final.copy(), places.placed.copy()
+    for i in range(len(disc.names)):  # the merged attractor's place: the equilibrium Newton found, if any did
+        r = into[i]
+        if placed[i] and not placed[r]:
+            states[r], final[r], placed[r] = states[i], final[i], 1
+
+    def renamed(v):
+        if isinstance(v, str):
+            return rename.get(v, v)
+        if isinstance(v, tuple) and v and isinstance(v[0], str):
+            return (rename.get(v[0], v[0]), *v[1:])
+        return v
+
+    stats = dict(disc.stats)
+    for key, v in disc.stats.items():
+        if isinstance(v, list):
+            out, first = [], set()
+            for item in map(renamed, v):
+                name = item if isinstance(item, str) else (item[0] if isinstance(item, tuple) and item else None)
+                if name is not None and name in first:
+                    continue
+                first.add(name)
+                out.append(item)
+            stats[key] = out
+    stats["merged"] = [(names[new[r]], [disc.names[i] for i in range(len(disc.names)) if into[i] == r and i != r])
+                       for r in keep if any(into[i] == r and i != r for i in range(len(disc.names)))]
+    disc = dataclasses.replace(disc, labels=labels, names=names, types=types, counts=counts,
+                               features=disc.features[keep], lyapunov=disc.lyapunov[keep],
+                               representative=disc.representative[keep], stats=stats)
+    moving = {new[i]: v for i, v in places.moving.items() if i in new and not placed[i]}
+    lost = [new[i] for i in places.lost if i in new]
+    return disc, _Places(places.comps, states[keep], final[keep], placed[keep], moving, lost)
 
 
 def _warn_still_moving(name: str, spread: float) -> None:
