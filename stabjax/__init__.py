@@ -7,7 +7,8 @@ and may change between versions:
 * **run**: :func:`run_spec`, :func:`run_plan`, :func:`make_plan`, :func:`load_spec`, :func:`open_result`,
   :func:`simulate`, :func:`solve_batch`, :func:`refine_spec`, :func:`refine_plan`, :func:`horizon_check`,
   :func:`shock_spec`, :func:`shock_plan`, :func:`minimal_fatal_shock`, :func:`witness_replay` (minimal fatal shocks);
-  :func:`classify` (a plan's outcome mapper over given results);
+  :func:`classify` (a plan's outcome mapper over given results); :func:`theory` (a model's theorems at given
+  parameters, checked);
 * **see**: :func:`plot`, :func:`write_report`, :func:`serve` (the browser explorer);
 * **write a model**: :class:`System`, :class:`Param`, :class:`ParamSet`, :class:`Outcomes`,
   :data:`VERDICTS`, :class:`Predicate`, :class:`Theory`, :func:`register`, :func:`get_system`,
@@ -37,7 +38,7 @@ _API = {
     "shock_spec": "explore.shock", "shock_plan": "explore.shock", "minimal_fatal_shock": "explore.shock",
     "witness_replay": "explore.shock_result",
     "classify": "mapping.classify",
-    "horizon_check": "run.horizon",
+    "horizon_check": "run.horizon", "theory": "model.theory_eval",
     # see
     "plot": "present.show", "write_report": "present.report", "serve": "present.view",
     # write a model
@@ -81,6 +82,7 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from .model.params import Param, ParamSet
     from .model.registry import list_systems
     from .model.system import Predicate, System, Theory
+    from .model.theory_eval import theory
     from .plan.spec import load_spec, make_plan
     from .present.kit import open_result
     from .present.report import write_report

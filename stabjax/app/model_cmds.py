@@ -178,10 +178,10 @@ def theory(
     import numpy as np
 
     from ..model.loading import resolve
+    from ..model.theory_eval import theory as evaluate
 
     sysm = resolve(system, base_dir=Path.cwd())
-    p = sysm.check(sysm.params.resolve(parse_sets(sets)))
-    th = sysm.theory(p)
+    th = evaluate(sysm, parse_sets(sets))
     res = {
         "system": system,
         "main": th.main,

@@ -115,7 +115,8 @@ class System:
         return p
 
     def theory(self, p: Mapping[str, np.ndarray]) -> Theory:
-        """Evaluate every theorem/corollary on (batched) parameters."""
+        """Evaluate every theorem/corollary on (batched) parameters, already checked (:meth:`check`); from Python,
+        :func:`stabjax.theory` checks them first."""
         return Theory(predicates={})
 
     # -- traced (one trajectory, inside jit/vmap) -------------------------------------------

@@ -113,4 +113,20 @@ def evaluate(system, p: Mapping[str, Any]) -> Theory:
     return Theory(preds, derived, dict(th.derived_doc), th.main)
 
 
-__all__ = ["evaluate", "distinct_rows"]
+def theory(system, params: Mapping[str, Any] | None = None) -> Theory:
+    """Every theorem and corollary of ``system`` (a name, ``'file.py:Class'``, a System class or instance) at
+    ``params`` (names to values; the system's defaults for the others): what ``stabjax theory SYSTEM --set ...``
+    prints. The parameters are checked first as the command checks them -- an unknown name, a value that is not a
+    number, NaN, or one outside the model's bounds (mu < 1 in paper A) is a :class:`stabjax.ValidationError`
+    naming the field -- so a theorem is never evaluated on values it does not speak of (``system.theory(p)``
+    itself, the model's hook, takes parameters already checked, as a sweep gives them)."""
+    from ..config import setup_jax
+    from .loading import resolve
+
+    setup_jax()
+    system = resolve(system)
+    p = system.check(system.params.resolve(params))
+    return system.theory(p)
+
+
+__all__ = ["evaluate", "distinct_rows", "theory"]

@@ -147,3 +147,33 @@ def test_saakyan_l_116_is_the_same_deduplicated():
     per_row = ST._l_116_rows(I, H, lam, K, 4001, 1e-7)
     np.testing.assert_array_equal(_bits(ST.l_116(I, H, lam, K), 80), _bits(per_row, 80))
     assert np.isfinite(per_row).any()
+
+
+@pytest.mark.parametrize("params,field", [
+    ({"mu": float("nan"), "sigma": 4 / 3, "alpha": 7 / 9}, "mu"),
+    ({"mu": 0.5, "sigma": 4 / 3, "alpha": 7 / 9}, "mu"),
+    ({"mu": 1.5, "sigma": 4 / 3, "alpha": "x"}, "alpha"),
+    ({"mu": 1.5, "sigma": 4 / 3, "alpha": 7 / 9, "bogus": 1.0}, "bogus"),
+])
+def test_the_python_theory_checks_its_parameters_as_the_command_does(params, field):
+    """The reliability pass: ``get_system(name).theory(p)``, which the docs gave as the function behind
+    ``stabjax theory``, evaluated mu = NaN (every predicate False, margins NaN) and mu = 0.5 (outside paper A's
+    mu >= 1) without a word. ``stabjax.theory`` checks first, naming the field, as the command does."""
+    import stabjax
+    from stabjax.errors import ValidationError
+
+    with pytest.raises(ValidationError) as e:
+        stabjax.theory("monoaxial", params)
+    assert e.value.field == field, str(e.value)
+
+
+def test_the_python_theory_at_checked_parameters_is_theorem_1():
+    """Defaults for the parameters not given; Theorem 1's margin 2 sigma - (mu + 1 + beta (mu - 1)) (paper A's (7))
+    with the perturbation cos(omega0 t^alpha)'s least admissible beta, 1 - alpha, at mu = 1.5, sigma = 4/3,
+    alpha = 7/9: 8/3 - (5/2 + 1/9) = 1/18."""
+    import stabjax
+
+    th = stabjax.theory("monoaxial", {"mu": 1.5, "sigma": 4 / 3, "alpha": 7 / 9})
+    want = 1 / 18
+    np.testing.assert_allclose(np.asarray(th.predicates["theorem1"].margin), want, rtol=1e-12)
+    assert bool(np.all(th.predicates["theorem1"].ok)) == (want >= 0)
