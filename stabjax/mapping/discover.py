@@ -1422,8 +1422,8 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
     def renamed(v):
         if isinstance(v, str):
             return rename.get(v, v)
-        if isinstance(v, tuple) and v and isinstance(v[0], str):
-            return (rename.get(v[0], v[0]), *v[1:])
+        if isinstance(v, tuple):  # (name, ...), some with another group's name further on (still_far's nearest)
+            return tuple(rename.get(x, x) if isinstance(x, str) else x for x in v)
         return v
 
     stats = dict(disc.stats)
@@ -1433,6 +1433,8 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
             for item in map(renamed, v):
                 name = item if isinstance(item, str) else (item[0] if isinstance(item, tuple) and item else None)
                 if name is not None and name in first:
+                    continue
+                if isinstance(item, tuple) and name in item[1:]:  # said of a group relative to itself, now
                     continue
                 first.add(name)
                 out.append(item)
