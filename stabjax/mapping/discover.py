@@ -793,13 +793,17 @@ def _hidden_motion(g: np.ndarray, lam: float, f: _Features) -> bool:
 
 
 def _ends_at_extreme(g: np.ndarray, f: _Features) -> np.ndarray:
-    """Per member: whether it ends its window at an extreme of every observable (a monotone approach, no
-    oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance)."""
+    """Per member: whether it ends its window at an extreme of every observable that moves (a monotone approach,
+    no oscillation: an oscillation ends at its window minimum or maximum only by the phase's chance). An observable
+    whose window spans no more than the fixed-point stop's distance (``STOP_DISTANCE`` solver tolerances) has come
+    to rest, and its solver noise says nothing of the others (x' = -x^3, y' = -y: y's +-1e-10 at t1 = 100 made a
+    monotone approach of x a 'limit cycle')."""
     min_cols = [k * len(STATS) + 2 for k in range(len(f.scale))]
     lo = f.feats[g][:, min_cols]
     hi = f.feats[g][:, [c + 1 for c in min_cols]]
     end = f.final[g]
-    return np.all((end == lo) | (end == hi), axis=1)
+    resting = (hi - lo) <= STOP_DISTANCE * f.tol
+    return np.all((end == lo) | (end == hi) | resting, axis=1)
 
 
 def _named(found, f: _Features, stats, kinds=None) -> Attractors:
