@@ -1,7 +1,8 @@
 """Plots of named outcomes and basin stability, with the system's own outcome names.
 
 * samples only (no grid): the sampled starts coloured by outcome (the first two sampled scalar
-  parameters as axes: the basins) beside the fractions with their 95 % Wilson intervals;
+  parameters as axes: the basins; one sampled parameter: each start at its outcome's row along it) beside the
+  fractions with their 95 % Wilson intervals;
 * one grid axis + samples: each outcome's fraction along the axis, with error bars;
 * two grid axes + samples: the dominant outcome of each cell, shaded by its fraction;
 * a grid without samples: one trajectory per cell, coloured by outcome (a basin picture when
@@ -102,8 +103,21 @@ def _samples_only(ds, names, colors, head=None):
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     keys = _sampled_axes(ds)
-    if len(keys) < 2:
+    if not keys:
         return _bars_only(ds, names, colors, head)
+    if len(keys) == 1:  # one sampled start: its outcome along that axis, the theorem's boundary across it
+        fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw=dict(width_ratios=[1.2, 1]))
+        code = np.asarray(ds["outcome"].values)
+        x = ds[f"{keys[0]}_sample"].values
+        a0.scatter(x, code, c=[colors[int(c)] for c in code], s=6, linewidths=0)
+        a0.set_yticks(np.arange(len(names)), names, fontsize=8)
+        a0.set_ylim(-0.6, len(names) - 0.4)
+        a0.set_xlabel(axis_label(ds, keys[0]))
+        a0.set_title("sampled starts by outcome (one dot = one trajectory)", fontsize=9)
+        _legend(a0, names, colors, code, kit.where_of(ds), _theorem(a0, ds, [x, code], ("sample",), along=True))
+        _bar(a1, ds, names, colors)
+        fig.suptitle(_title(ds, "basin stability", head), fontsize=10, y=1.04)
+        return fig
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw=dict(width_ratios=[1.2, 1]))
     code = np.asarray(ds["outcome"].values)
     cmap = ListedColormap(colors)
@@ -206,11 +220,12 @@ def _outcome_map(ds, dims, names, colors, head=None):
     return fig
 
 
-def _theorem(ax, ds, at, dims) -> list:
+def _theorem(ax, ds, at, dims, along: bool = False) -> list:
     """Draw the main theorem over an outcome picture; return its legend handles (none without a theorem).
 
     ``dims``: the picture's axes (grid axes, or ``("sample",)`` for sampled starts), ``at``: the positions of
-    their points (the second one a constant height on a picture with one axis). The boundary is the zero of the
+    their points (the second one a constant height on a picture with one axis, or each point's height with
+    ``along``: starts sampled along one axis, drawn at their outcome's row). The boundary is the zero of the
     predicate's margin (a contour on two grid axes, a triangulated one through sampled starts, vertical lines on
     one axis), drawn only where the margin depends on those axes alone; a cross marks each red flag (a cell or
     start the theorem guarantees that ends in another outcome, :func:`stabjax.mapping.basin.theory_agreement`).
@@ -233,7 +248,12 @@ def _theorem(ax, ds, at, dims) -> list:
         m = m.isel({d: 0 for d in extra})  # the same over the samples: one boundary over the grid
     if not [d for d in m.dims if d not in dims] and np.nanmin(m.values) < 0 < np.nanmax(m.values):
         mv = m.transpose(*[d for d in dims if d in m.dims]).values if m.dims else m.values
-        if dims == ("sample",):
+        if dims == ("sample",) and along:  # starts sampled along one axis: the margin's zeros along it
+            order = np.argsort(np.asarray(at[0], float), kind="stable")
+            for xc in zero_crossings(np.asarray(at[0], float)[order], mv[order]):
+                ax.axvline(xc, color="k", lw=2.0)
+            handles.append(Line2D([], [], color="k", lw=2.0, label=f"theory boundary: {said}"))
+        elif dims == ("sample",):
             if len(at) == 2 and mv.size >= 3:
                 ax.tricontour(np.asarray(at[0], float), np.asarray(at[1], float), mv, levels=[0.0], colors="k",
                               linewidths=2.0)

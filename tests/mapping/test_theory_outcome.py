@@ -122,6 +122,33 @@ def test_a_lattice_of_starts_marks_each_red_cell_and_draws_the_boundary(over):
     plt.close(fig)
 
 
+def test_starts_sampled_along_one_axis_show_the_boundary_and_each_red_flag(over):
+    """Starts sampled along x0 alone (y0 = 0, so r0 = |x0|): the picture was a bar chart only, with no theorem on
+    it (the summary counted the red flags). Now each start sits at its outcome's row along x0, the boundary of
+    r0 < 1.5 is the two vertical lines x0 = -1.5 and 1.5 (zeros of the margin between neighbouring starts), and a
+    cross marks each red flag: the starts with 1 < |x0| < 1.5, at the cycle's row."""
+    import matplotlib.pyplot as plt
+
+    from stabjax.present.basins import plot_basin
+
+    ds = stabjax.run_spec({"system": over, "params": {"y0": 0.0},
+                           "sample": {"n": 200, "seed": 1, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0}},
+                           "integrate": SETTINGS})
+    x = ds["x0_sample"].values
+    red = (np.abs(x) > 1) & (np.abs(x) < 1.5)
+    assert theory_agreement(ds)["red_flags"] == int(red.sum()) > 5
+    fig = plot_basin(ds)
+    ax = fig.axes[0]
+    (crosses,) = _lines(ax, "x")
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    assert sorted(zip(*crosses.get_data())) == sorted((float(v), names.index("cycle2")) for v in x[red])
+    vertical = sorted(ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_marker() != "x")
+    spacing = np.max(np.diff(np.sort(x)))  # the crossing lies between two neighbouring starts
+    assert len(vertical) == 2 and abs(vertical[0] + 1.5) < spacing and abs(vertical[1] - 1.5) < spacing, vertical
+    assert any("theory boundary: r0 < 1.5" == t.get_text() for t in ax.get_legend().get_texts())
+    plt.close(fig)
+
+
 def test_refinement_compares_the_theorem_with_the_outcome_it_guarantees(over):
     """A refinement's theorem distance is taken along the boundary of the outcome the main theorem guarantees
     (no [refine] stable needed); an explicit one still wins."""
