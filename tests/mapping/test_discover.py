@@ -875,6 +875,31 @@ def test_without_the_exponent_a_dying_oscillation_is_said_to_be_a_transient():
     assert all(f" in {n}" in said[0] for n in groups), said[0]
 
 
+@functools.cache
+def _wells():
+    """x'' = x - x^3 - c x' + F: two wells (stable equilibria at the outer roots of x - x^3 + F) for |F| < 0.385."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Wells(System):
+        params = ParamSet((Param("c", 0.05, "damping"), Param("F", 0.0, "constant force"),
+                           Param("x0", 0.5, "x0", kind="initial"), Param("y0", 0.0, "y0", kind="initial")))
+        state = (("x", ()), ("y", ()))
+        observables = ("x", "y")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["y0"]])
+
+        def rhs(self, t, z, p):
+            return jnp.stack([z[1], z[0] - z[0] ** 3 - p["c"] * z[1] + p["F"]])
+
+        def observe(self, t, z, p):
+            return jnp.stack([z[0], z[1]])
+
+    return Wells
+
+
 def test_a_double_well_that_has_no_cycle_says_so_of_every_cycle_it_names():
     """x'' = x - x^3 - 0.05 x' from 100 starts in [-1, 3] x [-2, 2], t1 = 100: energy only decreases, so there is no
     cycle; orbits still above the saddle's energy at t1 lose it so slowly that their exponent is ~0, and a group of
@@ -884,25 +909,9 @@ def test_a_double_well_that_has_no_cycle_says_so_of_every_cycle_it_names():
     are one attractor: one name per well, holding every start SciPy's DOP853 brings to rest in it."""
     import warnings
 
-    import jax.numpy as jnp
-
-    from stabjax import Param, ParamSet, System
     from stabjax.mapping.discover import TransientWarning
 
-    class TwoWells(System):
-        params = ParamSet((Param("c", 0.05, "damping"), Param("x0", 0.5, "x0", kind="initial"),
-                           Param("y0", 0.0, "y0", kind="initial")))
-        state = (("x", ()), ("y", ()))
-        observables = ("x", "y")
-
-        def initial_state(self, p):
-            return jnp.stack([p["x0"], p["y0"]])
-
-        def rhs(self, t, z, p):
-            return jnp.stack([z[1], z[0] - z[0] ** 3 - p["c"] * z[1]])
-
-        def observe(self, t, z, p):
-            return jnp.stack([z[0], z[1]])
+    TwoWells = _wells()
 
     for seed in (0, 4):  # seed 4: one well's spirals in two groups (here)
         box = {"n": 100, "seed": seed, "x0": {"dist": "uniform", "low": -1.0, "high": 3.0},
@@ -1140,31 +1149,14 @@ def test_pooled_grouping_over_a_grid_says_which_names_are_one_moving_attractor()
     than eps, so the pooled grouping gives each well one name per stretch of the grid (exit 0, unsaid; the table
     said "at x = 1.125" with no grid point). Every pair of names that hold one well at neighbouring grid points is now
     said, no pair of different wells is, and each place names its representative's grid point."""
-    import jax.numpy as jnp
-
-    from stabjax import Param, ParamSet, System
     from stabjax.mapping.discover import SplitWarning
     from stabjax.present.kit import attractors
 
-    class ForcedWells(System):
-        params = ParamSet((Param("F", 0.0, "constant force"), Param("x0", 0.5, "x0", kind="initial"),
-                           Param("v0", 0.0, "v0", kind="initial")))
-        state = (("x", ()), ("v", ()))
-        observables = ("x", "v")
-
-        def initial_state(self, p):
-            return jnp.stack([p["x0"], p["v0"]])
-
-        def rhs(self, t, z, p):
-            return jnp.stack([z[1], -0.3 * z[1] + z[0] - z[0] ** 3 + p["F"]])
-
-        def observe(self, t, z, p):
-            return jnp.stack([z[0], z[1]])
-
     F = [-0.5, -0.3, -0.15, 0.0, 0.15, 0.3, 0.5]
     box = {"n": 100, "seed": 3, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
-           "v0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
-    ds, names, said = _discovered(ForcedWells, box, 100.0, {"continuation": False}, SplitWarning, grid={"F": F})
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    ds, names, said = _discovered(_wells(), box, 100.0, {"continuation": False}, SplitWarning, params={"c": 0.3},
+                                  grid={"F": F})
     state = ds["attractor_state"].values
     rep_F = ds["attractor_start_F"].values
     for k in range(len(state)):  # each name rests at a stable root of x - x^3 + F at its representative's F
