@@ -1443,8 +1443,6 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
                 first.add(name)
                 out.append(item)
             stats[key] = out
-    stats["merged"] = [(names[new[r]], [disc.names[i] for i in range(len(disc.names)) if into[i] == r and i != r])
-                       for r in keep if any(into[i] == r and i != r for i in range(len(disc.names)))]
     disc = dataclasses.replace(disc, labels=labels, names=names, types=types, counts=counts,
                                features=disc.features[keep], lyapunov=disc.lyapunov[keep],
                                representative=disc.representative[keep], stats=stats)

@@ -36,16 +36,17 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _dead(holder: dict | None) -> bool:
+    """Whether a lock's holder (its file's contents) is a process of this host that is gone: its lock is stale.
+    Any other holder -- alive, of another host (we cannot tell), or not yet written -- may still run."""
+    return bool(holder) and holder.get("host") == socket.gethostname() and isinstance(holder.get("pid"), int) \
+        and not _pid_alive(holder["pid"])
+
+
 def held(path: Path) -> bool:
-    """Whether the lock file ``path`` is held by a writer that may still run: present, and not that of a dead
-    process of this host (a process on another host is taken as running: we cannot tell)."""
-    lock = Lock(path)
-    holder = lock._read()
-    if holder is None:
-        return False
-    if holder and holder.get("host") == socket.gethostname() and isinstance(holder.get("pid"), int):
-        return _pid_alive(holder["pid"])
-    return True
+    """Whether the lock file ``path`` is held by a writer that may still run: present, and not stale."""
+    holder = Lock(path)._read()
+    return holder is not None and not _dead(holder)
 
 
 class Lock:
@@ -81,8 +82,7 @@ class Lock:
                     holder = self._read()
                     if holder is None:
                         continue
-                if holder and holder.get("host") == me["host"] and isinstance(holder.get("pid"), int) \
-                        and not _pid_alive(holder["pid"]):
+                if _dead(holder):
                     self._break(holder)
                     continue
                 if not holder and self._age() > 10:  # its creator died between creating and writing it
