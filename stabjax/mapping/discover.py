@@ -354,14 +354,21 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
                 found_here = [h for g in found_here for h in _split_rest(g, f.xf, fine, cfg.min_samples)]
             groups += found_here
     found = [(g, *_describe(g, f, cfg)) for g in groups if g.size]
+    # a fixed point's members still spiralling in, cut where they end farther apart than they still move: heading
+    # to different equilibria, however close on the observables' scale (:func:`_split_by_end`; a group at rest was
+    # split by where it rests, above)
+    found = [q for r in found for q in ([r] if r[1] != "fixed_point" or np.mean(f.at_rest[r[0]]) > 0.5 else
+                                        [(h, *_describe(h, f, cfg, kind="fixed_point"))
+                                         for h in _split_by_end(r[0], f, cfg.min_samples)])]
     points = [r for r in found if r[1] == "fixed_point"]
     others = [r for r in found if r[1] != "fixed_point"]
     xm = f.x[:, ::len(STATS)]  # the scaled window means
     # one fixed point found by both groupings, or split by its transient: one attractor, placed by where its
     # members end or by their window means (a decaying oscillation, x'' + 0.04 x' + x = 0 at t1 = 150, still
-    # ends up to 0.1 of its range from the focus, while its window mean is within 0.01)
+    # ends up to 0.1 of its range from the focus, while its window mean is within 0.01); never two groups that
+    # rest or spiral in apart (:func:`_apart`)
     merged, placed = _merge_near([g for g, *_ in points], (f.xf, xm), cfg.eps,
-                                 rest=(lambda g: np.mean(f.at_rest[g]) > 0.5, fine))
+                                 apart=lambda g, h: bool(_apart(_ends(g, f), _ends(h, f), fine)))
     centres, means = [c for c, _ in placed], [m for _, m in placed]
     ends: list[np.ndarray] = []  # where each group still in a monotone approach ends (scaled observables)
     approach: list[np.ndarray] = []
@@ -403,8 +410,11 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     for targets, tmeans, into in ((centres, means, merged), (ends, None, approach)):  # a fixed point first
         if left.size and targets:
             d = np.linalg.norm(f.xf[left][:, None, :] - np.asarray(targets)[None], axis=-1)
-            if tmeans is not None:
+            if tmeans is not None:  # a fixed point: by its window mean too, never one it ends apart from (_apart)
                 d = np.minimum(d, np.linalg.norm(xm[left][:, None, :] - np.asarray(tmeans)[None], axis=-1))
+                mine = tuple(np.asarray(v)[:, None] for v in _ends(left, f, pooled=False))
+                theirs = [np.stack([np.asarray(_ends(g, f)[i]) for g in into]) for i in range(5)]
+                d = np.where(_apart(mine, tuple(v[None] for v in theirs), fine), np.inf, d)
             j = np.argmin(d, axis=1)
             joins = np.flatnonzero(d[np.arange(left.size), j] <= cfg.eps)
             for i in joins:
@@ -414,7 +424,8 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
     # DBSCAN: x' = -x from 20 starts at t1 = 10), gathered about where they end or their window means
     while left.size >= cfg.min_samples:
         d = np.minimum(np.linalg.norm(f.xf[left] - f.xf[left[0]], axis=1), np.linalg.norm(xm[left] - xm[left[0]], axis=1))
-        near = d <= cfg.eps
+        mine = _ends(left, f, pooled=False)
+        near = (d <= cfg.eps) & ~_apart(tuple(v[:1] for v in mine), mine, fine)
         if near.sum() >= cfg.min_samples:
             g = np.sort(left[near])
             kind = _describe(g, f, cfg)[0]
@@ -517,19 +528,74 @@ def _split_rest(g: np.ndarray, xf: np.ndarray, fine: float, min_samples: int) ->
     return big
 
 
-def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float, rest=None
+def _split_by_end(g: np.ndarray, f: _Features, min_samples: int) -> list[np.ndarray]:
+    """A fixed point's group cut where its members' last observables fall apart, in some observable, by more than
+    ``REST_GAP`` times what the two neighbours there (in that observable's last value) still move over their windows
+    (:func:`_motion`); never between two members in a monotone approach (its equilibrium lies beyond its window, by
+    as far as its approach is slow). Members spiralling into one equilibrium end within their window ranges of it;
+    ends far apart for how little they still move are different equilibria, however close on the observables' scale
+    (theta'' = -0.1 theta' + 0.5 - sin theta with theta unwrapped: its running motion's drift makes theta's range
+    ~1100, its rest points 2 pi apart 0.006 of it, and seven of them were one fixed_point_1). Parts smaller than
+    ``min_samples`` are left out. ``[g]`` when nothing is cut."""
+    parts = [g]
+    for j in range(f.final.shape[1]):
+        cut = []
+        for p in parts:
+            order = p[np.argsort(f.final[p, j], kind="stable")]
+            moves = _motion(order, f)[:, j]
+            mono = _ends_at_extreme(order, f)
+            gap = np.diff(f.final[order, j]) > REST_GAP * np.maximum(moves[:-1], moves[1:])
+            edges = np.flatnonzero(gap & ~(mono[:-1] & mono[1:])) + 1
+            bounds = np.r_[0, edges, p.size]
+            cut += [np.sort(order[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+        parts = cut
+    if len(parts) == 1:
+        return [g]
+    # a part too small to be a group is left out, as DBSCAN leaves out what is too sparse (unclassified, unless
+    # found approaching an equilibrium it does not end apart from): never given a neighbouring equilibrium's name
+    return [p for p in parts if p.size >= min_samples]
+
+
+def _motion(g: np.ndarray, f: _Features) -> np.ndarray:
+    """(members, observables): each member's window range of each observable, at least the fixed-point stop's
+    distance (``STOP_DISTANCE`` solver tolerances: where a trajectory at rest still hovers)."""
+    k = len(STATS)
+    return np.maximum(f.feats[g][:, 3::k] - f.feats[g][:, 2::k], STOP_DISTANCE * f.tol)
+
+
+def _ends(g: np.ndarray, f: _Features, pooled: bool = True) -> tuple[np.ndarray, ...]:
+    """Where trajectories ``g`` end, for :func:`_apart`: (at rest, in a monotone approach, scaled last observables,
+    last observables, window ranges (:func:`_motion`)); ``pooled``: of the group as one (most members; medians),
+    else of each member (rows)."""
+    rest, mono, xf, end, move = f.at_rest[g], _ends_at_extreme(g, f), f.xf[g], f.final[g], _motion(g, f)
+    if not pooled:
+        return rest, mono, xf, end, move
+    return (np.mean(rest) > 0.5, np.mean(mono) > 0.5, *(np.median(v, axis=0) for v in (xf, end, move)))
+
+
+def _apart(a: tuple[np.ndarray, ...], b: tuple[np.ndarray, ...], fine: float) -> np.ndarray:
+    """Whether two groups of a fixed point's trajectories, or trajectories (:func:`_ends`, broadcast row by row),
+    end at different equilibria though within ``eps``: both at rest, and their resting points (scaled) farther apart
+    than ``fine`` (:func:`_split_rest`); or, neither in a monotone approach (whose equilibrium lies beyond its window),
+    their last observables farther apart in some observable than ``REST_GAP`` times the larger of their window
+    ranges (:func:`_split_by_end`)."""
+    far_rest = np.linalg.norm(a[2] - b[2], axis=-1) > fine
+    far_end = np.any(np.abs(a[3] - b[3]) > REST_GAP * np.maximum(a[4], b[4]), axis=-1)
+    return np.where(a[0] & b[0], far_rest, ~(a[1] | b[1]) & far_end)
+
+
+def _merge_near(groups: list[np.ndarray], by: tuple[np.ndarray, ...], eps: float, apart=None
                 ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, ...]]]:
     """Groups merged in order: one joins the first earlier group whose median in any of the positions ``by``
-    (scaled, one row per trajectory) lies within ``eps`` of its own; ``rest``: (is a group at rest, radius): two
-    groups both at rest merge only within that radius too (where they rest is known that well). The merged groups and
-    their medians."""
+    (scaled, one row per trajectory) lies within ``eps`` of its own, unless ``apart(group, earlier)`` (two
+    equilibria known apart more finely than eps: :func:`_apart`). The merged groups and their medians."""
     merged: list[np.ndarray] = []
     placed: list[tuple[np.ndarray, ...]] = []
     for g in groups:
         here = tuple(np.median(p[g], axis=0) for p in by)
         near = [i for i, there in enumerate(placed)
-                if min(np.linalg.norm(a - b) for a, b in zip(here, there))
-                <= (min(eps, rest[1]) if rest is not None and rest[0](g) and rest[0](merged[i]) else eps)]
+                if min(np.linalg.norm(a - b) for a, b in zip(here, there)) <= eps
+                and not (apart is not None and apart(g, merged[i]))]
         if near:
             merged[near[0]] = np.concatenate([merged[near[0]], g])
             placed[near[0]] = tuple(np.median(p[merged[near[0]]], axis=0) for p in by)
@@ -973,6 +1039,9 @@ class Discovery(Mapper):
         elif same:
             _warn_one_place(disc, same)
         _say_places(disc, places)
+        mixed = _ends_elsewhere(plan, disc, again, places)
+        if mixed:
+            _warn_ends_elsewhere(mixed, obs)
         code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
         if away.any():
             code = np.where(away, names.index(decl.escape), code)
@@ -1449,6 +1518,84 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
     moving = {new[i]: v for i, v in places.moving.items() if i in new and not placed[i]}
     lost = [new[i] for i in places.lost if i in new]
     return disc, _Places(places.comps, states[keep], final[keep], placed[keep], moving, lost)
+
+
+CHECK_MEMBERS = 12  # a fixed point's trajectories integrated again to see that they end at one place
+
+
+def _ends_elsewhere(plan, disc: Attractors, again: Again, places: _Places) -> list[tuple[str, int, list[str]]]:
+    """Fixed points whose trajectories end at different places of the state space, though their observables group
+    them as one (x'' = x - x^3 - 0.3 x' observed through its energy alone: both wells were one fixed_point_1, "at
+    x = -1", without a word). Of each fixed point, up to ``CHECK_MEMBERS`` trajectories at one setting of the
+    parameters that are not initial conditions (the setting most of them share; the representative first) are
+    integrated again (:class:`Again`), and two end apart when some state component's last values differ by more
+    than ``REST_GAP`` times the larger of their window ranges there (at least the fixed-point stop's distance), as
+    :func:`_apart` reads the observables; never two in a monotone approach, whose equilibrium lies beyond its window,
+    nor two whose components differ by whole turns (2 pi): an angle seen through observables periodic in it (the
+    pendulum observed through omega and sin theta rests at theta* + 2 pi k, one place to its observables). Returns (name, trajectories compared, the places where they end), for each fixed point found at more than one."""
+    kinds = {q.name: q.kind for q in plan.system.params}
+    labels = np.asarray(disc.labels).ravel()
+    icfg = plan.icfg
+    out = []
+    for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
+        members = np.flatnonzero(labels == k)
+        if t != "fixed_point" or members.size < 2:
+            continue
+        p = plan.params_at(members)
+        setting = [np.ascontiguousarray(v.reshape(members.size, -1)) for key, v in sorted(p.items())
+                   if kinds.get(key) != "initial"]
+        keys = [b"".join(v[i].tobytes() for v in setting) for i in range(members.size)]
+        mine = keys[int(np.flatnonzero(members == rep)[0])] if rep in members else max(set(keys), key=keys.count)
+        at = members[[key == mine for key in keys]]
+        rest = np.setdiff1d(at, [rep])
+        pick = np.random.default_rng(k).permutation(rest)[:CHECK_MEMBERS - 1]
+        ends, moves, mono = [], [], []
+        for i in ([rep] if rep in at else []) + list(pick):
+            if int(again(i).attrs["solver_status"]) != 0:
+                continue
+            Y = again.states(i)
+            lo, hi = Y.min(axis=0), Y.max(axis=0)
+            tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
+            still = (hi - lo) <= STOP_DISTANCE * tol
+            ends.append(Y[-1])
+            moves.append(np.maximum(hi - lo, STOP_DISTANCE * tol))
+            mono.append(bool(np.all((Y[-1] == lo) | (Y[-1] == hi) | still)) and not np.all(still))
+        if len(ends) < 2:
+            continue
+        ends, moves, mono = np.array(ends), np.array(moves), np.array(mono)
+        gap = ends[:, None] - ends[None]
+        turns = gap - 2.0 * np.pi * np.round(gap / (2.0 * np.pi))  # whole turns of an angle are no gap
+        apart = np.any(np.minimum(np.abs(gap), np.abs(turns)) > REST_GAP * np.maximum(moves[:, None], moves[None]),
+                       axis=2)
+        apart &= ~(mono[:, None] | mono[None])
+        place = list(range(len(ends)))  # one place per group of trajectories not apart, chained
+        for i in range(len(ends)):
+            for j in range(i):
+                if not apart[i, j]:
+                    a, b = place[i], place[j]
+                    place = [b if x == a else x for x in place]
+        firsts = sorted(set(place), key=place.index)
+        if len(firsts) > 1:
+            said = [", ".join(f"{c} = {v:.4g}" for c, v in zip(places.comps, ends[q])) + f" ({place.count(q)})"
+                    for q in firsts]
+            out.append((disc.names[k], len(ends), said))
+    return out
+
+
+def _warn_ends_elsewhere(groups: list[tuple[str, int, list[str]]], observables) -> None:
+    """Said, not only stored: one name for trajectories that end at different places (:func:`_ends_elsewhere`)."""
+    import warnings
+
+    parts = "; ".join(f"{name}: {n} of its trajectories at one parameter setting, integrated again, end at "
+                      f"{len(where)} places ({'; '.join(where)})" for name, n, where in groups)
+    warnings.warn(f"{parts}: one name for trajectories that end apart in the state space, which the observables "
+                  f"({', '.join(observables)}) do not tell apart; its basin fraction adds up several attractors. "
+                  f"Observe what separates them (a state component that differs between them)", MixedWarning,
+                  stacklevel=3)
+
+
+class MixedWarning(UserWarning):
+    """A discovered fixed point's trajectories end at different places that its observables do not separate."""
 
 
 def _warn_still_moving(name: str, spread: float) -> None:

@@ -649,7 +649,15 @@ def test_pendulum_discovery_start_by_start_against_scipy():
             "sample": {"n": 120, "seed": 7, "theta0": {"dist": "uniform", "low": -3.1, "high": 3.1},
                        "omega0": {"dist": "uniform", "low": -6.0, "high": 6.0}},
             "integrate": {"t1": t1, "n_checkpoints": 1200}}
-    ds = run_spec(spec)
+    import warnings
+
+    from stabjax.mapping.discover import MixedWarning
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        ds = run_spec(spec)
+    # its rest points theta* + 2 pi k are one place to the observables (omega, sin theta): nothing to say of them
+    assert not [w for w in said if issubclass(w.category, MixedWarning)], [str(w.message) for w in said]
     types = [str(t) for t in ds["attractor_type"].values]
     assert sorted(types) == ["fixed_point", "limit_cycle"]
     flag = ds["outcome"].attrs["flag_meanings"].split()
@@ -1187,3 +1195,99 @@ def test_pooled_grouping_over_a_grid_says_which_names_are_one_moving_attractor()
     assert "continuation = true" in text
     for a in attractors(ds):
         assert "(at F = " in a["where"] and "grouped over the grid" in a["where"], a
+
+
+def _torque():
+    """theta'' = -0.1 theta' + 0.5 - sin theta, observed through theta itself (unwrapped) and omega: rest points
+    at theta* + 2 pi k (theta* = asin 0.5), and a running cycle whose drift makes theta's range ~1000."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Torque(System):
+        name = "torque_unwrapped_test"
+        params = ParamSet((Param("theta0", 0.0, "theta0", kind="initial"),
+                           Param("omega0", 0.0, "omega0", kind="initial")))
+        state = (("theta", ()), ("omega", ()))
+        observables = ("theta", "omega")
+        observable_doc = ("theta, unwrapped", "omega")
+
+        def initial_state(self, p):
+            return jnp.stack([p["theta0"], p["omega0"]])
+
+        def rhs(self, t, z, p):
+            return jnp.stack([z[1], -0.1 * z[1] + 0.5 - jnp.sin(z[0])])
+
+        def observe(self, t, z, p):
+            return z
+
+    return Torque
+
+
+def test_rest_points_whole_turns_apart_on_an_unwrapped_angle_are_different_fixed_points():
+    """The reliability pass's case: with theta observed unwrapped, the running cycle's drift makes theta's range
+    ~1100 and the rest points theta* + 2 pi k lie 0.006 of it apart, within eps: seven of them were one fixed_point_1,
+    placed at one, though the trajectories still spiralling in end far apart for how little they move. Each fixed
+    point now holds one rest point: against SciPy's DOP853 (the starts stacked in one integration, as for the
+    pendulum above), every start that rests at one theta* + 2 pi k (and whose answer a 1e-7 nudge does not change)
+    has the name of that k or none (a rest point too few starts reach is no group), no two names share a k, and
+    each name is placed at its own."""
+    t1, n = 200.0, 300
+    spec = {"system": _one(_torque()), "integrate": {"t1": t1, "rtol": 1e-8, "atol": 1e-8},
+            "outcomes": {"discover": True},
+            "sample": {"n": n, "seed": 1, "theta0": {"dist": "uniform", "low": -5 * np.pi / 6, "high": 7 * np.pi / 6},
+                       "omega0": {"dist": "uniform", "low": -10.0, "high": 10.0}}}
+    ds = run_spec(spec)
+    th, om = ds["theta0_sample"].values, ds["omega0_sample"].values
+    m = 2 * n
+
+    def f(t, y):
+        return np.concatenate([y[m:], -0.1 * y[m:] + 0.5 - np.sin(y[:m])])
+
+    tol = 1e-11 / np.sqrt(2 * m)
+    sol = solve_ivp(f, (0, t1), np.r_[th, th * (1 + 1e-7) + 1e-7, om, om], method="DOP853", rtol=tol, atol=tol)
+    assert sol.success
+    end_th, end_om = sol.y[:m, -1], sol.y[m:, -1]
+    rest = np.abs(end_om) < 1e-2
+    k = np.where(rest, np.round((end_th - np.arcsin(0.5)) / (2 * np.pi)), np.nan)
+    k, nudged = np.split(k, 2)
+    robust = (k == nudged) & np.isfinite(k)
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    got = np.array([names[int(c)] for c in ds["outcome"].values])
+    types = dict(zip(ds["attractor"].values, ds["attractor_type"].values))
+    fixed = sorted(n for n, t in types.items() if t == "fixed_point")
+    assert len(fixed) >= 3, (fixed, np.unique(k[robust], return_counts=True))
+    at = dict(zip(ds["attractor"].values, ds["attractor_state"].values[:, 0]))
+    for name in fixed:
+        ks = set(k[robust & (got == name)])
+        assert len(ks) == 1, (name, ks)
+        # placed by Newton, or the re-integrated state frozen within the fixed-point stop's 1000 tolerance units
+        assert abs(at[name] - (np.arcsin(0.5) + 2 * np.pi * ks.pop())) < 1000 * (1e-8 + 1e-8 * abs(at[name])), name
+    for kk in np.unique(k[robust]):
+        assert set(got[robust & (k == kk)]) <= set(fixed) | {"unclassified"}
+        assert len(set(got[robust & (k == kk)]) - {"unclassified"}) <= 1, kk
+        assert not (set(got[robust & (k == kk)]) & {n for n, t in types.items() if t != "fixed_point"}), kk
+
+
+def test_a_fixed_point_whose_observables_cannot_tell_two_wells_apart_is_said():
+    """x'' = x - x^3 - 0.3 x' observed through its energy alone: both wells rest at energy -1/4, and the
+    observables group them as one fixed point "at x = -1" (the reliability pass: said nowhere). Its trajectories,
+    integrated again, end at x = -1 and x = 1: said (MixedWarning), naming the fixed point and both places."""
+    import jax.numpy as jnp
+
+    from stabjax.mapping.discover import MixedWarning
+
+    class Energy(_wells()):
+        name = "wells_energy_test"
+        observables = ("E",)
+        observable_doc = ("energy y^2/2 - x^2/2 + x^4/4",)
+
+        def observe(self, t, z, p):
+            return (0.5 * z[1] ** 2 - 0.5 * z[0] ** 2 + 0.25 * z[0] ** 4)[None]
+
+    box = {"n": 100, "seed": 2, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    ds, names, said = _discovered(Energy, box, 100.0, {}, MixedWarning, params={"c": 0.3})
+    assert list(ds["attractor_type"].values) == ["fixed_point"], ds["attractor_type"].values
+    assert len(said) == 1, said
+    assert "fixed_point_1" in said[0] and "x = -1," in said[0] and "x = 1," in said[0] and "(E)" in said[0], said
