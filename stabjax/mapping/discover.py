@@ -242,17 +242,21 @@ class _Features:
     # trajectory index -> (times, observables (M, n_obs)) densely over the window, integrated again on its own
     # (None: not available); asked only of a representative whose type the features leave open (_decaying)
     trace: Any = None
+    # trajectory index -> whether it spirals about a stable equilibrium inside its window (None: not asked;
+    # :meth:`Again.focus`), asked only of a weak focus's representative (:func:`_describe`)
+    focus: Any = None
     envelope: dict = field(default_factory=dict)  # representative -> its envelope's decay (cache of _decaying)
     chaos: float = 0.01  # DiscoveryConfig.chaos_threshold
     stopped: np.ndarray | None = None  # (N,) frozen at an equilibrium by the fixed-point stop (Newton: f = 0)
     eps: float = 0.05  # DiscoveryConfig.eps
     orbits: dict = field(default_factory=dict)  # (member, member) -> their orbits' distance (cache of _continuum)
     continua: set = field(default_factory=set)  # representatives of the groups _continuum untyped
+    no_focus: set = field(default_factory=set)  # representatives of dying oscillations about no stable equilibrium
 
 
 def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None, span: float | None = None, trace=None) -> _Features:
+             settle: float | None = None, span: float | None = None, trace=None, focus=None) -> _Features:
     n_obs = len(observables)
     feats, fnames = feature_table(results, observables)
     final = np.asarray(results["feat_final"], float)[:, :n_obs]
@@ -271,7 +275,7 @@ def features(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cf
         at_rest |= stopped
     return _Features(feats, fnames, feats / np.repeat(scale, len(STATS))[None, :], final / scale, scale, tol, valid,
                      final, lam, at_rest, bool(autonomous), away, settle, span, trace,
-                     chaos=cfg.chaos_threshold, stopped=stopped, eps=cfg.eps)
+                     focus=focus, chaos=cfg.chaos_threshold, stopped=stopped, eps=cfg.eps)
 
 
 GROWTH = 2.0  # |final| / window RMS (per observable, RMS over the observables) at which a window is growing
@@ -324,14 +328,14 @@ def rest_threshold(scale: np.ndarray, tol: np.ndarray, cfg: DiscoveryConfig) -> 
 
 def discover(results: Mapping[str, np.ndarray], observables: tuple[str, ...], cfg: DiscoveryConfig,
              valid: np.ndarray, atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False,
-             settle: float | None = None, span: float | None = None, trace=None) -> Attractors:
+             settle: float | None = None, span: float | None = None, trace=None, focus=None) -> Attractors:
     """Group the ``valid`` trajectories (reached t1, finite features) of ``results`` into attractors;
     ``atol``, ``rtol``: the solver's tolerances (the noise floor of the feature scales and the fixed
     points' threshold); ``autonomous``: the model does not read t (see the typing in the module docstring);
     ``settle``: the time from t0 to the window's start (a contraction that has not settled is no cycle); ``span``:
     the window's length (a growth too short to tell chaos from a runaway is not called chaotic); ``trace``: a
     trajectory's observables over the window, integrated again (:func:`_decaying`)."""
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace)
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace, focus)
     found, stats = _found(f, cfg, np.flatnonzero(f.valid))
     return _named(found, f, stats)
 
@@ -508,24 +512,20 @@ REST_GAP = 10.0  # rest thresholds between two equilibria's resting points that 
 
 def _split_rest(g: np.ndarray, xf: np.ndarray, fine: float, min_samples: int) -> list[np.ndarray]:
     """A group of trajectories at rest, split where their resting points (scaled) fall apart by more than ``fine``
-    (``REST_GAP`` rest thresholds) into parts of at least ``min_samples`` (smaller parts stay with the nearest
-    part): two equilibria closer than eps are still two (x' = -x (x - 0.1)(x - 0.2)(x - 5)(x - 10) / 10 rests at
-    0, 0.2 and 10: the first two, 0.018 of the range apart, were one fixed point)."""
+    (``REST_GAP`` rest thresholds) into parts of at least ``min_samples``: two equilibria closer than eps are still
+    two (x' = -x (x - 0.1)(x - 0.2)(x - 5)(x - 10) / 10 rests at 0, 0.2 and 10: the first two, 0.018 of the range
+    apart, were one fixed point). A smaller part rests at an equilibrium of its own too: left out (unclassified, as
+    DBSCAN leaves out what is too sparse), never given a neighbour's name (theta observed unwrapped: one start resting
+    2 pi from fixed_point_4 was counted in it). ``[g]`` when nothing splits."""
     from scipy.cluster.hierarchy import fcluster, linkage
 
-    if g.size < 2 * min_samples or fine <= 0:
+    if g.size < 2 or fine <= 0:
         return [g]
     lab = fcluster(linkage(xf[g], method="single"), t=fine, criterion="distance")
-    parts = [g[lab == k] for k in np.unique(lab)]
-    big = [p for p in parts if p.size >= min_samples]
-    if len(big) < 2:
+    if lab.max() == 1:
         return [g]
-    centres = np.stack([np.median(xf[p], axis=0) for p in big])
-    for p in parts:
-        if p.size < min_samples:
-            j = int(np.argmin(np.linalg.norm(centres - np.median(xf[p], axis=0), axis=1)))
-            big[j] = np.sort(np.concatenate([big[j], p]))
-    return big
+    parts = [g[lab == k] for k in np.unique(lab)]
+    return [p for p in parts if p.size >= min_samples]
 
 
 def _split_by_end(g: np.ndarray, f: _Features, min_samples: int) -> list[np.ndarray]:
@@ -642,7 +642,14 @@ def _describe(g: np.ndarray, f: _Features, cfg: DiscoveryConfig, kind: str | Non
         # exponent: x' = -x^3 from t = 1000 to 2000 contracts at -0.001, and a 1-D flow has no cycle at all
         kind = "attractor"
     elif f.autonomous and lam < 0 and _decaying(rep, lam, f):
-        kind = "fixed_point"  # an oscillation dying out at its exponent's rate: a weak focus, no cycle
+        # an oscillation dying out at its exponent's rate: a weak focus, no cycle -- if a stable equilibrium lies
+        # inside its window; a cycle approached from outside falls toward its amplitude at the same rate
+        # (r' = 0.02 r (1 - r^2), theta' = 1 at t1 = 150 was fixed_point_1, its origin an unstable focus): untyped
+        if f.focus is None or f.focus(rep):
+            kind = "fixed_point"
+        else:
+            kind = "attractor"
+            f.no_focus.add(rep)
     elif f.autonomous and _continuum(g, f):
         kind = "attractor"  # closed orbits of many sizes, none attracting the others: a centre, no one cycle
         f.continua.add(rep)
@@ -768,6 +775,12 @@ class Again:
         self.plan = plan
         self.ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
         self._done: dict[int, Any] = {}
+        self.inside: dict[int, tuple] = {}  # representative -> :func:`_equilibrium_inside`
+
+    def focus(self, index: int) -> bool:
+        """Whether trajectory ``index`` spirals about a stable equilibrium inside its window, or cannot be asked (at
+        rest, or its integration failed): :func:`_equilibrium_inside`, for :func:`_describe`'s weak focus."""
+        return _equilibrium_inside(self.plan, int(index), self)[0] != "none"
 
     def __call__(self, index: int):
         index = int(index)
@@ -898,12 +911,15 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
                  # group is one still contracting, :func:`_unsettled`) any
                  transient=[n for n, t, g, lam, rep in zip(names, types, (r[3] for r in typed), lams, reps)
                             if t == "attractor" and not lam > f.chaos and not np.mean(f.at_rest[g]) > 0.5
-                            and rep not in f.continua
+                            and rep not in f.continua and rep not in f.no_focus
                             and (np.mean(_ends_at_extreme(g, f)) > 0.5 or np.isfinite(lam) or _dying(rep, f))],
                  # untyped groups of closed orbits of many sizes (:func:`_continuum`, :func:`_warn_continuum`)
                  continuum=[(n, int(g.size), float(lam)) for n, t, g, lam, rep in
                             zip(names, types, (r[3] for r in typed), lams, reps)
                             if t == "attractor" and rep in f.continua],
+                 # untyped oscillations dying out at their exponent's rate about no stable equilibrium (_describe)
+                 no_focus=[(n, int(g.size), float(lam)) for n, t, g, lam, rep in
+                           zip(names, types, (r[3] for r in typed), lams, reps) if t == "attractor" and rep in f.no_focus],
                  # untyped groups whose observables rest while the exponent says the state may move
                  hidden=[(n, int(g.size), float(lam)) for n, t, g, lam in zip(names, types, (r[3] for r in typed), lams)
                          if t == "attractor" and np.mean(f.at_rest[g]) > 0.5],
@@ -939,7 +955,7 @@ def _named(found, f: _Features, stats, kinds=None) -> Attractors:
 
 def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_points: int,
                atol: float = 0.0, rtol: float = 0.0, autonomous: bool = False, settle: float | None = None,
-               span: float | None = None, trace=None) -> tuple[Attractors, list[dict[str, Any]], float]:
+               span: float | None = None, trace=None, focus=None) -> tuple[Attractors, list[dict[str, Any]], float]:
     """Attractors followed along one grid axis: each point's attractors found on their own (:func:`_found`,
     features scaled by the whole sweep's ranges so distances compare between points), then matched from
     point to point by :func:`stabjax.mapping.continuation.match_sequentially` (a group matches only an
@@ -948,7 +964,7 @@ def _continued(results, observables, cfg: DiscoveryConfig, valid: np.ndarray, n_
     (:func:`stabjax.mapping.continuation.events`) and the match threshold used."""
     from . import continuation as C
 
-    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace)
+    f = features(results, observables, cfg, valid, atol, rtol, autonomous, settle, span, trace, focus)
     per = len(f.feats) // n_points
     found: list[list[C.Found]] = []
     for k in range(n_points):
@@ -1014,10 +1030,11 @@ class Discovery(Mapper):
         again = Again(plan, settle)
         if continues(plan, cfg):
             disc, events, threshold = _continued(results, obs, cfg, status == 0, plan.grid[0].size, plan.icfg.atol,
-                                                 plan.icfg.rtol, auto, settle, span, again.trace)
+                                                 plan.icfg.rtol, auto, settle, span, again.trace,
+                                                 again.focus)
         else:
             disc = discover(results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol, auto, settle, span,
-                            again.trace)
+                            again.trace, again.focus)
         away = disc.unbounded if disc.unbounded is not None else np.zeros(status.shape, bool)
         # a runaway is what an escape radius would have stopped: the escape outcome, whether or not a radius
         # is set, so one sweep never holds a runaway under two names (and exits 0, as an escape does)
@@ -1039,7 +1056,7 @@ class Discovery(Mapper):
         elif same:
             _warn_one_place(disc, same)
         _say_places(disc, places)
-        mixed = _ends_elsewhere(plan, disc, again, places)
+        mixed = _ends_elsewhere(plan, disc, again, places, cfg.eps)
         if mixed:
             _warn_ends_elsewhere(mixed, obs)
         code = np.where(disc.labels >= 0, disc.labels, names.index(UNCLASSIFIED))
@@ -1055,6 +1072,8 @@ class Discovery(Mapper):
             _warn_hidden_motion(disc.stats["hidden"])
         if disc.stats.get("continuum"):
             _warn_continuum(disc.stats["continuum"], cfg.eps)
+        if disc.stats.get("no_focus"):
+            _warn_no_focus(disc.stats["no_focus"])
         if disc.stats.get("short_window"):
             _warn_short_window(disc.stats["short_window"], span)
         if disc.stats.get("fading"):
@@ -1233,6 +1252,17 @@ def _warn_continuum(groups: list[tuple[str, int, float]], eps: float) -> None:
                   f"family, not of an attractor", TransientWarning, stacklevel=3)
 
 
+def _warn_no_focus(groups: list[tuple[str, int, float]]) -> None:
+    """Said, not only stored: an oscillation whose peaks fall as a weak focus's do, about no stable equilibrium."""
+    import warnings
+
+    warnings.warn(f"{_listed(groups)}: oscillations whose peaks fall at every peak, at the rate of their exponent, as a "
+                  f"weak focus's do, but no stable equilibrium lies inside their window (Newton's method from the "
+                  f"representative's state at t1): a limit cycle still approached from outside, or a focus too "
+                  f"degenerate to place; left untyped; raise [integrate] t1 to tell them apart", TransientWarning,
+                  stacklevel=3)
+
+
 class RepresentativeWarning(UserWarning):
     """An attractor's representative could not be integrated again on its own for its state at t1."""
 
@@ -1362,24 +1392,40 @@ NEWTON_STEPS = 50
 def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int) -> tuple[int, float | None]:
     """Place a fixed point whose representative still moves over the feature window (an oscillation dying out
     slowly: x' = -a(x - 1) - y, y' = (x - 1) - a y at a = 0.005 and t1 = 100 was placed "at x = -0.67, y = -0.74",
-    1.9 from its equilibrium (1, 0), without a word): Newton's method on the right-hand side from its state at t1;
-    the point is taken (``states[k]``, ``final[k]`` updated; returns 1) when Newton converges to within one
-    tolerance unit, the Jacobian there is stable and the point lies inside the box the representative's states
-    span over the window (a spiral about it does; an equilibrium elsewhere does not). Otherwise the position stays
+    1.9 from its equilibrium (1, 0), without a word) at the stable equilibrium inside its window
+    (:func:`_equilibrium_inside`): ``states[k]``, ``final[k]`` updated, returns 1. Otherwise the position stays
     where t1 left the representative (returns 0 and, to be said by :func:`_warn_still_moving`, the representative's
     spread over the window; a monotone approach, whose equilibrium lies beyond the box, is said by
     :func:`_warn_still_far` instead). A representative at rest is left as is (0, None)."""
+    found, x, obs, spread = _equilibrium_inside(plan, rep, again)
+    if found != "found":
+        return 0, spread
+    states[k] = x
+    final[k] = obs[: final.shape[1]]
+    return 1, None
+
+
+def _equilibrium_inside(plan, rep: int, again: Again) -> tuple[str, Any, Any, float | None]:
+    """The stable equilibrium inside trajectory ``rep``'s window, by Newton's method on the right-hand side from
+    its state at t1 (integrated again, :class:`Again`; remembered there): taken when Newton converges to within one
+    tolerance unit, the Jacobian there is stable and the point lies inside the box the states span over the window
+    (a spiral about it does; an equilibrium elsewhere does not). Returns (``"found"``, state, observables, None);
+    (``"rest"`` or ``"failed"``, None, None, None) for a trajectory whose window spans at most ``PLACE_MOVING``
+    tolerance units or whose integration failed; else (``"none"``, None, None, spread), the spread its states span
+    over the window, or None for a monotone approach (its equilibrium lies beyond the box)."""
     import jax
     import jax.numpy as jnp
 
+    if rep in again.inside:
+        return again.inside[rep]
     icfg = plan.icfg
     if int(again(rep).attrs["solver_status"]) != 0:
-        return 0, None
+        return again.inside.setdefault(rep, ("failed", None, None, None))
     Y = again.states(rep)
     lo, hi = Y.min(axis=0), Y.max(axis=0)
     tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
     if np.max((hi - lo) / tol) <= PLACE_MOVING:
-        return 0, None
+        return again.inside.setdefault(rep, ("rest", None, None, None))
     p = plan.system.check({key: np.asarray(v)[0] for key, v in plan.params_at(np.array([rep])).items()})
     args = plan.system.prepare({key: jnp.asarray(v) for key, v in p.items()})
 
@@ -1404,15 +1450,13 @@ def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int) -> t
     slack = 10.0 * tol
     inside = bool(np.all(x >= lo - slack) and np.all(x <= hi + slack))
     stable = ok and bool(np.all(np.real(np.linalg.eigvals(np.asarray(jac(y)))) < 0))
-    if not (ok and stable and inside):
-        # a monotone approach (every component ends the window at an extreme) has its equilibrium beyond the box:
-        # its distance to go is estimated and said by _warn_still_far
-        if not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
-            return 0, float(np.max(hi - lo))
-        return 0, None
-    states[k] = x
-    final[k] = np.asarray(plan.system.observe(icfg.t1, y, args), float)[: final.shape[1]]
-    return 1, None
+    if ok and stable and inside:
+        out = ("found", x, np.asarray(plan.system.observe(icfg.t1, y, args), float), None)
+    elif not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
+        out = ("none", None, None, float(np.max(hi - lo)))
+    else:
+        out = ("none", None, None, None)
+    return again.inside.setdefault(rep, out)
 
 
 def _warn_fading(groups: list[tuple[str, int, float]]) -> None:
@@ -1523,23 +1567,30 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
 CHECK_MEMBERS = 12  # a fixed point's trajectories integrated again to see that they end at one place
 
 
-def _ends_elsewhere(plan, disc: Attractors, again: Again, places: _Places) -> list[tuple[str, int, list[str]]]:
-    """Fixed points whose trajectories end at different places of the state space, though their observables group
-    them as one (x'' = x - x^3 - 0.3 x' observed through its energy alone: both wells were one fixed_point_1, "at
-    x = -1", without a word). Of each fixed point, up to ``CHECK_MEMBERS`` trajectories at one setting of the
-    parameters that are not initial conditions (the setting most of them share; the representative first) are
-    integrated again (:class:`Again`), and two end apart when some state component's last values differ by more
-    than ``REST_GAP`` times the larger of their window ranges there (at least the fixed-point stop's distance), as
-    :func:`_apart` reads the observables; never two in a monotone approach, whose equilibrium lies beyond its window,
-    nor two whose components differ by whole turns (2 pi): an angle seen through observables periodic in it (the
-    pendulum observed through omega and sin theta rests at theta* + 2 pi k, one place to its observables). Returns (name, trajectories compared, the places where they end), for each fixed point found at more than one."""
+def _ends_elsewhere(plan, disc: Attractors, again: Again, places: _Places, eps: float
+                    ) -> list[tuple[str, int, list[str]]]:
+    """Fixed points and limit cycles whose trajectories end at different places of the state space, though their
+    observables' window features group them as one (x'' = x - x^3 - 0.3 x' observed through its energy alone: both
+    wells were one fixed_point_1, "at x = -1"; two oscillators locked in phase or in antiphase, every component with
+    the same mean, spread and range: one limit_cycle_1; each without a word). Of each, up to ``CHECK_MEMBERS``
+    trajectories at one setting of the parameters that are not initial conditions (the setting most of them share;
+    the representative first) are integrated again (:class:`Again`). Two fixed point's trajectories end apart when
+    some state component's last values differ by more than ``REST_GAP`` times the larger of their window ranges
+    there (at least the fixed-point stop's distance), as :func:`_apart` reads the observables; never two in a
+    monotone approach, whose equilibrium lies beyond its window, nor two whose components differ by whole turns
+    (2 pi): an angle seen through observables periodic in it (the pendulum observed through omega and sin theta
+    rests at theta* + 2 pi k, one place to its observables). Two cycle's trajectories end apart when their orbits
+    over the window, each closing on itself (:func:`_closes`), lie farther than ``eps`` apart (:func:`_orbit_distance`,
+    each state component scaled by its largest window range among them, a component drifting over the window left
+    out), as :func:`_continuum` compares orbits; an orbit that does not close (a window shorter than a period) is not
+    compared. Returns (name,
+    trajectories compared, the places where they end), for each found at more than one."""
     kinds = {q.name: q.kind for q in plan.system.params}
     labels = np.asarray(disc.labels).ravel()
-    icfg = plan.icfg
     out = []
     for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
         members = np.flatnonzero(labels == k)
-        if t != "fixed_point" or members.size < 2:
+        if t not in ("fixed_point", "limit_cycle") or members.size < 2:
             continue
         p = plan.params_at(members)
         setting = [np.ascontiguousarray(v.reshape(members.size, -1)) for key, v in sorted(p.items())
@@ -1547,39 +1598,83 @@ def _ends_elsewhere(plan, disc: Attractors, again: Again, places: _Places) -> li
         keys = [b"".join(v[i].tobytes() for v in setting) for i in range(members.size)]
         mine = keys[int(np.flatnonzero(members == rep)[0])] if rep in members else max(set(keys), key=keys.count)
         at = members[[key == mine for key in keys]]
-        rest = np.setdiff1d(at, [rep])
-        pick = np.random.default_rng(k).permutation(rest)[:CHECK_MEMBERS - 1]
-        ends, moves, mono = [], [], []
-        for i in ([rep] if rep in at else []) + list(pick):
-            if int(again(i).attrs["solver_status"]) != 0:
-                continue
-            Y = again.states(i)
-            lo, hi = Y.min(axis=0), Y.max(axis=0)
-            tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
-            still = (hi - lo) <= STOP_DISTANCE * tol
-            ends.append(Y[-1])
-            moves.append(np.maximum(hi - lo, STOP_DISTANCE * tol))
-            mono.append(bool(np.all((Y[-1] == lo) | (Y[-1] == hi) | still)) and not np.all(still))
-        if len(ends) < 2:
+        pick = np.random.default_rng(k).permutation(np.setdiff1d(at, [rep]))[:CHECK_MEMBERS - 1]
+        chosen = [int(i) for i in ([rep] if rep in at else []) + list(pick)
+                  if int(again(int(i)).attrs["solver_status"]) == 0]
+        if len(chosen) < 2:
             continue
-        ends, moves, mono = np.array(ends), np.array(moves), np.array(mono)
-        gap = ends[:, None] - ends[None]
-        turns = gap - 2.0 * np.pi * np.round(gap / (2.0 * np.pi))  # whole turns of an angle are no gap
-        apart = np.any(np.minimum(np.abs(gap), np.abs(turns)) > REST_GAP * np.maximum(moves[:, None], moves[None]),
-                       axis=2)
-        apart &= ~(mono[:, None] | mono[None])
-        place = list(range(len(ends)))  # one place per group of trajectories not apart, chained
-        for i in range(len(ends)):
-            for j in range(i):
-                if not apart[i, j]:
-                    a, b = place[i], place[j]
-                    place = [b if x == a else x for x in place]
-        firsts = sorted(set(place), key=place.index)
-        if len(firsts) > 1:
-            said = [", ".join(f"{c} = {v:.4g}" for c, v in zip(places.comps, ends[q])) + f" ({place.count(q)})"
+        windows = [again.states(i) for i in chosen]
+        place, idx = (_fixed_places(windows, plan.icfg) if t == "fixed_point" else _cycle_places(windows, plan.icfg, eps))
+        firsts = sorted(set(place[j] for j in idx), key=list(place).index)
+        if len(firsts) < 2:
+            continue
+        if t == "fixed_point":
+            said = [", ".join(f"{c} = {v:.4g}" for c, v in zip(places.comps, windows[q][-1])) + f" ({place.count(q)})"
                     for q in firsts]
-            out.append((disc.names[k], len(ends), said))
+        else:
+            start = plan.params_at(np.array([chosen[q] for q in firsts]))
+            init = [key for key in start if kinds.get(key) == "initial"]
+            said = [f"{place.count(q)} on one orbit, one of them started at "
+                    + ", ".join(f"{key} = {np.array2string(np.asarray(start[key])[n], precision=4)}" for key in init)
+                    for n, q in enumerate(firsts)]
+        out.append((disc.names[k], len(idx), said))
     return out
+
+
+def _fixed_places(windows: list[np.ndarray], icfg) -> tuple[list[int], list[int]]:
+    """Where trajectories of a fixed point end (:func:`_ends_elsewhere`): a place per trajectory (the index of the
+    first one at it; chained), and the trajectories compared (all)."""
+    ends, moves, mono = [], [], []
+    for Y in windows:
+        lo, hi = Y.min(axis=0), Y.max(axis=0)
+        tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
+        still = (hi - lo) <= STOP_DISTANCE * tol
+        ends.append(Y[-1])
+        moves.append(np.maximum(hi - lo, STOP_DISTANCE * tol))
+        mono.append(bool(np.all((Y[-1] == lo) | (Y[-1] == hi) | still)) and not np.all(still))
+    ends, moves, mono = np.array(ends), np.array(moves), np.array(mono)
+    gap = ends[:, None] - ends[None]
+    turns = gap - 2.0 * np.pi * np.round(gap / (2.0 * np.pi))  # whole turns of an angle are no gap
+    apart = np.any(np.minimum(np.abs(gap), np.abs(turns)) > REST_GAP * np.maximum(moves[:, None], moves[None]), axis=2)
+    apart &= ~(mono[:, None] | mono[None])
+    place = list(range(len(ends)))  # one place per group of trajectories not apart, chained
+    for i in range(len(ends)):
+        for j in range(i):
+            if not apart[i, j]:
+                a, b = place[i], place[j]
+                place = [b if x == a else x for x in place]
+    return place, list(range(len(ends)))
+
+
+ORBIT_POINTS = 800  # points of each orbit compared (:func:`_cycle_places`)
+
+
+def _cycle_places(windows: list[np.ndarray], icfg, eps: float) -> tuple[list[int], list[int]]:
+    """Which orbit each trajectory of a limit cycle is on (:func:`_ends_elsewhere`): a place per trajectory (the
+    index of the first one on its orbit, each compared with those firsts), and the trajectories compared (those whose
+    orbit closes over the window)."""
+    step = max(1, len(windows[0]) // ORBIT_POINTS)
+    tol = icfg.atol + icfg.rtol * np.max([np.abs(Y).max(axis=0) for Y in windows], axis=0)
+    scale = np.maximum(np.max([Y.max(axis=0) - Y.min(axis=0) for Y in windows], axis=0), 1000.0 * tol)
+    # a component that drifts over the window (a running pendulum's angle: its two halves' means a quarter of its
+    # range apart, where a periodic one's agree) is left out: its orbit never closes, and a small drift per period
+    # fooled the closing test (the running cycle's members were five orbits)
+    half = len(windows[0]) // 2
+    keep = ~np.any([np.abs(Y[:half].mean(axis=0) - Y[half:].mean(axis=0)) > 0.25 * scale for Y in windows], axis=0)
+    if not keep.any():
+        return list(range(len(windows))), []
+    orbits = [Y[::step, keep] / scale[keep] for Y in windows]
+    idx = [i for i, o in enumerate(orbits) if _closes(o, eps)]
+    place = list(range(len(orbits)))
+    firsts: list[int] = []
+    for i in idx:
+        for q in firsts:
+            if _orbit_distance(orbits[i], orbits[q]) <= eps:
+                place[i] = q
+                break
+        else:
+            firsts.append(i)
+    return place, idx
 
 
 def _warn_ends_elsewhere(groups: list[tuple[str, int, list[str]]], observables) -> None:
@@ -1588,14 +1683,16 @@ def _warn_ends_elsewhere(groups: list[tuple[str, int, list[str]]], observables) 
 
     parts = "; ".join(f"{name}: {n} of its trajectories at one parameter setting, integrated again, end at "
                       f"{len(where)} places ({'; '.join(where)})" for name, n, where in groups)
-    warnings.warn(f"{parts}: one name for trajectories that end apart in the state space, which the observables "
-                  f"({', '.join(observables)}) do not tell apart; its basin fraction adds up several attractors. "
-                  f"Observe what separates them (a state component that differs between them)", MixedWarning,
+    warnings.warn(f"{parts}: one name for trajectories that end apart in the state space, which the window "
+                  f"features (mean, spread, range) of the observables ({', '.join(observables)}) do not tell apart; "
+                  f"its basin fraction adds up several attractors. Observe what separates them (a state component, "
+                  f"or a difference or product of components, that differs between them)", MixedWarning,
                   stacklevel=3)
 
 
 class MixedWarning(UserWarning):
-    """A discovered fixed point's trajectories end at different places that its observables do not separate."""
+    """A discovered fixed point's or limit cycle's trajectories end at different places (equilibria, orbits) that
+    its observables' window features do not separate."""
 
 
 def _warn_still_moving(name: str, spread: float) -> None:

@@ -255,6 +255,7 @@ VERDICTS = _Verdicts()
 
 
 MIN_SUBSAMPLE = 1000  # the smallest [outcomes.discovery] subsample (DiscoveryConfig)
+MIN_EPS = 1e-12  # the least DBSCAN radius in scaled features (DiscoveryConfig.eps)
 
 
 @dataclass(frozen=True)
@@ -340,6 +341,12 @@ class DiscoveryConfig:
                                                            f"chaotic), got {v!r}")
                 if k != "chaos_threshold" and not v > 0:
                     raise ValidationError(f"{section}.{k}", f"must be > 0, got {v!r}")
+                if k == "eps" and v < MIN_EPS:
+                    # features scaled to their ranges are known to float64's ~1e-16 at best, and to the solver's
+                    # tolerance in fact: a radius below that groups by rounding (1e-300 made both wells of a double
+                    # well one group)
+                    raise ValidationError(f"{section}.{k}", f"must be at least {MIN_EPS:g} (the features, scaled to "
+                                          f"their ranges, are not resolved more finely), got {v!r}")
                 v = float(v)
             kw[k] = v
         return cls(**kw)

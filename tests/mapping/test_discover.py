@@ -69,7 +69,8 @@ def test_discovery_config_is_checked():
     # a negative chaos threshold named an equilibrium (exponent -0.05) and a cycle chaotic_1 and chaotic_2; a
     # subsample of 6 split the pendulum's one running cycle into three names; seed 0 is the default
     for key, value, said in (("chaos_threshold", -0.1, "must be >= 0"), ("subsample", 6, "at least 1000"),
-                             ("subsample", 999, "at least 1000"), ("seed", -1, "non-negative")):
+                             ("subsample", 999, "at least 1000"), ("seed", -1, "non-negative"),
+                             ("eps", 1e-300, "at least 1e-12")):  # a radius below rounding made two wells one
         with pytest.raises(ValidationError, match=said) as exc:
             DiscoveryConfig.from_dict({key: value})
         assert exc.value.field == f"outcomes.discovery.{key}"
@@ -1291,3 +1292,113 @@ def test_a_fixed_point_whose_observables_cannot_tell_two_wells_apart_is_said():
     assert list(ds["attractor_type"].values) == ["fixed_point"], ds["attractor_type"].values
     assert len(said) == 1, said
     assert "fixed_point_1" in said[0] and "x = -1," in said[0] and "x = 1," in said[0] and "(E)" in said[0], said
+
+
+def _locked():
+    """Two Stuart-Landau oscillators with second-harmonic coupling, z_j' = (1 + i - |z_j|^2) z_j + 0.2 z_k^2
+    conj(z_j) (k the other one), written in real components: locking in phase (z2 = z1) and in antiphase (z2 = -z1)
+    are both stable, on orbits of radius sqrt(1.25) whose components have the same window mean, spread and range."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+
+    class Locked(System):
+        name = "locked_test"
+        params = ParamSet(tuple(Param(n, v, n, kind="initial")
+                                for n, v in (("x10", 1.0), ("y10", 0.0), ("x20", 0.5), ("y20", 0.5))))
+        state = (("x1", ()), ("y1", ()), ("x2", ()), ("y2", ()))
+        observables = ("x1", "y1", "x2", "y2")
+        observable_doc = ("x1", "y1", "x2", "y2")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x10"], p["y10"], p["x20"], p["y20"]])
+
+        def rhs(self, t, u, p):
+            x1, y1, x2, y2 = u[0], u[1], u[2], u[3]
+            g1, g2 = 1.0 - x1 * x1 - y1 * y1, 1.0 - x2 * x2 - y2 * y2
+            # K z_k^2 conj(z_j) in components: z_k^2 = (a^2 - b^2) + 2ab i, times (x_j - i y_j)
+            re1, im1 = x2 * x2 - y2 * y2, 2.0 * x2 * y2
+            re2, im2 = x1 * x1 - y1 * y1, 2.0 * x1 * y1
+            return jnp.stack([g1 * x1 - y1 + 0.2 * (re1 * x1 + im1 * y1), g1 * y1 + x1 + 0.2 * (im1 * x1 - re1 * y1),
+                              g2 * x2 - y2 + 0.2 * (re2 * x2 + im2 * y2), g2 * y2 + x2 + 0.2 * (im2 * x2 - re2 * y2)])
+
+        def observe(self, t, u, p):
+            return u
+
+    return Locked
+
+
+def test_two_orbits_whose_window_features_are_equal_are_said():
+    """The reliability pass's case: oscillators locked in phase or in antiphase have equal window features in
+    every observable, so discovery groups them as one limit_cycle_1 (S = 1), and nothing said so. The cycle's
+    trajectories integrated again lie on two orbits: said (MixedWarning), with a start on each. The reference:
+    SciPy's DOP853 from the sample's first starts (to t = 200) ends both in phase and in antiphase."""
+    from stabjax.mapping.discover import MixedWarning
+
+    box = {"n": 60, "seed": 1, **{k: {"dist": "uniform", "low": -1.0, "high": 1.0} for k in ("x10", "y10", "x20", "y20")}}
+    ds, names, said = _discovered(_locked(), box, 100.0, {}, MixedWarning)
+    z = np.stack([ds[f"{k}_sample"].values for k in ("x10", "y10", "x20", "y20")], axis=1)
+
+    def f(t, u):  # the equations in complex form, independently of the model's components
+        z1, z2 = u[0] + 1j * u[1], u[2] + 1j * u[3]
+        d1 = (1 + 1j - abs(z1) ** 2) * z1 + 0.2 * z2 ** 2 * np.conj(z1)
+        d2 = (1 + 1j - abs(z2) ** 2) * z2 + 0.2 * z1 ** 2 * np.conj(z2)
+        return [d1.real, d1.imag, d2.real, d2.imag]
+
+    phase = []
+    for u0 in z[:8]:
+        s = solve_ivp(f, (0.0, 200.0), u0, method="DOP853", rtol=1e-9, atol=1e-11)
+        x1, y1, x2, y2 = s.y[:, -1]
+        phase.append(abs(np.angle((x2 + 1j * y2) / (x1 + 1j * y1))))
+    assert min(phase) < 1e-3 and max(phase) > np.pi - 1e-3, phase  # both lockings among the starts
+    assert list(ds["attractor_type"].values) == ["limit_cycle"], ds["attractor_type"].values
+    assert len(said) == 1 and "limit_cycle_1" in said[0] and "end at 2 places" in said[0], said
+
+
+def test_a_cycle_approached_slowly_from_outside_is_never_a_fixed_point():
+    """r' = 0.02 r (1 - r^2), theta' = 1 (in x, y) at t1 = 150: the unit circle attracts so weakly that its
+    trajectories' peaks fall at the rate of their finite-time exponent, as a weak focus's do; it was fixed_point_1
+    (S = 0.995), though its only equilibrium, the origin, is an unstable focus (eigenvalues 0.02 +- i). A weak focus
+    needs a stable equilibrium inside its window: none is there, so the group is left untyped and said."""
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet, System
+    from stabjax.mapping.discover import TransientWarning
+
+    class Slow(System):
+        name = "slow_cycle_test"
+        params = ParamSet((Param("x0", 1.0, "x0", kind="initial"), Param("y0", 0.0, "y0", kind="initial")))
+        state = (("x", ()), ("y", ()))
+        observables = ("x", "y")
+        observable_doc = ("x", "y")
+
+        def initial_state(self, p):
+            return jnp.stack([p["x0"], p["y0"]])
+
+        def rhs(self, t, u, p):
+            g = 0.02 * (1.0 - u[0] * u[0] - u[1] * u[1])
+            return jnp.stack([g * u[0] - u[1], g * u[1] + u[0]])
+
+        def observe(self, t, u, p):
+            return u
+
+    assert np.all(np.linalg.eigvals([[0.02, -1.0], [1.0, 0.02]]).real > 0)  # the origin repels
+    box = {"n": 60, "seed": 3, "x0": {"dist": "uniform", "low": -2.5, "high": 2.5},
+           "y0": {"dist": "uniform", "low": -2.5, "high": 2.5}}
+    ds, names, said = _discovered(Slow, box, 150.0, {}, TransientWarning)
+    assert "fixed_point" not in set(ds["attractor_type"].values), ds["attractor_type"].values
+    assert any("no stable equilibrium lies inside their window" in w for w in said), said
+
+
+def test_a_resting_part_too_small_for_a_group_is_left_out_not_named_after_its_neighbour():
+    """Trajectories at rest split by where they rest (:func:`_split_rest`): a part of fewer than min_samples, resting
+    at an equilibrium of its own, is left out (unclassified), never counted in the nearest part (theta observed
+    unwrapped: one start resting 2 pi from fixed_point_4 was counted in it)."""
+    from stabjax.mapping.discover import _split_rest
+
+    xf = np.r_[np.zeros(10), np.full(8, 0.5), [0.9]][:, None]
+    g = np.arange(len(xf))
+    parts = _split_rest(g, xf, fine=0.01, min_samples=5)
+    assert sorted(map(list, parts)) == [list(range(10)), list(range(10, 18))]
+    one = _split_rest(np.arange(10), np.zeros((10, 1)), fine=0.01, min_samples=5)
+    assert [list(p) for p in one] == [list(range(10))]
