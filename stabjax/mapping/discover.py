@@ -417,8 +417,8 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             if tmeans is not None:  # a fixed point: by its window mean too, never one it ends apart from (_apart)
                 d = np.minimum(d, np.linalg.norm(xm[left][:, None, :] - np.asarray(tmeans)[None], axis=-1))
                 mine = tuple(np.asarray(v)[:, None] for v in _ends(left, f, pooled=False))
-                theirs = [np.stack([np.asarray(_ends(g, f)[i]) for g in into]) for i in range(5)]
-                d = np.where(_apart(mine, tuple(v[None] for v in theirs), fine), np.inf, d)
+                theirs = tuple(np.stack([np.asarray(v) for v in col])[None] for col in zip(*(_ends(g, f) for g in into)))
+                d = np.where(_apart(mine, theirs, fine), np.inf, d)
             j = np.argmin(d, axis=1)
             joins = np.flatnonzero(d[np.arange(left.size), j] <= cfg.eps)
             for i in joins:
@@ -426,17 +426,17 @@ def _found(f: _Features, cfg: DiscoveryConfig, idx: np.ndarray) -> tuple[list[tu
             left = np.delete(left, joins)
     # approaching trajectories that joined nothing (their transients' window features too far apart for
     # DBSCAN: x' = -x from 20 starts at t1 = 10), gathered about where they end or their window means
+    mine = _ends(left, f, pooled=False)  # kept row for row with left as it shrinks
     while left.size >= cfg.min_samples:
         d = np.minimum(np.linalg.norm(f.xf[left] - f.xf[left[0]], axis=1), np.linalg.norm(xm[left] - xm[left[0]], axis=1))
-        mine = _ends(left, f, pooled=False)
         near = (d <= cfg.eps) & ~_apart(tuple(v[:1] for v in mine), mine, fine)
         if near.sum() >= cfg.min_samples:
             g = np.sort(left[near])
             kind = _describe(g, f, cfg)[0]
             (merged if kind == "fixed_point" else approach).append(g)
-            left = left[~near]
+            left, mine = left[~near], tuple(v[~near] for v in mine)
         else:
-            left = left[1:]
+            left, mine = left[1:], tuple(v[1:] for v in mine)
     # an approach that some members finish, at rest there (too few to be a group of their own), is to a point
     merged += [g for g in approach if f.at_rest[g].any()]
     others += [(np.sort(g), *_describe(np.sort(g), f, cfg)) for g in approach if not f.at_rest[g].any()]
