@@ -27,6 +27,11 @@ killed search resumes), with the points of every grid point packed together:
    Before it, along a grid, every grid point's best direction is also scanned and bisected at the other points
    (the witness of a neighbouring gain is the likeliest direction where the random ones found nothing).
 4. **Polish**: the best refined shock's direction is scanned and bisected like the others.
+5. **Sharing the refined witnesses** (with CMA-ES, along a grid): each refined direction not yet shared is scanned
+   and bisected at the other grid points where it was not searched, and the points it improved (a smaller fatal
+   shock, or one where none was found) are refined and polished again from it, while any improves, at most
+   :data:`~stabjax.explore.shock_config.SHARE_ROUNDS` times: the scan's directions, and the best scanned one
+   shared before the refinement, can all miss a narrow fatal cone that a neighbour's refined witness hits.
 
 Result per grid point: ``|delta*|``, the smallest fatal shock found (an upper bound: a fatal start of that size
 exists, the **witness**), the bracket's lower end ``r_lo`` -- *statistical*: no fatal shock among the N directions
@@ -58,7 +63,8 @@ import xarray as xr
 
 from ..errors import StabjaxError, ValidationError
 from ..plan.spec import Plan, make_plan
-from .shock_config import INCONCLUSIVE, LEFT, STAYED, Norm, ShockConfig, base_points, settle, shock_config
+from .shock_config import (INCONCLUSIVE, LEFT, SHARE_ROUNDS, STAYED, Norm, ShockConfig, base_points, settle,
+                           shock_config)
 
 FATAL, SAFE, UNDECIDED = 1, 0, 2
 PATIENCE = 8  # CMA-ES generations without a better fatal shock (by a quarter of the resolution) before it stops
@@ -219,6 +225,7 @@ class Search:
         self.cma_generations = np.zeros(G, np.int64)
         self.rounds = 0
         self.round_sizes: list[int] = []
+        self._shared_from: dict[int, np.ndarray] = {}  # the direction each grid point's witness was last shared along
 
     # -- rounds -----------------------------------------------------------------------------------------
     def _evaluate(self, evaluate, g, deltas):
@@ -259,39 +266,76 @@ class Search:
         self._bisect(evaluate)
         self._share(evaluate)
         if cfg.refine == "cma" and cfg.dim >= 2 and cfg.generations > 0:
-            self._cma(evaluate)
-            polish = []
-            best = self.best()
-            for g in range(G):
-                c = self.cma_best[g]
-                if c is not None and c[0] < best[g] and np.linalg.norm(c[1]) > 0:
-                    k = self.rays.add(g, c[1] / np.linalg.norm(c[1]), 1)
-                    self.rays.hi[k], self.rays.delta[k], self.rays.code[k] = c[0], c[1], c[2]
-                    polish.append(k)
-            if polish:
-                ks = np.array(polish)
-                self._scan(evaluate, ks, np.array([self.rays.hi[k] for k in ks]), known_top=True)
-                self._bisect(evaluate)
+            todo = [int(g) for g in np.flatnonzero(np.isfinite(self.best()) & (self.attractor >= 0))]
+            for p in range(1 + SHARE_ROUNDS):
+                self._refine(evaluate, todo, p)
+                if p == SHARE_ROUNDS:
+                    break
+                todo = self._share(evaluate, refined=True)  # the grid points it improved: refined again
+                if not todo:
+                    break
         return self
 
-    def _share(self, evaluate):
+    def _refine(self, evaluate, gs, p=0):
+        """CMA-ES at the grid points ``gs`` (pass ``p``), then the polish: each better refined shock's direction
+        scanned and bisected like the others."""
+        if not gs:
+            return
+        self._cma(evaluate, gs, p)
+        polish = []
+        best = self.best()
+        for g in gs:
+            c = self.cma_best[g]
+            if c is not None and c[0] < best[g] and np.linalg.norm(c[1]) > 0:
+                k = self.rays.add(g, c[1] / np.linalg.norm(c[1]), 1)
+                self.rays.hi[k], self.rays.delta[k], self.rays.code[k] = c[0], c[1], c[2]
+                polish.append(k)
+        if polish:
+            ks = np.array(polish)
+            self._scan(evaluate, ks, np.array([self.rays.hi[k] for k in ks]), known_top=True)
+            self._bisect(evaluate)
+
+    def _best_ray(self, g):
+        r = self.rays
+        return min((k for k in range(len(r.g)) if r.g[k] == g), key=lambda k: r.hi[k])
+
+    def _share(self, evaluate, refined=False):
         """Along a grid, each point's best direction is scanned and bisected at every other point too (a fatal
-        direction of a neighbour is the likeliest one where the scan found none, or a worse one)."""
+        direction of a neighbour is the likeliest one where the scan found none, or a worse one).
+
+        Before the refinement every point's best direction is shared; after it (``refined``) only the directions
+        that changed since they were last shared (a refined or polished witness, or one a share brought), and at
+        each point only a direction not searched there yet, so that a refined witness reaches the points where the
+        scan's directions missed a narrow fatal cone. Returns the grid points whose smallest fatal shock it made
+        smaller (by more than a quarter of the resolution), or found where there was none: they are refined again.
+        """
         r, best = self.rays, self.best()
         owners = [g for g in range(self.G) if np.isfinite(best[g])]
         if self.G < 2 or not owners:
-            return
+            return []
+        U = np.array(r.u)
+        G_r = np.array(r.g)
         shared = []
         for h in owners:
-            k = min((k for k in range(len(r.g)) if r.g[k] == h), key=lambda k: r.hi[k])
+            k = self._best_ray(h)
+            u = np.asarray(r.u[k], float)
+            if refined and h in self._shared_from and np.allclose(self._shared_from[h], u, rtol=0, atol=1e-12):
+                continue
+            self._shared_from[h] = u
             for g in range(self.G):
-                if g != h and self.attractor[g] >= 0:
-                    shared.append(r.add(g, r.u[k], 2))
-        if not shared:  # one grid point searched, the others with no attractor to shock
-            return
+                if g == h or self.attractor[g] < 0:
+                    continue
+                if refined and np.any((G_r == g) & np.all(np.abs(U - u) <= 1e-12, axis=1)):
+                    continue  # this direction was searched there already
+                shared.append(r.add(g, u, 2))
+        if not shared:  # one grid point searched, the others with no attractor to shock; or nothing new
+            return []
         ks = np.array(shared)
         self._scan(evaluate, ks, np.full(len(ks), self.cfg.max_radius))
         self._bisect(evaluate)
+        after = self.best()
+        gain = np.isfinite(after) & (after < best - 0.25 * self.cfg.tol(after))  # best inf: any fatal shock found
+        return [int(g) for g in np.flatnonzero(gain)]
 
     def _scan(self, evaluate, ks, top, with_base=False, known_top=False):
         """Each ray ``ks`` at ``radii`` radii up to ``top`` (the last one skipped when ``known_top``: it is a
@@ -377,26 +421,30 @@ class Search:
                 else:
                     r.lo[k] = float(R[i])
 
-    def _cma(self, evaluate):
+    def _cma(self, evaluate, gs, p=0):
         """CMA-ES over directions (candidates x, direction x/|x|), each ranked by its exit radius read off a ladder
-        of ``radii`` radii around the best fatal shock so far, all candidates of all grid points in one round."""
+        of ``radii`` radii around the best fatal shock so far, all candidates of the grid points ``gs`` in one round;
+        started at each one's best witness, ``generations`` at most per pass ``p`` (seeded by the seed, the grid
+        point and the pass)."""
         import cma
 
         cfg, m = self.cfg, self.cfg.radii
         best = self.best()
         es: dict[int, Any] = {}
-        stale, width = {}, {}
-        for g in np.flatnonzero(np.isfinite(best) & (self.attractor >= 0)):
+        stale, width, gens = {}, {}, {}
+        for g in gs:
             g = int(g)
-            k = min((k for k in range(len(self.rays.g)) if self.rays.g[k] == g), key=lambda k: self.rays.hi[k])
-            rng = np.random.default_rng([cfg.seed, g])
+            if not (np.isfinite(best[g]) and self.attractor[g] >= 0):
+                continue
+            k = self._best_ray(g)
+            rng = np.random.default_rng([cfg.seed, g] if p == 0 else [cfg.seed, g, p])
             opts = {"randn": lambda *shape, rng=rng: rng.standard_normal(shape), "seed": np.nan, "verbose": -9,
                     "verb_disp": 0, "verb_log": 0, "maxiter": cfg.generations}
             if cfg.popsize:
                 opts["popsize"] = cfg.popsize
             es[g] = cma.CMAEvolutionStrategy(np.asarray(self.rays.u[k], float), CMA_SIGMA0, opts)
             self.cma_best[g] = (float(best[g]), np.asarray(self.rays.delta[k], float), int(self.rays.code[k]))
-            stale[g], width[g] = 0, LADDER_WIDTH
+            stale[g], width[g], gens[g] = 0, LADDER_WIDTH, 0
         frac = (2 * np.arange(m) + 1) / m - 1  # rungs at centre (1 + w frac), frac in (-1, 1)
         while es:
             gs, X, R = [], [], []
@@ -425,6 +473,7 @@ class Search:
                 key = np.where(np.isfinite(est[c]), est[c], 2 * R[c].max())  # no fatal rung: all tied, last
                 e.tell(list(X[c]), list(np.argsort(np.argsort(key, kind="stable"), kind="stable").astype(float)))
                 self.cma_generations[g] += 1
+                gens[g] += 1
                 old = self.cma_best[g][0]
                 i = c[np.argmin(est[c])]
                 if est[i] < old:
@@ -437,7 +486,7 @@ class Search:
                 if first[i] > 0:
                     width[g] = ladder_width(max(LADDER_SHRINK * width[g], 0.5 * m * tol / max(self.cma_best[g][0],
                                                                                               1e-300)), m)
-                if stale[g] >= PATIENCE or e.stop() or self.cma_generations[g] >= cfg.generations:
+                if stale[g] >= PATIENCE or e.stop() or gens[g] >= cfg.generations:
                     done.append(g)
             for g in done:
                 del es[g]

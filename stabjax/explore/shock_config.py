@@ -323,6 +323,12 @@ def cma_popsize(cfg: ShockConfig) -> int:
     return cfg.popsize or int(4 + 3 * math.log(cfg.dim))
 
 
+# after the first refinement (CMA-ES, then the polish), the refined witnesses are shared along the grid and the grid
+# points they improve refined again, while any improves, at most this many times (stabjax.explore.shock.Search.run);
+# each such share round holds at most grid points x (grid points - 1) x radii trajectories, as the first
+SHARE_ROUNDS = 3
+
+
 def round_sizes(G: int, cfg: ShockConfig) -> list[tuple[int, str, str]]:
     """The most trajectories each kind of round can hold at ``G`` grid points, as ``(n, field, what)`` (``field``:
     the spec field that makes it large). A bound, not a forecast: sharing and bisection reach it when every grid
@@ -336,12 +342,17 @@ def round_sizes(G: int, cfg: ShockConfig) -> list[tuple[int, str, str]]:
     if G > 1:
         out.append((shared * K, "grid", f"the round sharing each grid point's best direction with the others "
                                         f"({G:,} x {G - 1:,} grid points x {K:,} radii = {shared * K:,} trajectories)"))
-    # a bisection round: one trajectory per ray still open, at most every ray (scanned, shared, polished)
-    rays = G * D + shared + G
-    out.append((rays, "grid" if shared > G * D else "shock.directions",
-                f"a bisection round (one trajectory per direction searched: {at}{D:,} directions"
-                + (f" + {shared:,} shared" if shared else "") + f" + {G:,} polished = {rays:,} trajectories)"))
-    if cfg.refine == "cma" and cfg.dim >= 2 and cfg.generations > 0:
+    # a bisection round: one trajectory per ray still open, at most every ray (scanned, shared, polished); with
+    # CMA-ES, up to SHARE_ROUNDS more shares of the refined witnesses and refinements (each a polished ray)
+    cma = cfg.refine == "cma" and cfg.dim >= 2 and cfg.generations > 0
+    passes = 1 + SHARE_ROUNDS if cma else 1
+    rays = G * D + passes * (shared + G)
+    more = (f"{shared:,} shared + " if shared else "") + f"{G:,} polished"
+    more = f"{passes} x ({more})" if passes > 1 else more
+    out.append((rays, "grid" if passes * shared > G * D else "shock.directions",
+                f"a bisection round (one trajectory per direction searched: {at}{D:,} directions + {more} = "
+                f"{rays:,} trajectories)"))
+    if cma:
         P = cma_popsize(cfg)
         out.append((G * P * K, "shock.popsize" if cfg.popsize else "shock.radii",
                     f"a CMA-ES round ({at}{P:,} candidates x {K:,} radii = {G * P * K:,} "

@@ -112,6 +112,21 @@ def test_weighted_norm_flips_the_direction():
     assert abs(d[1]) > 1.9 and abs(d[0]) < abs(d[1]) * math.tan(math.acos(1 / (1 + REL))) * 4
 
 
+def test_a_refined_witness_reaches_the_grid_points_whose_fatal_cone_is_narrow():
+    """T3 along a at max_radius 1.5 (b = 16: z2 never leaves the basin within it; phi = 97 deg, 36 deg from the
+    nearest of the 8 scanned directions of seed 0, taken mod 180): delta*(a) = sqrt(a) along phi. At sqrt(a) = 0.5
+    the fatal cone within 1.5 is +-70 deg wide and the scan finds it; at 1.45 and 1.49 it is +-15 and +-6.6 deg,
+    missed by every scanned direction and by the scanned best direction shared before the refinement. Only the
+    refined witness of sqrt(a) = 0.5 (near phi), shared after the refinement, reaches them: without that share
+    they said "no fatal shock up to 1.5" (shock_norm NaN, shock_norm_lo 1.5)."""
+    w = (0.5, 1.45, 1.49)
+    ds = search("test_shock_t3", {"components": ["x0", "y0"], "max_radius": 1.5, "directions": 8},
+                params={"b": 16.0, "phi": math.radians(97.0)}, grid={"a": [x * x for x in w]})
+    for a, x in zip(ds.a.values, w):
+        assert_brackets(ds, x, a=a)
+    assert (ds.shock_cma_generations > 0).all()  # each point refined from the witness it was given
+
+
 @pytest.mark.slow  # the grid's packing into rounds is also exercised by the red-flag test (three claims)
 def test_along_an_axis_follows_the_closed_form():
     """T3 along a: delta*(a) = sqrt(a) (b = 4 > a), every grid point in the same rounds."""
