@@ -77,7 +77,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    group not at rest is ``attractor``; where it, or an unclassified trajectory, ends its window in a
    monotone approach, a :class:`TransientWarning` says that t1 did not outlast the transient.
    Names: the type and a number, ``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ... numbered
-   by decreasing basin size within each type.
+   by decreasing basin size within each type. A fixed point that rests at, or lingers by, an unstable
+   equilibrium (a start on a saddle's stable manifold, a heteroclinic cycle watched too briefly) is no
+   attractor: its trajectories are unclassified, and said (:func:`_unstable`).
 5. **Along a parameter** (one ``[grid]`` axis with ``[sample]``): each grid point's attractors are
    found on their own and matched to those of the previous point of the same type by the distance
    between their representatives (:mod:`stabjax.mapping.continuation`, Attractors.jl's global
@@ -452,7 +454,8 @@ def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: Disc
     at rho = 28, 300 starts, 8 % unclassified, every one with the exponent of ``chaotic_1`` (0.88-0.94). A
     trajectory whose exponent is above ``chaos_threshold`` joins the chaotic group nearest in window features
     when it lies within ``eps`` (DBSCAN's own radius) of that group's extent (the largest distance of a member
-    from the group's median); anything else stays where it was. Two chaotic attractors closer than that would
+    from the group's median), or when its window stays inside the box the group's windows cover (within ``eps``)
+    with an exponent within the range of the group's; anything else stays where it was. Two chaotic attractors closer than that would
     have been one group to DBSCAN already."""
     chaotic = [i for i, r in enumerate(others) if r[1] == "chaotic"]
     if not left.size or not chaotic or f.lam is None:
@@ -465,6 +468,16 @@ def _join_chaotic(left: np.ndarray, others: list[tuple], f: _Features, cfg: Disc
     d = np.linalg.norm(f.x[cand][:, None, :] - meds[None], axis=-1)
     j = np.argmin(d, axis=1)
     joins = d[np.arange(cand.size), j] <= reach[j] + cfg.eps
+    # or its window stays inside the box the group's windows cover (within eps), with an exponent among theirs:
+    # the heavy tail of a window maximum put two Roessler trajectories (c = 5.7, z up to 18 and 19 against the
+    # group's 22) beyond the extent, unclassified with the attractor's exponent
+    k = len(STATS)
+    for c in np.flatnonzero(~joins):
+        g = others[chaotic[j[c]]][0]
+        lo, hi = f.x[g][:, 2::k].min(axis=0) - cfg.eps, f.x[g][:, 3::k].max(axis=0) + cfg.eps
+        lams = f.lam[g][np.isfinite(f.lam[g])]
+        joins[c] = bool(lams.size and np.all(f.x[cand[c], 2::k] >= lo) and np.all(f.x[cand[c], 3::k] <= hi)
+                        and lams.min() <= f.lam[cand[c]] <= lams.max())
     if not joins.any():
         return left, others
     others = list(others)
@@ -776,6 +789,7 @@ class Again:
         self.ts = np.linspace(icfg.t0 + settle, icfg.t1, ENVELOPE_POINTS)
         self._done: dict[int, Any] = {}
         self.inside: dict[int, tuple] = {}  # representative -> :func:`_equilibrium_inside`
+        self.root: dict[int, Any] = {}  # representative -> :func:`_newton`
 
     def focus(self, index: int) -> bool:
         """Whether trajectory ``index`` spirals about a stable equilibrium inside its window, or cannot be asked (at
@@ -1048,7 +1062,16 @@ class Discovery(Mapper):
                                   "raise eps or min_samples")
         # where each attractor is, before anything is said of it by name: fixed points found at one equilibrium are
         # one attractor (merged; under continuation, whose names are matched point by point, said)
-        places = _places(plan, disc, results, again)
+        places = _places(plan, disc, results, again, cfg.chaos_threshold)
+        unstable = _unstable(plan, disc, places, again, results, cfg)
+        if unstable:  # at a saddle, or by one: no attractor (unclassified, said)
+            said = [(int(disc.counts[k]), rest, _where(places.comps, x), g) for k, rest, x, g in unstable]
+            gone = {disc.names[k] for k, *_ in unstable}
+            disc, places = _dropped(disc, places, {k for k, *_ in unstable}, renumber=events is None)
+            if events is not None:
+                events = [e for e in events if e.get("attractor") not in gone]
+            names, colors = outcome_names(decl, tuple(disc.names), escape)
+            _warn_unstable(said)
         same = _one_place(disc, places, plan.icfg)
         if same and events is None:
             disc, places = _merged(disc, places, same)
@@ -1305,7 +1328,7 @@ class _Places:
     lost: list[int]
 
 
-def _places(plan, disc: Attractors, results, again: Again) -> _Places:
+def _places(plan, disc: Attractors, results, again: Again, chaos: float) -> _Places:
     """Each attractor's place; nothing is said here (:func:`_say_places`, after the names are final)."""
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
@@ -1326,7 +1349,7 @@ def _places(plan, disc: Attractors, results, again: Again) -> _Places:
         stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
         for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
             if t == "fixed_point" and np.all(np.isfinite(states[k])) and not (stopped is not None and stopped[rep]):
-                placed[k], spread = _place_fixed_point(plan, int(rep), again, states, final, k)
+                placed[k], spread = _place_fixed_point(plan, int(rep), again, states, final, k, chaos)
                 if spread is not None:
                     moving[k] = spread
     return _Places(comps, states, final, placed, moving, lost)
@@ -1362,14 +1385,15 @@ def _attractor_vars(plan, disc: Attractors, cfg: DiscoveryConfig, places: _Place
         "attractor_state": (("attractor", "state_component"), states,
                             {"long_name": "state at t1 of the representative trajectory (re-integrated); of a fixed "
                                           "point still approached at t1, the stable equilibrium inside its last "
-                                          "window (attractor_placed)"}),
+                                          "window or ahead of its approach (attractor_placed)"}),
         "attractor_observables": (("attractor", "observable"), final,
                                   {"long_name": "observables of the representative trajectory at t1 (of a placed "
                                                 "fixed point, at the equilibrium)"}),
         "attractor_placed": ("attractor", placed, {
             "long_name": "how the attractor's state was found",
-            "flag_values": np.array([0, 1], np.int8),
-            "flag_meanings": "representative_at_t1 equilibrium_by_newton_inside_the_last_window"}),
+            "flag_values": np.array([0, 1, 2], np.int8),
+            "flag_meanings": "representative_at_t1 equilibrium_by_newton_inside_the_last_window "
+                             "equilibrium_by_newton_ahead_of_a_monotone_approach"}),
         "observable_range": ("observable", disc.scale,
                              {"long_name": "range of each observable over the sweep (feature scale)"}),
     }
@@ -1389,7 +1413,8 @@ PLACE_MOVING = 1000.0  # window range, in tolerance units, above which a fixed p
 NEWTON_STEPS = 50
 
 
-def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int) -> tuple[int, float | None]:
+def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int, chaos: float
+                       ) -> tuple[int, float | None]:
     """Place a fixed point whose representative still moves over the feature window (an oscillation dying out
     slowly: x' = -a(x - 1) - y, y' = (x - 1) - a y at a = 0.005 and t1 = 100 was placed "at x = -0.67, y = -0.74",
     1.9 from its equilibrium (1, 0), without a word) at the stable equilibrium inside its window
@@ -1398,24 +1423,50 @@ def _place_fixed_point(plan, rep: int, again: Again, states, final, k: int) -> t
     spread over the window; a monotone approach, whose equilibrium lies beyond the box, is said by
     :func:`_warn_still_far` instead). A representative at rest is left as is (0, None)."""
     found, x, obs, spread = _equilibrium_inside(plan, rep, again)
+    placed = 1
+    if found == "none" and spread is None and _ahead(plan, rep, again, chaos):
+        root = _newton(plan, rep, again)
+        found, x, obs, placed = "found", root.x, root.obs, 2
     if found != "found":
         return 0, spread
     states[k] = x
     final[k] = obs[: final.shape[1]]
-    return 1, None
+    return placed, None
+
+
+def _ahead(plan, rep: int, again: Again, chaos: float) -> bool:
+    """Whether trajectory ``rep``, in a monotone approach at t1, heads for the stable equilibrium Newton's method
+    finds from its state at t1 (:func:`_newton`), a hyperbolic one (its slowest mode decays faster than ``chaos``,
+    the rate the exponent's typing tells from 0): the right-hand side there points toward it, and over the window
+    the distance to it fell at least at half the rate of that mode (exp(growth window / 2)). A slow node
+    (x' = -0.02 x, y' = -20 (y - x^2) watched to t1 = 100) left its trajectories on four sides of the equilibrium,
+    four 'fixed points' at points that are none; placed at the one equilibrium they are one attractor
+    (:func:`_one_place`). An approach slower than that (a non-hyperbolic equilibrium, or one far from the
+    linear regime: x' = -x^3), or toward another point, is not placed (and said: :func:`_warn_still_far`)."""
+    import jax.numpy as jnp
+
+    root = _newton(plan, rep, again)
+    if not (root.ok and root.growth < -chaos):
+        return False
+    icfg = plan.icfg
+    Y = again.states(rep)
+    ts = again.ts
+    d0, d1 = np.linalg.norm(Y[0] - root.x), np.linalg.norm(Y[-1] - root.x)
+    p = plan.system.check({key: np.asarray(v)[0] for key, v in plan.params_at(np.array([rep])).items()})
+    args = plan.system.prepare({key: jnp.asarray(v) for key, v in p.items()})
+    fy = np.asarray(plan.system.rhs(icfg.t1, jnp.asarray(Y[-1]), args))
+    toward = float(np.dot(fy, root.x - Y[-1])) > 0
+    return bool(toward and d0 > 0 and d1 <= d0 * math.exp(0.5 * root.growth * (ts[-1] - ts[0])))
 
 
 def _equilibrium_inside(plan, rep: int, again: Again) -> tuple[str, Any, Any, float | None]:
     """The stable equilibrium inside trajectory ``rep``'s window, by Newton's method on the right-hand side from
-    its state at t1 (integrated again, :class:`Again`; remembered there): taken when Newton converges to within one
-    tolerance unit, the Jacobian there is stable and the point lies inside the box the states span over the window
-    (a spiral about it does; an equilibrium elsewhere does not). Returns (``"found"``, state, observables, None);
-    (``"rest"`` or ``"failed"``, None, None, None) for a trajectory whose window spans at most ``PLACE_MOVING``
-    tolerance units or whose integration failed; else (``"none"``, None, None, spread), the spread its states span
-    over the window, or None for a monotone approach (its equilibrium lies beyond the box)."""
-    import jax
-    import jax.numpy as jnp
-
+    its state at t1 (:func:`_newton`): taken when Newton converges to within one tolerance unit, the Jacobian there
+    is stable and the point lies inside the box the states span over the window (a spiral about it does; an
+    equilibrium elsewhere does not). Returns (``"found"``, state, observables, None); (``"rest"`` or ``"failed"``,
+    None, None, None) for a trajectory whose window spans at most ``PLACE_MOVING`` tolerance units or whose
+    integration failed; else (``"none"``, None, None, spread), the spread its states span over the window, or None
+    for a monotone approach (its equilibrium lies beyond the box)."""
     if rep in again.inside:
         return again.inside[rep]
     icfg = plan.icfg
@@ -1426,6 +1477,43 @@ def _equilibrium_inside(plan, rep: int, again: Again) -> tuple[str, Any, Any, fl
     tol = icfg.atol + icfg.rtol * np.abs(Y[-1])
     if np.max((hi - lo) / tol) <= PLACE_MOVING:
         return again.inside.setdefault(rep, ("rest", None, None, None))
+    root = _newton(plan, rep, again)
+    slack = 10.0 * tol
+    inside = root.ok and bool(np.all(root.x >= lo - slack) and np.all(root.x <= hi + slack))
+    if inside and root.growth < 0:
+        out = ("found", root.x, root.obs, None)
+    elif not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
+        out = ("none", None, None, float(np.max(hi - lo)))
+    else:
+        out = ("none", None, None, None)
+    return again.inside.setdefault(rep, out)
+
+
+@dataclass(frozen=True)
+class _Root:
+    """Newton's method from a trajectory's state at t1 (:func:`_newton`): ``ok`` when it converged (its last step
+    below one tolerance unit, RMS), the equilibrium ``x`` and its observables ``obs``, and ``growth``, the largest
+    real part of the Jacobian's eigenvalues there (NaN where Newton did not converge)."""
+
+    ok: bool
+    x: Any = None
+    obs: Any = None
+    growth: float = math.nan
+
+
+def _newton(plan, rep: int, again: Again) -> _Root:
+    """:class:`_Root` of trajectory ``rep`` (integrated again, :class:`Again`; remembered there): Newton's method on
+    the right-hand side at t1 from its state at t1, at most ``NEWTON_STEPS`` steps, the Jacobian by forward-mode
+    differentiation (exact, not differenced: the sign of its eigenvalues is the model's)."""
+    import jax
+    import jax.numpy as jnp
+
+    if rep in again.root:
+        return again.root[rep]
+    icfg = plan.icfg
+    if int(again(rep).attrs["solver_status"]) != 0:
+        return again.root.setdefault(rep, _Root(False))
+    Y = again.states(rep)
     p = plan.system.check({key: np.asarray(v)[0] for key, v in plan.params_at(np.array([rep])).items()})
     args = plan.system.prepare({key: jnp.asarray(v) for key, v in p.items()})
 
@@ -1446,17 +1534,11 @@ def _equilibrium_inside(plan, rep: int, again: Again) -> tuple[str, Any, Any, fl
         if np.sqrt(np.mean((step / (icfg.atol + icfg.rtol * np.abs(np.asarray(y)))) ** 2)) < 1.0:
             ok = True
             break
-    x = np.asarray(y)
-    slack = 10.0 * tol
-    inside = bool(np.all(x >= lo - slack) and np.all(x <= hi + slack))
-    stable = ok and bool(np.all(np.real(np.linalg.eigvals(np.asarray(jac(y)))) < 0))
-    if ok and stable and inside:
-        out = ("found", x, np.asarray(plan.system.observe(icfg.t1, y, args), float), None)
-    elif not np.all((np.abs(Y[-1] - lo) <= slack) | (np.abs(Y[-1] - hi) <= slack)):
-        out = ("none", None, None, float(np.max(hi - lo)))
-    else:
-        out = ("none", None, None, None)
-    return again.inside.setdefault(rep, out)
+    if not ok:
+        return again.root.setdefault(rep, _Root(False))
+    growth = float(np.max(np.real(np.linalg.eigvals(np.asarray(jac(y))))))
+    return again.root.setdefault(rep, _Root(True, np.asarray(y), np.asarray(plan.system.observe(icfg.t1, y, args),
+                                                                              float), growth))
 
 
 def _warn_fading(groups: list[tuple[str, int, float]]) -> None:
@@ -1562,6 +1644,91 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
     moving = {new[i]: v for i, v in places.moving.items() if i in new and not placed[i]}
     lost = [new[i] for i in places.lost if i in new]
     return disc, _Places(places.comps, states[keep], final[keep], placed[keep], moving, lost)
+
+
+def _unstable(plan, disc: Attractors, places: _Places, again: Again, results, cfg: DiscoveryConfig
+              ) -> list[tuple[int, bool, np.ndarray, float]]:
+    """Fixed points that are no attractors: their representative rests at, or ends within ``eps`` (of each
+    observable's range) of, an **unstable** equilibrium -- Newton's method from its state at t1 (:func:`_newton`)
+    converges to a point whose Jacobian has an eigenvalue with real part above ``chaos_threshold`` (the rate the
+    exponent's typing calls growth). A start on a saddle's stable manifold (the boundary between two basins: a
+    column of a symmetric grid, x' = x - x^3, y' = -y from x0 = 0) comes to rest there and was
+    ``fixed_point_3``, S = 0.048, with exponent +1; trajectories lingering by a saddle of a heteroclinic cycle
+    (May-Leonard) at t1 were four 'fixed points'. Autonomous models only (a Jacobian at t1 says nothing of a forced
+    one); a representative the fixed-point stop finished (certainly at a stable equilibrium), or placed inside
+    its window at a stable one, is not asked. Returns (attractor index, at rest, equilibrium state, growth)."""
+    if not is_autonomous(plan.system):
+        return []
+    stopped = np.asarray(results["stop_reason"]) == STOP_FIXED_POINT if "stop_reason" in results else None
+    out = []
+    for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
+        rep = int(rep)
+        if t != "fixed_point" or places.placed[k] or (stopped is not None and stopped[rep]):
+            continue
+        root = _newton(plan, rep, again)
+        if not (root.ok and root.growth > cfg.chaos_threshold):
+            continue
+        near = np.abs(root.obs[: places.final.shape[1]] - places.final[k]) / disc.scale
+        if np.all(near <= cfg.eps):
+            out.append((k, _equilibrium_inside(plan, rep, again)[0] == "rest", root.x, root.growth))
+    return out
+
+
+def _dropped(disc: Attractors, places: _Places, drop: set[int], renumber: bool) -> tuple[Attractors, _Places]:
+    """``disc`` without the attractors ``drop`` (:func:`_unstable`): their trajectories unclassified, what is said
+    of them in ``stats`` left out, the others' names numbered again within each type (``renumber``; under
+    continuation the names stay, being those of the births and deaths)."""
+    import dataclasses
+
+    keep = [i for i in range(len(disc.names)) if i not in drop]
+    to = np.full(len(disc.names), -1, np.int64)
+    to[keep] = np.arange(len(keep))
+    labels = np.where(disc.labels >= 0, to[np.maximum(disc.labels, 0)], disc.labels)
+    names = [disc.names[i] for i in keep]
+    if renumber:
+        seen: dict[str, int] = {}
+        names = []
+        for i in keep:
+            seen[disc.types[i]] = seen.get(disc.types[i], 0) + 1
+            names.append(f"{disc.types[i]}_{seen[disc.types[i]]}")
+    rename = {disc.names[i]: names[to[i]] for i in keep}
+    gone = {disc.names[i] for i in drop}
+
+    def about(v):  # the name a stats entry is about
+        return v if isinstance(v, str) else (v[0] if isinstance(v, tuple) and v else None)
+
+    stats = dict(disc.stats)
+    for key, v in disc.stats.items():
+        if isinstance(v, list):
+            stats[key] = [(rename.get(x, x) if isinstance(x, str) else
+                           tuple(rename.get(y, y) if isinstance(y, str) else y for y in x) if isinstance(x, tuple) else x)
+                          for x in v if about(x) not in gone]
+    disc = dataclasses.replace(disc, labels=labels, names=names, types=[disc.types[i] for i in keep],
+                               counts=disc.counts[keep], features=disc.features[keep], lyapunov=disc.lyapunov[keep],
+                               representative=disc.representative[keep], stats=stats)
+    moving = {int(to[i]): v for i, v in places.moving.items() if i not in drop}
+    lost = [int(to[i]) for i in places.lost if i not in drop]
+    return disc, _Places(places.comps, places.states[keep], places.final[keep], places.placed[keep], moving, lost)
+
+
+def _where(comps: list[str], x: np.ndarray) -> str:
+    """``x = 0, y = -1.29e-12``: a state by its components."""
+    return ", ".join(f"{c} = {float(v):.4g}" for c, v in zip(comps, x))
+
+
+def _warn_unstable(groups: list[tuple[str, int, bool, str, float]]) -> None:
+    """Said, not only stored: trajectories at (or lingering by) an unstable equilibrium, counted unclassified."""
+    import warnings
+
+    parts = "; ".join(f"{n} trajectories {'rest at' if rest else 'end by'} an unstable equilibrium at {where} (an "
+                      f"eigenvalue with real part {g:.3g})" for n, rest, where, g in groups)
+    warnings.warn(f"{parts}: no attractor -- a start on the stable manifold of a saddle (a basin boundary), or a "
+                  f"trajectory still passing it at t1 (a heteroclinic cycle, a slow transient); counted unclassified. "
+                  f"Raise [integrate] t1 to see where those still passing go", UnstableWarning, stacklevel=3)
+
+
+class UnstableWarning(UserWarning):
+    """Trajectories that came to rest at, or still linger by, an unstable equilibrium: counted unclassified."""
 
 
 CHECK_MEMBERS = 12  # a fixed point's trajectories integrated again to see that they end at one place

@@ -248,8 +248,11 @@ def attractors(ds) -> list[dict[str, Any]]:
         obs = [str(o) for o in ds["observable"].values] if "observable" in ds.coords else []
         if typ == "fixed_point" and state is not None and np.all(np.isfinite(state)):
             where = "at " + ", ".join(f"{c} = {_num(v)}" for c, v in zip(comps, state))
-            if "attractor_placed" in ds and int(ds["attractor_placed"].values[k]):
+            how = int(ds["attractor_placed"].values[k]) if "attractor_placed" in ds else 0
+            if how == 1:
                 where += " (the stable equilibrium inside its last window: its trajectories still approach it at t1)"
+            elif how == 2:
+                where += " (the stable equilibrium its trajectories head for: still approaching it at t1)"
         elif typ == "fixed_point" and "attractor_observables" in ds and obs:  # its state could not be recomputed
             where = "at " + ", ".join(f"{o} = {_num(v)}" for o, v in zip(obs, ds["attractor_observables"].values[k]))
         elif "attractor_features" in ds and feats:

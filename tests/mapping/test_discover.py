@@ -400,8 +400,6 @@ def test_a_stable_equilibrium_is_one_fixed_point_with_or_without_the_exponent(ly
 
 @functools.cache
 def _line():
-    import jax.numpy as jnp
-
     from stabjax import Param, ParamSet
 
     Relax, _ = _relax()
@@ -439,8 +437,10 @@ def _discovered(model, sample, t1, discovery, warning, params=None, grid=None):
     """The discovery run of ``model``: dataset, outcome names, and the messages of the ``warning``s it gave."""
     import warnings
 
-    spec = {"system": _one(model), "params": params or {}, "sample": sample, "integrate": {"t1": t1},
+    spec = {"system": _one(model), "params": params or {}, "integrate": {"t1": t1},
             "outcomes": {"discover": True, "discovery": discovery}}
+    if sample:
+        spec["sample"] = sample
     if grid:
         spec["grid"] = grid
     with warnings.catch_warnings(record=True) as said:
@@ -1274,8 +1274,6 @@ def test_a_fixed_point_whose_observables_cannot_tell_two_wells_apart_is_said():
     """x'' = x - x^3 - 0.3 x' observed through its energy alone: both wells rest at energy -1/4, and the
     observables group them as one fixed point "at x = -1" (the reliability pass: said nowhere). Its trajectories,
     integrated again, end at x = -1 and x = 1: said (MixedWarning), naming the fixed point and both places."""
-    import jax.numpy as jnp
-
     from stabjax.mapping.discover import MixedWarning
 
     class Energy(_wells()):
@@ -1402,3 +1400,108 @@ def test_a_resting_part_too_small_for_a_group_is_left_out_not_named_after_its_ne
     assert sorted(map(list, parts)) == [list(range(10)), list(range(10, 18))]
     one = _split_rest(np.arange(10), np.zeros((10, 1)), fine=0.01, min_samples=5)
     assert [list(p) for p in one] == [list(range(10))]
+
+
+def _saddle_or_slow():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet
+
+    Relax, _ = _relax()
+
+    class SaddleOrSlow(Relax):
+        """x' = s (x - x^3) - (1 - s) a x, y' = -20 (y - (1 - s) x^2). s = 1: stable nodes at (+-1, 0) and a saddle
+        at (0, 0) (eigenvalues +1, -20) whose stable manifold x = 0 bounds their basins; s = 0: one slow stable node
+        at (0, 0) (eigenvalues -a, -20), approached along the parabola y = x^2. One class (s on a grid of one point)
+        so that both share a kernel (CI time)."""
+
+        name = "saddle_or_slow_test"
+        params = ParamSet((*Relax.params.params, Param("s", 1.0, "1: a saddle between two nodes, 0: a slow node"),
+                           Param("a", 0.02, "the slow node's rate")))
+
+        def rhs(self, t, y, p):
+            s = p["s"]
+            return jnp.stack([s * (y[0] - y[0] ** 3) - (1.0 - s) * p["a"] * y[0], -20.0 * (y[1] - (1.0 - s) * y[0] ** 2)])
+
+    return SaddleOrSlow
+
+
+def _saddle_or_slow_rhs(s, a=0.02):
+    return lambda t, y: [s * (y[0] - y[0] ** 3) - (1 - s) * a * y[0], -20.0 * (y[1] - (1 - s) * y[0] ** 2)]
+
+
+def test_starts_on_a_saddles_stable_manifold_are_no_attractor():
+    """x' = x - x^3, y' = -20 y on a symmetric grid: the column x0 = 0 lies on the saddle's stable manifold and comes
+    to rest at (0, 0), where the Jacobian has the eigenvalue +1. Those starts were fixed_point_3 (S = 0.11, exponent
+    +1, unsaid); they are unclassified now, said, and every other start is named by the node SciPy's DOP853 takes it
+    to (placed there)."""
+    from stabjax.mapping.discover import UnstableWarning
+
+    x0, y0 = np.linspace(-1.0, 1.0, 9), np.linspace(-1.0, 1.0, 7)
+    ds, names, said = _discovered(_saddle_or_slow(), None, 30.0, {}, UnstableWarning,
+                                  grid={"x0": x0.tolist(), "y0": y0.tolist(), "s": [1.0]})
+    assert names == ["fixed_point_1", "fixed_point_2", "unclassified", "failed"], names
+    assert len(said) == 1 and re.search(r"7 trajectories rest at an unstable equilibrium at x = 0, y = 0 .*real part 1\b",
+                                        said[0]), said
+    out = ds["outcome"].squeeze().transpose("x0", "y0").values
+    rhs = _saddle_or_slow_rhs(1.0)
+    for i, a in enumerate(x0):
+        for j, b in enumerate(y0):
+            end = solve_ivp(rhs, (0.0, 60.0), [a, b], method="DOP853", rtol=1e-11, atol=1e-12).y[:, -1]
+            if a == 0.0:  # on the stable manifold: the saddle itself, no attractor
+                assert abs(end[0]) < 1e-9 and names[out[i, j]] == "unclassified"
+            else:
+                k = names[out[i, j]]
+                place = ds["attractor_state"].sel(attractor=k).values
+                np.testing.assert_allclose(place, end, atol=1e-6)
+                assert abs(end[0]) == pytest.approx(1.0, abs=1e-8)
+    assert set(ds["attractor_type"].values) == {"fixed_point"}
+
+
+def test_a_slow_node_approached_from_all_sides_is_one_fixed_point_at_its_equilibrium():
+    """A slow stable node (x' = -0.02 x, y' = -20 (y - x^2); eigenvalues -0.02 and -20), 120 starts in [-2, 2]^2,
+    t1 = 100: every trajectory still approaches along the parabola, and DBSCAN grouped them on four sides of the node
+    (four 'fixed points' at points that are none). Newton's method from each representative finds the one
+    equilibrium ahead, a hyperbolic stable one approached at its slow rate: one fixed point, S = 1, placed at (0, 0)
+    (attractor_placed 2), as SciPy's DOP853 says of every start."""
+    rng = np.random.default_rng(4)
+    box = {"n": 120, "seed": 5, "x0": {"dist": "uniform", "low": -2.0, "high": 2.0},
+           "y0": {"dist": "uniform", "low": -2.0, "high": 2.0}}
+    # (continuation off: s on a grid of one point, the sweep's kernel shared with the saddle's)
+    ds, names, _ = _discovered(_saddle_or_slow(), box, 100.0, {"continuation": False}, UserWarning, grid={"s": [0.0]})
+    assert names == ["fixed_point_1", "unclassified", "failed"] and (ds["outcome"].values == 0).all(), \
+        (names, np.bincount(ds["outcome"].values.ravel()))
+    assert int(ds["attractor_placed"].values[0]) == 2
+    np.testing.assert_allclose(ds["attractor_state"].values[0], [0.0, 0.0], atol=1e-8)
+    rhs = _saddle_or_slow_rhs(0.0)
+    starts = np.stack([ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel()], axis=1)
+    assert np.abs(ds["feat_final"].values.reshape(-1, 2)[:, 0]).max() > 0.2  # still far from it at t1 ...
+    for a, b in starts[rng.choice(len(starts), 12, replace=False)]:
+        end = solve_ivp(rhs, (0.0, 2000.0), [a, b], method="DOP853", rtol=1e-11, atol=1e-14).y[:, -1]
+        assert np.hypot(*end) < 1e-12  # ... yet its limit, from every start
+
+
+def test_a_window_inside_a_chaotic_attractors_box_with_its_exponent_joins_it():
+    """Roessler at c = 5.7 (100 starts, t1 = 600): two trajectories on the one chaotic attractor, with its exponent,
+    were left unclassified, the heavy tail of a window maximum (z up to 18 and 19 against the group's 22) putting
+    them beyond the group's extent. A leftover whose window lies inside the box the group's windows cover, with an
+    exponent among theirs, joins it; one outside the box, or with another exponent, does not."""
+    from stabjax.mapping.discover import DiscoveryConfig, _join_chaotic
+
+    rng = np.random.default_rng(3)
+    n = 100
+    group = np.stack([rng.normal(0.5, 0.01, n), rng.normal(0.3, 0.01, n), rng.uniform(0.0, 0.05, n),
+                      rng.uniform(0.9, 1.0, n)], axis=1)
+    tail = [0.5, 0.3, 0.02, 0.7]  # a low window maximum: far from the median, inside the box
+    left = np.array([tail, tail, [0.5, 0.3, 0.02, 1.3], [0.5, 0.3, -0.4, 0.95]])
+    f = _synthetic(np.concatenate([group, left]))
+    f.lam[:n] = rng.uniform(0.06, 0.1, n)
+    f.lam[n:] = [0.08, 0.5, 0.08, 0.08]  # the second: the exponent of another motion
+    g = np.arange(n)
+    others = [(g, "chaotic", np.median(f.x[g], axis=0), 0.08, 0)]
+    cfg = DiscoveryConfig()
+    assert np.linalg.norm(f.x[n] - np.median(group, axis=0)) > np.linalg.norm(group - np.median(group, axis=0),
+                                                                              axis=1).max() + cfg.eps
+    rest, out = _join_chaotic(np.arange(n, n + 4), others, f, cfg)
+    assert rest.tolist() == [n + 1, n + 2, n + 3]
+    assert out[0][0].tolist() == list(range(n + 1)) and out[0][1] == "chaotic"
