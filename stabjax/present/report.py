@@ -7,7 +7,8 @@ never from the current environment), the outcome table with S ± SE and Wilson i
 figures (PNG inlined as base64: one file, nothing to lose when it is mailed or attached), the
 agreement with the theory, and the warnings that change how far the numbers can be trusted
 (unclassified share, solver failures, verdicts that still change with the horizon, a model file
-edited since).
+edited since, and what the outcome stage warned while the result was made: discovery's caveats, kept in the
+result's ``warnings_json``, :func:`stored_warnings`).
 
 Every kind of result the kit knows (:func:`stabjax.present.kit.kind`) is understood: verdict maps
 (paper sweeps: every trajectory has a verdict, outcomes are the verdicts), named outcomes from a user
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
 # not decide for that many, so the outcome fractions are lower bounds
 UNCLASSIFIED_WARN = 0.05
 POINTS_NAMED = 8  # grid points named in one warning (the rest counted)
+WARNINGS_ATTR = "warnings_json"  # stabjax.run.derive.WARNINGS_ATTR (not imported: it would import JAX)
 
 
 # ---- what the page says -------------------------------------------------------------------------
@@ -172,11 +174,23 @@ def warnings(ds: xr.Dataset) -> list[str]:
                 out.append(f"Horizon sensitivity: {changed:,} of {last.size:,} verdicts differ between T = {T[-2]:.4g} "
                            f"and t1 = {T[-1]:.4g}; a longer horizon may change more of them "
                            "(stabjax horizon-check RESULT re-runs a subset longer).")
+    out += [f"{w['category']}: {w['message']}" if w["category"] else w["message"] for w in stored_warnings(ds)]
     from ..plan.identity import changed_sources  # the model file and every local module it imports
 
     for what in changed_sources(ds.attrs):
         out.append(f"The model file {what} has changed since this result was computed.")
     return out
+
+
+def stored_warnings(ds: xr.Dataset) -> list[dict[str, str]]:
+    """What the outcome stage warned while the result was made (``warnings_json``, written by the run:
+    :func:`stabjax.run.derive.keeping`), each {"category": class name, "message": text}; empty for a result that
+    records none (or was made before the attribute was)."""
+    said = _json_attr(ds, WARNINGS_ATTR, []) or []
+    if not isinstance(said, list):
+        return []
+    return [{"category": str(w.get("category", "")), "message": str(w.get("message", ""))} if isinstance(w, dict)
+            else {"category": "", "message": str(w)} for w in said]
 
 
 def _checked(ds: xr.Dataset) -> str:
@@ -186,6 +200,8 @@ def _checked(ds: xr.Dataset) -> str:
         return "every boundary segment bracketed within the tolerance, no refinement point undecided, " \
                "unclassified or failed"
     said = ["no unclassified excess at any grid point"]
+    if WARNINGS_ATTR in ds.attrs:
+        said.append("no warning while the outcomes were found")
     if "solver_status" in ds:
         said.append("no solver failures")
     if "verdict" in ds and "horizon" in ds.dims and ds.sizes["horizon"] >= 2:

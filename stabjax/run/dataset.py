@@ -138,6 +138,10 @@ def build(plan, records: Mapping[str, Any], derived) -> xr.Dataset:
         data[k] = (dims, v.reshape(shape), meta[k])
     ds = xr.Dataset(data, coords=coords)
     ds.attrs.update(derived.provenance)
+    if derived.warnings is not None:  # what the outcome stage warned (the store's layout: added when it finishes)
+        from .derive import warnings_attr
+
+        ds.attrs.update(warnings_attr(derived.warnings))
     ds.attrs.update(theory_main=main, n_trajectories=int(plan.size))
     cf_attributes(ds, plan)
     return ds

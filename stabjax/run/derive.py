@@ -18,14 +18,22 @@ run calls it:
                                     basin placeholders): the store's layout
 ``finish(plan, records, state)``    what needs every trajectory: a whole-set mapper's outcomes, basin
                                     statistics, entropy, the starts file's agreement (:class:`Derived`)
+
+What the outcome stage says about the result while it runs -- the warnings of :meth:`prepare`, of each chunk's
+:func:`chunk` and of :func:`finish` (discovery's ``TransientWarning``, ``MixedWarning``, ...) -- is kept by
+:func:`keeping` and stored in the result's ``warnings_json`` attribute (:data:`WARNINGS_ATTR`), besides being
+shown on the terminal as before.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
 import subprocess
+import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -51,7 +59,9 @@ class Derived:
     ``entropy``: :func:`stabjax.mapping.entropy.basin_entropy` of a 2-D grid of starts, or None;
     ``starts``: the starts file's label variables (:func:`stabjax.plan.starts.dataset_vars`);
     ``theory``: (values (N,) per name, attributes per name, name of the main predicate), or None;
-    ``provenance``: the dataset's global attributes that say what was computed and where."""
+    ``provenance``: the dataset's global attributes that say what was computed and where;
+    ``warnings``: what the outcome stage warned about the result (:func:`keeping`), or None where it is not
+    known yet (the store's layout: added when the run finishes)."""
 
     mapped: Mapped | None = None
     basin: dict[str, Any] | None = None
@@ -59,6 +69,79 @@ class Derived:
     starts: dict[str, Any] = field(default_factory=dict)
     theory: tuple[dict[str, np.ndarray], dict[str, dict], str] | None = None
     provenance: dict[str, Any] = field(default_factory=dict)
+    warnings: list[dict[str, str]] | None = None
+
+
+# ---- what the outcome stage says about the result ------------------------------------------------------
+
+WARNINGS_ATTR = "warnings_json"  # the result's attribute: JSON list of {"category": class name, "message": text}
+
+
+def _of_the_result(category: type) -> bool:
+    """Whether a warning of ``category`` is said about the result: a class of stabjax's own (discovery's
+    ``TransientWarning``, ``MixedWarning``, ``SplitWarning``, ``RepresentativeWarning``, ``UnboundedWarning``),
+    not the runner's word on its store (:class:`stabjax.run.store.StoreWarning`), nor another library's
+    (JAX's or NumPy's deprecations and runtime warnings are not the result's)."""
+    module = getattr(category, "__module__", "") or ""
+    return (module == "stabjax" or module.startswith("stabjax.")) and not module.startswith("stabjax.run.") \
+        and not issubclass(category, DeprecationWarning)
+
+
+def _module_of(filename: str):
+    """The loaded module whose file is ``filename`` (to show a warning again as :func:`warnings.warn` showed it:
+    with that module's name and its registry of warnings already shown), or None."""
+    for mod in list(sys.modules.values()):
+        if getattr(mod, "__file__", None) == filename:
+            return mod
+    return None
+
+
+@contextlib.contextmanager
+def keeping(into: list[dict[str, str]]):
+    """Keep in ``into`` what the block warns about the result ({"category", "message"}, in order, each once;
+    :func:`_of_the_result`), whatever the warning filters say (a result's caveats do not depend on what the
+    terminal shows), and raise every warning of the block again as it was raised (its file, line and module):
+    the filters then show, hide or raise it as they would have, once the block is done."""
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield into
+    finally:
+        for w in caught:
+            if _of_the_result(w.category):
+                said = {"category": w.category.__name__, "message": str(w.message)}
+                if said not in into:
+                    into.append(said)
+        modules: dict[str, Any] = {}
+        for w in caught:
+            if w.filename not in modules:
+                modules[w.filename] = _module_of(w.filename)
+            mod = modules[w.filename]
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
+                                   module=mod.__name__ if mod is not None else None,
+                                   registry=mod.__dict__.setdefault("__warningregistry__", {}) if mod is not None
+                                   else None, source=w.source)
+
+
+def merged(*said: list[dict[str, str]] | None) -> list[dict[str, str]]:
+    """The warnings of several stages of one result, in order, each once."""
+    out: list[dict[str, str]] = []
+    for part in said:
+        out += [w for w in part or () if w not in out]
+    return out
+
+
+def said_by_chunks(manifest: Mapping[str, Any]) -> list[dict[str, str]]:
+    """What the chunks' outcome stage warned (each chunk's record ``warnings``, :func:`keeping` around
+    :func:`chunk`), in chunk order: kept with the chunks, so a resumed run says what its first run's chunks said."""
+    chunks = manifest.get("chunks", {})
+    return merged(*(chunks[k].get("warnings") for k in sorted(chunks, key=int)))
+
+
+def warnings_attr(said: list[dict[str, str]] | None) -> dict[str, str]:
+    """The result's attribute of ``said`` (:data:`WARNINGS_ATTR`)."""
+    return {WARNINGS_ATTR: json.dumps(merged(said), ensure_ascii=False)}
 
 
 def prepare(plan) -> Any:
@@ -118,18 +201,22 @@ def initial(plan, state: Any, empty=None) -> Derived:
 def finish(plan, records: Mapping[str, Any], state: Any, *, with_theory: bool = True) -> Derived:
     """Every computed variable from the records of every trajectory (flat, (N, ...) in the plan's order):
     the outcome codes (a per-trajectory mapper's ``outcome`` record, else the whole-set mapper run now),
-    basin statistics, entropy and the starts file's agreement; the theory and provenance unless
-    ``with_theory`` is False (a store holds them from its creation)."""
+    basin statistics, entropy and the starts file's agreement, and what the mapper warned meanwhile (``warnings``,
+    :func:`keeping`); the theory and provenance unless ``with_theory`` is False (a store holds them from its
+    creation)."""
     from ..mapping import entropy
     from ..plan import starts
 
     mapper = plan.mapper
-    out = Derived(theory=theory(plan) if with_theory else None, provenance=provenance(plan) if with_theory else {})
-    if "outcome" in records:
-        out.mapped = Mapped(np.asarray(records["outcome"]).reshape(-1), mapper.scheme, *mapper.variables(plan, state))
-    elif "solver_status" in records:
-        out.mapped = mapper.map_set(plan, {k: np.asarray(v) for k, v in records.items()}, state)
-    else:
+    out = Derived(theory=theory(plan) if with_theory else None, provenance=provenance(plan) if with_theory else {},
+                  warnings=[])
+    with keeping(out.warnings):  # what the mapper says of the result: in its warnings_json too
+        if "outcome" in records:
+            out.mapped = Mapped(np.asarray(records["outcome"]).reshape(-1), mapper.scheme,
+                                *mapper.variables(plan, state))
+        elif "solver_status" in records:
+            out.mapped = mapper.map_set(plan, {k: np.asarray(v) for k, v in records.items()}, state)
+    if out.mapped is None:
         return out
     codes = out.mapped.codes.reshape(plan.shape)
     names = list(out.mapped.scheme.names)

@@ -722,7 +722,9 @@ class ChunkStore:
         from . import derive
 
         lo, hi = self.bounds(i)
-        rec = derive.chunk(self.plan, res, lo, hi, self.template_features())
+        said: list[dict[str, str]] = []
+        with derive.keeping(said):  # what the outcome stage warns: kept with the chunk, for the result's warnings_json
+            rec = derive.chunk(self.plan, res, lo, hi, self.template_features())
         try:
             if self.manifest.get("arrays") is None:
                 self._create(rec)
@@ -748,16 +750,21 @@ class ChunkStore:
                         g[k][region[:-1] + (slice(None),)] = values
             entry = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()) if "n_steps" in res else 0}
             entry.update(info or {})
+            if said:
+                entry["warnings"] = said
             entry["sha256"] = sums
             self.manifest["chunks"][str(i)] = entry
             self._save_manifest()
         except OSError as exc:
             raise self._io_error(f"chunk {i}", exc) from None
 
-    def finish(self, attrs: Mapping[str, Any]):
+    def finish(self, attrs: Mapping[str, Any], said: list[dict[str, str]] | None = None):
         """After the last chunk: the variables that need every trajectory (the derive step over the stored
         outcomes, or a whole-set mapper over the stored records: basin statistics, entropy, ...) and the
-        run's attributes (wall time, steps, engines); the store then reads as the finished dataset."""
+        run's attributes (wall time, steps, engines); the store then reads as the finished dataset. Its
+        ``warnings_json``: what the outcome stage warned before the first chunk (``said``: the mapper's
+        preparation, done again by every run), with each chunk (kept in the manifest: a chunk of an interrupted
+        run says it still) and now (a whole-set mapper: run again on every finish), each once."""
         from . import dataset as D
         from . import derive
 
@@ -773,6 +780,7 @@ class ChunkStore:
             self.manifest["metadata"][ROOT] = REWRITING
             self.manifest["finished"] = False
             self._save_manifest()
+            derived = None
             if "outcome" in arrays or "solver_status" in arrays:
                 # stored outcomes (a per-trajectory mapper), or the whole-set mapper over every stored record
                 records = {"outcome": np.asarray(g["outcome"][...]).reshape(-1)} if "outcome" in arrays \
@@ -786,7 +794,8 @@ class ChunkStore:
                 added = {k: v for k, v in data.items() if k not in held}
                 if added:  # what needs every outcome (starts-file agreement, basin entropy; a whole-set mapper's all)
                     self._add_vars(added, coords)
-            _set_root_attrs(self.path, {**attrs, "stabjax_complete": 1})
+            told = derive.merged(said, derive.said_by_chunks(self.manifest), derived.warnings if derived is not None else None)
+            _set_root_attrs(self.path, {**attrs, **derive.warnings_attr(told), "stabjax_complete": 1})
             # everything else the store holds (basin statistics, a classification over the whole sweep):
             # checksummed as written, so that export and a resume read nothing else
             made = set(self.manifest.get("static") or {}) | set(self.manifest["arrays"])

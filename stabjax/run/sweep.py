@@ -128,15 +128,20 @@ class _Memory:
 
     def write(self, i: int, res: Mapping[str, np.ndarray], engine: str, info: Mapping[str, Any] | None = None):
         lo, hi = self.bounds(i)
-        for k, v in derive.chunk(self.plan, res, lo, hi, self.state).items():
+        said: list[dict[str, str]] = []
+        with derive.keeping(said):
+            rec = derive.chunk(self.plan, res, lo, hi, self.state)
+        for k, v in rec.items():
             if k not in self.results:
                 self.results[k] = np.empty((self.n, *v.shape[1:]), dtype=v.dtype)
             self.results[k][lo:hi] = v
         self.manifest["chunks"][str(i)] = {"engine": engine, "steps": int(np.asarray(res["n_steps"]).sum()),
-                                           **(info or {})}
+                                           **(info or {}), **({"warnings": said} if said else {})}
 
-    def dataset(self) -> xr.Dataset:
-        return assemble(self.plan, self.results, state=self.state)
+    def dataset(self, said: list[dict[str, str]] | None = None) -> xr.Dataset:
+        """The run's dataset; ``said``: what the outcome stage warned before the first chunk (:func:`run_plan`)."""
+        return assemble(self.plan, self.results, state=self.state,
+                        said=derive.merged(said, derive.said_by_chunks(self.manifest)))
 
     def close(self):
         pass
@@ -214,7 +219,9 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
         # the recurrence stop learns the attractors from the first chunk: an eighth of the run (_run_chunks)
         batch_size = min(choose_batch_size(plan, None, memory_limit), max(PILOT_MIN, -(-plan.size // 8)))
     batch = choose_batch_size(plan, batch_size, memory_limit)  # refuse impossible sizes before touching them
-    state = derive.prepare(plan)  # templates integrated and checked before the store exists: a refusal leaves nothing
+    early: list[dict[str, str]] = []  # what the outcome stage warns, kept in the result (derive.keeping)
+    with derive.keeping(early):
+        state = derive.prepare(plan)  # templates integrated and checked before the store exists: a refusal leaves nothing
     n = plan.size
     overrides = {k: v for k, v in (overrides or {}).items() if v is not None}
     sink = S.ChunkStore(store_path, plan, batch, overrides=overrides, restart=restart, template_features=state) \
@@ -228,11 +235,11 @@ def run_plan(plan: Plan, out: str | Path | None = None, *, batch_size: int | Non
                  **D.engine_attrs(sink.manifest, executor.describe() if executor is not None else "local",
                                   plan.engine_note)}
         if isinstance(sink, _Memory):
-            ds = sink.dataset()
+            ds = sink.dataset(early)
             ds.attrs.update(attrs)
             return ds
         try:
-            sink.finish(attrs)
+            sink.finish(attrs, said=early)
         except ValidationError:
             # the whole-set mapper refused every record (too many attractors for the outcome codes): a store of
             # these settings cannot give a result, and a run with others is another computation: none is kept
@@ -406,16 +413,24 @@ def run_spec(spec: Mapping[str, Any] | str | Path, out: str | Path | None = None
 
 
 def assemble(plan: Plan, results: Mapping[str, np.ndarray], *, state: Any = None, wall: float = float("nan"),
-             steps: int = 0, batch: int = 0, n_resumed: int = 0) -> xr.Dataset:
+             steps: int = 0, batch: int = 0, n_resumed: int = 0,
+             said: list[dict[str, str]] | None = None) -> xr.Dataset:
     """The Dataset of a plan from its per-trajectory records (every trajectory, flat (N, ...), as
     :func:`stabjax.run.derive.chunk` stores them, or the engines' raw results, whose records are derived
     here): the derive step over all of them, laid out by :func:`stabjax.run.dataset.build`. ``state``: the
-    mapper's (:func:`stabjax.run.derive.prepare`; integrated now when not given)."""
-    if state is None:
-        state = plan.mapper.prepare(plan)
-    if "outcome" not in results:  # the engines' results (a whole-set mapper's records are unchanged by it)
-        results = derive.chunk(plan, results, 0, plan.size, state)
+    mapper's (:func:`stabjax.run.derive.prepare`; integrated now when not given). ``said``: what the outcome
+    stage warned of these records before (the runner's: the mapper's preparation and each chunk's record), else
+    None (raw results: what the preparation and the records' derivation warn here); the result's
+    ``warnings_json`` holds it and what the mapper warns over every record (:func:`stabjax.run.derive.finish`)."""
+    kept: list[dict[str, str]] = []
+    with derive.keeping(kept):
+        if state is None:
+            state = plan.mapper.prepare(plan)
+        if "outcome" not in results:  # the engines' results (a whole-set mapper's records are unchanged by it)
+            results = derive.chunk(plan, results, 0, plan.size, state)
     derived = derive.finish(plan, results, state)
+    # records the runner derived already are derived again here (a whole-set mapper's): said once, by their chunks
+    derived.warnings = derive.merged(kept if said is None else said, derived.warnings)
     shape = plan.shape
     ds = D.build(plan, {k: np.asarray(v).reshape(shape + np.shape(v)[1:]) for k, v in results.items()}, derived)
     ds.attrs.update(D.run_attrs(wall=wall, steps=steps, batch=batch, n_resumed=n_resumed))

@@ -241,3 +241,42 @@ def test_a_theorem_is_held_against_named_outcomes():
     # the disc guarantees the origin and is the basin itself: nothing refuted, nothing conservative
     assert sentences[1:] == ["It guarantees 'origin'. Theory conservative (silent, ended in 'origin'): 0.",
                              "RED FLAGS (guaranteed 'origin', ended in another outcome): 0."]
+
+
+def test_what_the_sweep_warned_is_in_the_result_and_its_page(results, tmp_path, capsys):
+    """A reliability pass: what attractor discovery warned was printed on the terminal only, and the page of the
+    result listed the attractors it had called into doubt without a caveat. x' = x: 20 runaways counted as
+    'escaped' and said (UnboundedWarning): the terminal says it once, as before; the netCDF file and the kept
+    store hold it (``warnings_json``: class and text), and the page lists it under Warnings. A result of which
+    nothing was said holds an empty list and its page says so; one made before the attribute claims nothing."""
+    import html
+    import json
+    from pathlib import Path
+
+    import phase_line
+    from clirun import captured
+
+    from stabjax.present.report import _checked, stored_warnings
+
+    spec = tmp_path / "runaway.toml"
+    spec.write_text(f'system = "{Path(phase_line.__file__).resolve()}:PhaseLine"\nname = "runaway"\n'
+                    '[params]\na = 1.0\n[sample]\nn = 20\nseed = 0\nx0 = {dist = "uniform", low = -2.0, high = 2.0}\n'
+                    '[integrate]\nt1 = 20.0\nn_checkpoints = 40\n')
+    out = tmp_path / "r.nc"
+    code, _, err = captured(capsys, "sweep", spec, "--out", out, "--keep-store", "--no-progress", "--no-plot")
+    assert code == 0 and err.count("trajectories grow without bound") == 1, err
+    said = json.loads(open_result(out).attrs["warnings_json"])
+    assert [w["category"] for w in said] == ["UnboundedWarning"]
+    assert said[0]["message"].startswith("20 of 20 trajectories grow without bound over the feature window: "
+                                         "counted as 'escaped'")
+    assert json.loads(open_result(tmp_path / "r.nc.zarr").attrs["warnings_json"]) == said
+    assert run_cli("report", out) == 0
+    section = html.unescape(out.with_suffix(".html").read_text().split("<h2>Warnings</h2>")[1])
+    assert f"UnboundedWarning: {said[0]['message']}" in section and "None:" not in section
+    for which in ("basin", "verdicts"):  # nothing said by their outcome stage
+        ds = open_result(results[which])
+        assert ds.attrs["warnings_json"] == "[]" and stored_warnings(ds) == []
+        assert not [w for w in warnings(ds) if "Warning:" in w]
+        assert "no warning while the outcomes were found" in _checked(ds)
+        del ds.attrs["warnings_json"]
+        assert stored_warnings(ds) == [] and "no warning while the outcomes" not in _checked(ds)

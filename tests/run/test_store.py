@@ -290,6 +290,63 @@ def test_two_sweeps_on_one_output_at_once(spec, tmp_path, reference):
     assert_same(open_result(out), reference)
 
 
+def test_what_discovery_warns_is_kept_alike_resumed_or_not(tmp_path):
+    """A discovery's warnings are the result's (``warnings_json``, stabjax.run.derive.keeping): an interrupted run
+    resumed from its store, the netCDF file and `stabjax export` of the store hold what an uninterrupted run's
+    dataset holds, and the terminal still hears it."""
+    import phase_line
+    from stabjax.mapping.discover import UnboundedWarning
+
+    spec = phase_line.spec(1.0)  # x' = x: 20 runaways, counted as 'escaped', said (UnboundedWarning)
+    with pytest.warns(UnboundedWarning, match="20 of 20 trajectories grow without bound"):
+        said = json.loads(run_spec(spec).attrs["warnings_json"])
+    assert len(said) == 1 and said[0]["category"] == "UnboundedWarning"
+    assert said[0]["message"].startswith("20 of 20 trajectories grow without bound over the feature window")
+    out = tmp_path / "r.nc"
+    with pytest.raises(KeyboardInterrupt):
+        run_spec(spec, out, batch_size=10, on_chunk=interrupt_after(1))
+    with pytest.warns(UnboundedWarning, match="20 of 20"):
+        ds = run_spec(spec, out, keep_partial=True)
+    assert ds.attrs["chunks_resumed"] == 1
+    assert json.loads(ds.attrs["warnings_json"]) == said
+    assert json.loads(open_result(out).attrs["warnings_json"]) == said
+    export_store(tmp_path / "r.nc.zarr", tmp_path / "x.nc")
+    assert json.loads(open_result(tmp_path / "x.nc").attrs["warnings_json"]) == said
+
+
+def test_what_a_chunk_warns_is_kept_with_it_for_the_resumed_run(spec, tmp_path, monkeypatch):
+    """A per-trajectory mapper's warning is raised with each chunk's outcomes (none of the shipped ones warns):
+    it is kept in the chunk's manifest entry, so the resumed run's warnings_json says the first run's chunks'
+    too, as the uninterrupted run's does; another library's warning is shown, never kept."""
+    import warnings
+
+    from stabjax.mapping.discover import MixedWarning
+    from stabjax.mapping.verdicts import Verdicts
+
+    assign = Verdicts.assign
+
+    def warned(self, plan, results, index, state):
+        warnings.warn(f"trajectories {index[0]} to {index[-1]}", MixedWarning)
+        warnings.warn("a library's word", DeprecationWarning)
+        return assign(self, plan, results, index, state)
+
+    monkeypatch.setattr(Verdicts, "assign", warned)
+    plan = make_plan(load_spec(spec))
+    with pytest.warns(MixedWarning), pytest.warns(DeprecationWarning, match="a library's word"):
+        whole = json.loads(run_plan(plan, None, batch_size=4).attrs["warnings_json"])
+    assert whole == [{"category": "MixedWarning", "message": f"trajectories {4 * i} to {4 * i + 3}"} for i in range(4)]
+    out = tmp_path / "r.nc"
+    with pytest.raises(KeyboardInterrupt), pytest.warns(MixedWarning):
+        run_spec(spec, out, batch_size=4, on_chunk=interrupt_after(2))
+    assert S.read_manifest(tmp_path / "r.nc.zarr")["chunks"]["1"]["warnings"] == whole[1:2]
+    with pytest.warns(MixedWarning) as shown:  # the terminal hears what this run computes, as before
+        ds = run_spec(spec, out)
+    assert [str(w.message) for w in shown if w.category is MixedWarning] == ["trajectories 8 to 11",
+                                                                             "trajectories 12 to 15"]
+    assert ds.attrs["chunks_resumed"] == 2 and json.loads(ds.attrs["warnings_json"]) == whole
+    assert json.loads(open_result(out).attrs["warnings_json"]) == whole
+
+
 def test_lazy_assembly_for_big_sweeps(spec, tmp_path, monkeypatch, reference):
     """Above LAZY_ABOVE trajectories the netCDF file is written from the store chunk by chunk (dask);
     the file is the same."""
