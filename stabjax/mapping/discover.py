@@ -1065,7 +1065,7 @@ class Discovery(Mapper):
         places = _places(plan, disc, results, again, cfg.chaos_threshold)
         unstable = _unstable(plan, disc, places, again, results, cfg)
         if unstable:  # at a saddle, or by one: no attractor (unclassified, said)
-            said = [(int(disc.counts[k]), rest, _where(places.comps, x), g) for k, rest, x, g in unstable]
+            said = _by_place(disc, unstable, places.comps, plan.icfg)
             gone = {disc.names[k] for k, *_ in unstable}
             disc, places = _dropped(disc, places, {k for k, *_ in unstable}, renumber=events is None)
             if events is not None:
@@ -1709,6 +1709,23 @@ def _dropped(disc: Attractors, places: _Places, drop: set[int], renumber: bool) 
     moving = {int(to[i]): v for i, v in places.moving.items() if i not in drop}
     lost = [int(to[i]) for i in places.lost if i not in drop]
     return disc, _Places(places.comps, places.states[keep], places.final[keep], places.placed[keep], moving, lost)
+
+
+def _by_place(disc: Attractors, unstable, comps: list[str], icfg) -> list[tuple[int, bool, str, float]]:
+    """What :func:`_warn_unstable` says: the groups of :func:`_unstable` at one equilibrium (within 100 tolerance
+    units, as :func:`_one_place` joins fixed points) counted together, once per place (May-Leonard: 108 and 10
+    trajectories by the one saddle (0, 1, 0) were said as two places); at rest where any of them rests."""
+    out: list[list] = []
+    for k, rest, x, g in unstable:
+        for o in out:
+            tol = icfg.atol + icfg.rtol * np.maximum(np.abs(o[4]), np.abs(x))
+            if np.all(np.abs(o[4] - x) <= 100.0 * tol):
+                o[0] += int(disc.counts[k])
+                o[1] = o[1] or rest
+                break
+        else:
+            out.append([int(disc.counts[k]), rest, _where(comps, x), g, np.asarray(x)])
+    return [tuple(o[:4]) for o in out]
 
 
 def _where(comps: list[str], x: np.ndarray) -> str:

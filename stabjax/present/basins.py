@@ -320,7 +320,7 @@ def format_summary(ds: xr.Dataset, max_points: int = 12) -> str:
     found = kit.attractors(ds)
     if found:
         lines.append("attractors found (where: the representative trajectory's state at t1; for one that moves, "
-                     "the late-window range of each observable):")
+                     "the late-window range of each observable, the median over its trajectories):")
         w = max(len(a["name"]) for a in found) + 2
         for a in found:
             lam = f", largest Lyapunov exponent {a['lyapunov']:.3g}" if np.isfinite(a["lyapunov"]) else ""

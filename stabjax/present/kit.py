@@ -260,6 +260,9 @@ def attractors(ds) -> list[dict[str, Any]]:
             obs = [n[4:-1] for n in feats if n.startswith("min(")]
             where = ", ".join(f"{o} in [{_num(f[feats.index(f'min({o})')])}, {_num(f[feats.index(f'max({o})')])}]"
                               for o in obs if f"max({o})" in feats)
+            cover = _cover(ds, str(name), f, feats)
+            if cover:
+                where += f"; its trajectories' windows cover {cover}"
         else:
             where = ""
         if where and on_grid:  # one grid point's place, not the attractor's everywhere
@@ -271,6 +274,41 @@ def attractors(ds) -> list[dict[str, Any]]:
                     "lyapunov": float(ds["attractor_lyapunov"].values[k]) if "attractor_lyapunov" in ds else np.nan,
                     "where": where})
     return out
+
+
+COVER_SHARE = 0.05  # of an observable's range: members' windows spreading beyond the typical one's by more are said
+
+
+def _cover(ds, name: str, f: np.ndarray, feats: list[str]) -> str:
+    """What the windows of attractor ``name``'s trajectories cover together, per observable (``x in [lo, hi]``),
+    where that reaches beyond the median window (``f``, the attractor's median features) by more than
+    ``COVER_SHARE`` of the observable's range; else "". A group of trajectories resting at a continuum of points
+    (x' = 0, y' = -y: a line of equilibria) was printed "x in [0.1647, 0.1647]", a typical member's window, while
+    its members rest all over [-1.97, 1.99]; a cycle's or a chaotic attractor's members cover about its median
+    window, and nothing is added."""
+    need = ("outcome", "feat_min", "feat_max", "observable_range")
+    if any(v not in ds for v in need) or "flag_meanings" not in ds["outcome"].attrs:
+        return ""
+    names = ds["outcome"].attrs["flag_meanings"].split()
+    if name not in names:
+        return ""
+    obs = [str(o) for o in ds["observable"].values]
+    lo_all = ds["feat_min"].transpose(..., "observable").values.reshape(-1, len(obs))
+    hi_all = ds["feat_max"].transpose(..., "observable").values.reshape(-1, len(obs))
+    mine = (ds["outcome"].values.reshape(-1) == names.index(name)) if lo_all.shape[0] == ds["outcome"].size else None
+    if mine is None or not mine.any():
+        return ""
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(lo_all[mine], axis=0), np.nanmax(hi_all[mine], axis=0)
+    scale = np.asarray(ds["observable_range"].values, float)
+    parts, wider = [], False
+    for i, o in enumerate(obs):
+        if f"min({o})" not in feats or f"max({o})" not in feats:
+            continue
+        m_lo, m_hi = f[feats.index(f"min({o})")], f[feats.index(f"max({o})")]
+        wider |= bool((m_lo - lo[i]) + (hi[i] - m_hi) > COVER_SHARE * scale[i])
+        parts.append(f"{o} in [{_num(lo[i])}, {_num(hi[i])}]")
+    return ", ".join(parts) if wider else ""
 
 
 def where_of(ds) -> dict[str, str]:

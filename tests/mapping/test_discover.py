@@ -1505,3 +1505,19 @@ def test_a_window_inside_a_chaotic_attractors_box_with_its_exponent_joins_it():
     rest, out = _join_chaotic(np.arange(n, n + 4), others, f, cfg)
     assert rest.tolist() == [n + 1, n + 2, n + 3]
     assert out[0][0].tolist() == list(range(n + 1)) and out[0][1] == "chaotic"
+
+
+def test_groups_by_one_unstable_equilibrium_are_said_as_one_place():
+    """May-Leonard: 108 and 10 trajectories lingering by the one saddle (0, 1, 0), grouped apart, were said as two
+    places (x = -9.2e-41 and x = 0); one place, 118 trajectories, and the other saddles each once."""
+    from types import SimpleNamespace
+
+    from stabjax.mapping.discover import _by_place
+
+    disc = SimpleNamespace(counts=np.array([108, 10, 6]))
+    icfg = SimpleNamespace(atol=1e-14, rtol=1e-10)
+    unstable = [(0, False, np.array([-9.184e-41, 1.0, 0.0]), 0.2), (1, True, np.array([0.0, 1.0, 0.0]), 0.2),
+                (2, False, np.array([1.0, 0.0, 0.0]), 0.2)]
+    said = _by_place(disc, unstable, ["x", "y", "z"], icfg)
+    assert [(n, rest) for n, rest, _, _ in said] == [(118, True), (6, False)]
+    assert said[1][2] == "x = 1, y = 0, z = 0"
