@@ -1521,3 +1521,32 @@ def test_groups_by_one_unstable_equilibrium_are_said_as_one_place():
     said = _by_place(disc, unstable, ["x", "y", "z"], icfg)
     assert [(n, rest) for n, rest, _, _ in said] == [(118, True), (6, False)]
     assert said[1][2] == "x = 1, y = 0, z = 0"
+
+
+def test_unclassified_trajectories_that_look_like_a_fixed_points_own_are_said():
+    """The linear weak focus x' = -0.001 x - y, y' = x - 0.001 y (100 starts, t1 = 500): its 4 innermost starts,
+    small circles DBSCAN kept apart, were unclassified with nothing said (4 %). A leftover with an exponent within the
+    fixed point's members' and a window mean within eps of theirs is said (not joined: a cycle's trajectory circling
+    a weak focus has an exponent near 0 too); one with another exponent, or elsewhere, is not."""
+    import warnings
+
+    from stabjax.mapping.discover import Attractors, TransientWarning, _circling, _warn_circling
+
+    n = 12
+    mean = np.r_[np.full(8, 0.01), 0.0, 0.02, 0.0, 1.5][:, None]
+    lam = np.r_[np.full(8, -0.001), -0.001, -0.001, 0.05, -0.001]
+    labels = np.r_[np.zeros(8, int), -1, -1, -1, -1]
+    results = {"lyapunov": lam, "feat_mean": mean, "feat_std": np.zeros((n, 1)), "feat_min": mean, "feat_max": mean}
+    disc = Attractors(labels=labels, names=["fixed_point_1"], types=["fixed_point"], counts=np.array([8]),
+                      features=np.zeros((1, 4)), feature_names=["mean(x)", "std(x)", "min(x)", "max(x)"],
+                      lyapunov=np.array([-0.001]), representative=np.array([0]), scale=np.array([4.0]))
+    from stabjax.mapping.discover import DiscoveryConfig
+
+    said = _circling(disc, results, ("x",), DiscoveryConfig(), np.ones(n, bool))
+    assert said == [("fixed_point_1", 2, -0.001, -0.001)]
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        _warn_circling(said, 0.05)
+    assert len(w) == 1 and issubclass(w[0].category, TransientWarning) and "2 unclassified" in str(w[0].message)
+    assert _circling(disc, {**results, "lyapunov": np.r_[lam[:8], 0.01, 0.01, 0.05, 0.01]}, ("x",),
+                     DiscoveryConfig(), np.ones(n, bool)) == []
