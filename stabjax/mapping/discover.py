@@ -1108,7 +1108,7 @@ class Discovery(Mapper):
         far = [r for r in disc.stats.get("still_far", ()) if r[3] > cfg.eps]
         if far:
             _warn_still_far(far, cfg.eps)
-        circling = _circling(disc, results, obs, cfg, status == 0)
+        circling = _circling(disc, results, obs, cfg, status == 0, plan.icfg.atol, plan.icfg.rtol)
         if circling:
             _warn_circling(circling, cfg.eps)
         # then the solver's word: an escape by the radius, a failure, or non-finite features (failed)
@@ -1731,20 +1731,26 @@ def _by_place(disc: Attractors, unstable, comps: list[str], icfg) -> list[tuple[
     return [tuple(o[:4]) for o in out]
 
 
-def _circling(disc: Attractors, results, observables, cfg: DiscoveryConfig, ok: np.ndarray
-              ) -> list[tuple[str, int, float, float]]:
+def _circling(disc: Attractors, results, observables, cfg: DiscoveryConfig, ok: np.ndarray, atol: float = 0.0,
+              rtol: float = 0.0) -> list[tuple[str, int, float, float]]:
     """Unclassified trajectories that look like a fixed point's own, still spiralling in: their exponent within the
     range of the fixed point's members' and their window mean within ``eps`` (scaled) of the members' median. Left
-    unclassified (a leftover joins a fixed point only with an exponent below ``-chaos_threshold``: a cycle's
+    unclassified (a leftover joins a fixed point only with an exponent below ``-chaos_threshold``, and never one it
+    ends apart from, :func:`_apart`, which needs the features: theta observed unwrapped, rest points 2 pi apart lie
+    within eps of each other on its range; a cycle's
     trajectory circling a weak focus would have one near 0 too), and said: the linear weak focus x' = -0.001 x - y,
     y' = x - 0.001 y left its 4 innermost starts of 100 unclassified, their windows small circles DBSCAN kept apart,
-    with nothing said (4 %, below the share the summary warns at). (name, count, exponent range low, high)."""
+    with nothing said (4 %, below the share the summary warns at). A leftover at rest is not spiralling in: it rests
+    elsewhere (a part too small for a group, :func:`_split_rest`). (name, count, exponent range low, high)."""
     if "lyapunov" not in results or not disc.names:
         return []
     lam = np.asarray(results["lyapunov"], float).reshape(-1)
     x, names = feature_table(results, observables)
     mean = x[:, [names.index(f"mean({o})") for o in observables]] / disc.scale
-    left = (disc.labels < 0) & ok & np.isfinite(lam) & np.all(np.isfinite(mean), axis=1)
+    left = (disc.labels < 0) & ok & np.isfinite(lam) & np.all(np.isfinite(x), axis=1)
+    tol = tolerances(results, left | (disc.labels >= 0), len(observables), atol, rtol)
+    std = x[:, [names.index(f"std({o})") for o in observables]]
+    left &= ~np.all(std <= rest_threshold(disc.scale, tol, cfg), axis=1)
     if disc.unbounded is not None:
         left &= ~disc.unbounded
     out = []
@@ -1767,8 +1773,9 @@ def _warn_circling(groups: list[tuple[str, int, float, float]], eps: float) -> N
 
     parts = "; ".join(f"{n} unclassified trajectories with exponents within {name}'s ({lo:.3g} to {hi:.3g}) and window "
                       f"means within eps = {eps:g} of it" for name, n, lo, hi in groups)
-    warnings.warn(f"{parts}: probably its own trajectories still spiralling in, left unclassified (their windows too "
-                  f"far apart to group); raise [integrate] t1", TransientWarning, stacklevel=3)
+    warnings.warn(f"{parts}: probably trajectories still spiralling in, to it or to an equilibrium near it, left "
+                  f"unclassified (their windows too far apart to group, or ending apart from it); raise [integrate] t1",
+                  TransientWarning, stacklevel=3)
 
 
 def _where(comps: list[str], x: np.ndarray) -> str:

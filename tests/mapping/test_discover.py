@@ -1527,16 +1527,18 @@ def test_unclassified_trajectories_that_look_like_a_fixed_points_own_are_said():
     """The linear weak focus x' = -0.001 x - y, y' = x - 0.001 y (100 starts, t1 = 500): its 4 innermost starts,
     small circles DBSCAN kept apart, were unclassified with nothing said (4 %). A leftover with an exponent within the
     fixed point's members' and a window mean within eps of theirs is said (not joined: a cycle's trajectory circling
-    a weak focus has an exponent near 0 too); one with another exponent, or elsewhere, is not."""
+    a weak focus has an exponent near 0 too); one with another exponent, or elsewhere, or at rest (resting at another
+    equilibrium, a part too small for a group), is not."""
     import warnings
 
     from stabjax.mapping.discover import Attractors, TransientWarning, _circling, _warn_circling
 
-    n = 12
-    mean = np.r_[np.full(8, 0.01), 0.0, 0.02, 0.0, 1.5][:, None]
-    lam = np.r_[np.full(8, -0.001), -0.001, -0.001, 0.05, -0.001]
-    labels = np.r_[np.zeros(8, int), -1, -1, -1, -1]
-    results = {"lyapunov": lam, "feat_mean": mean, "feat_std": np.zeros((n, 1)), "feat_min": mean, "feat_max": mean}
+    n = 13
+    mean = np.r_[np.full(8, 0.01), 0.0, 0.02, 0.0, 1.5, 0.01][:, None]
+    std = np.r_[np.full(12, 0.05), 0.0][:, None]  # the last at rest
+    lam = np.r_[np.full(8, -0.001), -0.001, -0.001, 0.05, -0.001, -0.001]
+    labels = np.r_[np.zeros(8, int), -1, -1, -1, -1, -1]
+    results = {"lyapunov": lam, "feat_mean": mean, "feat_std": std, "feat_min": mean - std, "feat_max": mean + std}
     disc = Attractors(labels=labels, names=["fixed_point_1"], types=["fixed_point"], counts=np.array([8]),
                       features=np.zeros((1, 4)), feature_names=["mean(x)", "std(x)", "min(x)", "max(x)"],
                       lyapunov=np.array([-0.001]), representative=np.array([0]), scale=np.array([4.0]))
@@ -1548,5 +1550,5 @@ def test_unclassified_trajectories_that_look_like_a_fixed_points_own_are_said():
         warnings.simplefilter("always")
         _warn_circling(said, 0.05)
     assert len(w) == 1 and issubclass(w[0].category, TransientWarning) and "2 unclassified" in str(w[0].message)
-    assert _circling(disc, {**results, "lyapunov": np.r_[lam[:8], 0.01, 0.01, 0.05, 0.01]}, ("x",),
+    assert _circling(disc, {**results, "lyapunov": np.r_[lam[:8], 0.01, 0.01, 0.05, 0.01, 0.01]}, ("x",),
                      DiscoveryConfig(), np.ones(n, bool)) == []
