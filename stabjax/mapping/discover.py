@@ -1062,7 +1062,10 @@ class Discovery(Mapper):
                                   "raise eps or min_samples")
         # where each attractor is, before anything is said of it by name: fixed points found at one equilibrium are
         # one attractor (merged; under continuation, whose names are matched point by point, said)
-        places = _places(plan, disc, results, again, cfg.chaos_threshold)
+        places = _places(plan, disc, results, again, cfg.chaos_threshold, retype=events is None)
+        if places.retyped:  # untyped approaches heading for a stable equilibrium: fixed points placed there
+            disc, places = _retyped(disc, places)
+            names, colors = outcome_names(decl, tuple(disc.names), escape)
         unstable = _unstable(plan, disc, places, again, results, cfg)
         if unstable:  # at a saddle, or by one: no attractor (unclassified, said)
             said = _by_place(disc, unstable, places.comps, plan.icfg)
@@ -1329,10 +1332,15 @@ class _Places:
     placed: np.ndarray
     moving: dict[int, float]
     lost: list[int]
+    retyped: tuple[int, ...] = ()  # untyped approaches placed ahead (:func:`_places`): fixed points
 
 
-def _places(plan, disc: Attractors, results, again: Again, chaos: float) -> _Places:
-    """Each attractor's place; nothing is said here (:func:`_say_places`, after the names are final)."""
+def _places(plan, disc: Attractors, results, again: Again, chaos: float, retype: bool = False) -> _Places:
+    """Each attractor's place; nothing is said here (:func:`_say_places`, after the names are final). ``retype``:
+    an untyped group said to be still in a transient whose representative heads for a hyperbolic stable equilibrium
+    (:func:`_ahead`) is placed there and listed in ``retyped``, to be typed a fixed point (:func:`_retyped`): slow
+    nodes x' = -k sin(pi x), y' = -20 (y - 0.1 x^2) at k = 0.006 left 10 starts bound for (0, 0) an untyped
+    ``attractor_1`` beside ``fixed_point_1`` there (their exponent -0.0073, too near 0 to type them)."""
     a = len(disc.names)
     comps = [f"{name}" if not shape else f"{name}_{'_'.join(map(str, i))}"
              for name, shape in plan.system.state for i in (np.ndindex(shape) if shape else [()])]
@@ -1355,7 +1363,41 @@ def _places(plan, disc: Attractors, results, again: Again, chaos: float) -> _Pla
                 placed[k], spread = _place_fixed_point(plan, int(rep), again, states, final, k, chaos)
                 if spread is not None:
                     moving[k] = spread
-    return _Places(comps, states, final, placed, moving, lost)
+    retyped = []
+    if a and retype and is_autonomous(plan.system):
+        transient = set(disc.stats.get("transient", ()))
+        for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
+            rep = int(rep)
+            if t == "attractor" and disc.names[k] in transient and np.all(np.isfinite(states[k])) \
+                    and _equilibrium_inside(plan, rep, again)[:2] == ("none", None) \
+                    and _equilibrium_inside(plan, rep, again)[3] is None and _ahead(plan, rep, again, chaos):
+                root = _newton(plan, rep, again)
+                states[k], final[k], placed[k] = root.x, root.obs[: final.shape[1]], 2
+                retyped.append(k)
+    return _Places(comps, states, final, placed, moving, lost, tuple(retyped))
+
+
+def _retyped(disc: Attractors, places: _Places) -> tuple[Attractors, _Places]:
+    """The attractors ``places.retyped`` typed fixed points, every name numbered again within its type in order,
+    the names in ``stats`` changed with them, and the retyped ones no longer said to be untyped transients."""
+    import dataclasses
+
+    types = ["fixed_point" if k in places.retyped else t for k, t in enumerate(disc.types)]
+    seen: dict[str, int] = {}
+    names = []
+    for t in types:
+        seen[t] = seen.get(t, 0) + 1
+        names.append(f"{t}_{seen[t]}")
+    rename = dict(zip(disc.names, names))
+    gone = {disc.names[k] for k in places.retyped}
+    stats = dict(disc.stats)
+    for key, v in disc.stats.items():
+        if isinstance(v, list):
+            stats[key] = [(rename.get(x, x) if isinstance(x, str) else
+                           tuple(rename.get(y, y) if isinstance(y, str) else y for y in x) if isinstance(x, tuple) else x)
+                          for x in v if not (key == "transient" and x in gone)]
+    disc = dataclasses.replace(disc, names=names, types=types, stats=stats)
+    return disc, dataclasses.replace(places, retyped=())
 
 
 def _say_places(disc: Attractors, places: _Places) -> None:

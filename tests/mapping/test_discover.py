@@ -1552,3 +1552,45 @@ def test_unclassified_trajectories_that_look_like_a_fixed_points_own_are_said():
     assert len(w) == 1 and issubclass(w[0].category, TransientWarning) and "2 unclassified" in str(w[0].message)
     assert _circling(disc, {**results, "lyapunov": np.r_[lam[:8], 0.01, 0.01, 0.05, 0.01, 0.01]}, ("x",),
                      DiscoveryConfig(), np.ones(n, bool)) == []
+
+
+def _sine_nodes():
+    import jax.numpy as jnp
+
+    from stabjax import Param, ParamSet
+
+    Relax, _ = _relax()
+
+    class SineNodes(Relax):
+        """x' = -k sin(pi x), y' = -20 (y - 0.1 x^2): stable nodes at even x, saddles at odd x; slow (k = 0.006).
+        Newton's method on sin(pi x) from x ~ 0.45 jumps to x = -2, past the saddle at -1."""
+
+        name = "sine_nodes_test"
+        params = ParamSet((*Relax.params.params, Param("k", 0.006, "rate")))
+
+        def rhs(self, t, y, p):
+            return jnp.stack([-p["k"] * jnp.sin(jnp.pi * y[0]), -20.0 * (y[1] - 0.1 * y[0] ** 2)])
+
+    return SineNodes
+
+
+def test_an_untyped_approach_heading_for_a_fixed_point_is_that_fixed_point():
+    """Slow nodes x' = -0.006 sin(pi x), 200 starts with |x0| < 0.95, t1 = 100: every start goes to (0, 0) (SciPy), but
+    10 of them, their exponent (-0.007) too near 0 to type, were an untyped attractor_1 beside fixed_point_1 at (0, 0)
+    (the seventh reliability pass). An untyped group still approaching, whose representative heads for a hyperbolic
+    stable equilibrium, is a fixed point placed there, and one with the fixed point already there. Newton's jumps
+    to x = +-2 are refused (no start is placed there)."""
+    rng = np.random.default_rng(1)
+    box = {"n": 200, "seed": 8, "x0": {"dist": "uniform", "low": -0.95, "high": 0.95},
+           "y0": {"dist": "uniform", "low": -1.0, "high": 1.0}}
+    ds, names, _ = _discovered(_sine_nodes(), box, 100.0, {}, UserWarning)
+    assert names[0] == "fixed_point_1" and "attractor_1" not in names and not any(n.startswith("fixed_point_2")
+                                                                                for n in names), names
+    np.testing.assert_allclose(ds["attractor_state"].values[0], [0.0, 0.0], atol=1e-8)
+    assert set(ds["attractor_type"].values) == {"fixed_point"}
+    k = 0.006
+    starts = np.stack([ds["x0_sample"].values.ravel(), ds["y0_sample"].values.ravel()], axis=1)
+    for a, b in starts[rng.choice(len(starts), 8, replace=False)]:
+        end = solve_ivp(lambda t, y: [-k * np.sin(np.pi * y[0]), -20.0 * (y[1] - 0.1 * y[0] ** 2)], (0.0, 3000.0),
+                        [a, b], method="DOP853", rtol=1e-11, atol=1e-14).y[:, -1]
+        assert np.hypot(*end) < 1e-9
