@@ -75,7 +75,9 @@ so an attractor keeps one name across the grid, as Attractors.jl's ``FeaturizeGr
    exponent of a cycle is off zero by up to ln(max|f| / min|f| along it) / (window length): keep the
    window long where a cycle is strongly relaxational. Without the exponent (``lyapunov = false``) a
    group not at rest is ``attractor``; where it, or an unclassified trajectory, ends its window in a
-   monotone approach, a :class:`TransientWarning` says that t1 did not outlast the transient.
+   monotone approach, a :class:`TransientWarning` says that t1 did not outlast the transient -- unless the
+   approach heads for a hyperbolic stable equilibrium, which it then is (:func:`_places`, with or without
+   the exponent).
    Names: the type and a number, ``fixed_point_1``, ``limit_cycle_1``, ``chaotic_1``, ... numbered
    by decreasing basin size within each type. A fixed point that rests at, or lingers by, an unstable
    equilibrium (a start on a saddle's stable manifold, a heteroclinic cycle watched too briefly) is no
