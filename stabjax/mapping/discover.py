@@ -1370,9 +1370,10 @@ def _places(plan, disc: Attractors, results, again: Again, chaos: float, retype:
         transient = set(disc.stats.get("transient", ()))
         for k, (t, rep) in enumerate(zip(disc.types, disc.representative)):
             rep = int(rep)
-            if t == "attractor" and disc.names[k] in transient and np.all(np.isfinite(states[k])) \
-                    and _equilibrium_inside(plan, rep, again)[:2] == ("none", None) \
-                    and _equilibrium_inside(plan, rep, again)[3] is None and _ahead(plan, rep, again, chaos):
+            if t != "attractor" or disc.names[k] not in transient or not np.all(np.isfinite(states[k])):
+                continue
+            found, _, _, spread = _equilibrium_inside(plan, rep, again)
+            if found == "none" and spread is None and _ahead(plan, rep, again, chaos):  # a monotone approach
                 root = _newton(plan, rep, again)
                 states[k], final[k], placed[k] = root.x, root.obs[: final.shape[1]], 2
                 retyped.append(k)
@@ -1385,19 +1386,13 @@ def _retyped(disc: Attractors, places: _Places) -> tuple[Attractors, _Places]:
     import dataclasses
 
     types = ["fixed_point" if k in places.retyped else t for k, t in enumerate(disc.types)]
-    seen: dict[str, int] = {}
-    names = []
-    for t in types:
-        seen[t] = seen.get(t, 0) + 1
-        names.append(f"{t}_{seen[t]}")
+    names = _numbered(types)
     rename = dict(zip(disc.names, names))
     gone = {disc.names[k] for k in places.retyped}
     stats = dict(disc.stats)
     for key, v in disc.stats.items():
         if isinstance(v, list):
-            stats[key] = [(rename.get(x, x) if isinstance(x, str) else
-                           tuple(rename.get(y, y) if isinstance(y, str) else y for y in x) if isinstance(x, tuple) else x)
-                          for x in v if not (key == "transient" and x in gone)]
+            stats[key] = [_renamed(x, rename) for x in v if not (key == "transient" and x in gone)]
     disc = dataclasses.replace(disc, names=names, types=types, stats=stats)
     return disc, dataclasses.replace(places, retyped=())
 
@@ -1628,6 +1623,26 @@ def _warn_one_place(disc: Attractors, pairs: list[tuple[int, int]]) -> None:
                       f"[integrate] t1", TransientWarning, stacklevel=3)
 
 
+def _numbered(types: list[str]) -> list[str]:
+    """Names ``<type>_<n>``, numbered in order within each type."""
+    seen: dict[str, int] = {}
+    names = []
+    for t in types:
+        seen[t] = seen.get(t, 0) + 1
+        names.append(f"{t}_{seen[t]}")
+    return names
+
+
+def _renamed(v, rename: dict[str, str]):
+    """A ``stats`` entry with its names changed: a name, or a tuple (name, ...) with another group's name further on
+    (still_far's nearest)."""
+    if isinstance(v, str):
+        return rename.get(v, v)
+    if isinstance(v, tuple):
+        return tuple(rename.get(x, x) if isinstance(x, str) else x for x in v)
+    return v
+
+
 def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> tuple[Attractors, _Places]:
     """One attractor of fixed points found at one equilibrium (:func:`_one_place`): each pair's groups joined
     under the name of the larger (the first: groups are ordered by type, then size), their counts added, the place
@@ -1653,11 +1668,7 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
     labels = np.where(disc.labels >= 0, to[np.maximum(disc.labels, 0)], disc.labels)
     counts = np.bincount(to, weights=disc.counts, minlength=len(keep)).astype(np.int64)
     types = [disc.types[i] for i in keep]
-    seen: dict[str, int] = {}
-    names = []
-    for t in types:
-        seen[t] = seen.get(t, 0) + 1
-        names.append(f"{t}_{seen[t]}")
+    names = _numbered(types)
     rename = {disc.names[i]: names[to[i]] for i in range(len(disc.names))}
     states, final, placed = places.states.copy(), places.final.copy(), places.placed.copy()
     for i in range(len(disc.names)):  # the merged attractor's place: the equilibrium Newton found, if any did
@@ -1665,18 +1676,11 @@ def _merged(disc: Attractors, places: _Places, pairs: list[tuple[int, int]]) -> 
         if placed[i] and not placed[r]:
             states[r], final[r], placed[r] = states[i], final[i], 1
 
-    def renamed(v):
-        if isinstance(v, str):
-            return rename.get(v, v)
-        if isinstance(v, tuple):  # (name, ...), some with another group's name further on (still_far's nearest)
-            return tuple(rename.get(x, x) if isinstance(x, str) else x for x in v)
-        return v
-
     stats = dict(disc.stats)
     for key, v in disc.stats.items():
         if isinstance(v, list):
             out, first = [], set()
-            for item in map(renamed, v):
+            for item in (_renamed(x, rename) for x in v):
                 name = item if isinstance(item, str) else (item[0] if isinstance(item, tuple) and item else None)
                 if name is not None and name in first:
                     continue
@@ -1731,13 +1735,7 @@ def _dropped(disc: Attractors, places: _Places, drop: set[int], renumber: bool) 
     to = np.full(len(disc.names), -1, np.int64)
     to[keep] = np.arange(len(keep))
     labels = np.where(disc.labels >= 0, to[np.maximum(disc.labels, 0)], disc.labels)
-    names = [disc.names[i] for i in keep]
-    if renumber:
-        seen: dict[str, int] = {}
-        names = []
-        for i in keep:
-            seen[disc.types[i]] = seen.get(disc.types[i], 0) + 1
-            names.append(f"{disc.types[i]}_{seen[disc.types[i]]}")
+    names = _numbered([disc.types[i] for i in keep]) if renumber else [disc.names[i] for i in keep]
     rename = {disc.names[i]: names[to[i]] for i in keep}
     gone = {disc.names[i] for i in drop}
 
@@ -1747,9 +1745,7 @@ def _dropped(disc: Attractors, places: _Places, drop: set[int], renumber: bool) 
     stats = dict(disc.stats)
     for key, v in disc.stats.items():
         if isinstance(v, list):
-            stats[key] = [(rename.get(x, x) if isinstance(x, str) else
-                           tuple(rename.get(y, y) if isinstance(y, str) else y for y in x) if isinstance(x, tuple) else x)
-                          for x in v if about(x) not in gone]
+            stats[key] = [_renamed(x, rename) for x in v if about(x) not in gone]
     disc = dataclasses.replace(disc, labels=labels, names=names, types=[disc.types[i] for i in keep],
                                counts=disc.counts[keep], features=disc.features[keep], lyapunov=disc.lyapunov[keep],
                                representative=disc.representative[keep], stats=stats)
